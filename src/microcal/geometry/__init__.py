@@ -1,0 +1,30 @@
+"""Camera geometry (pure math layer): camera model, projection matrices, triangulation.
+
+Everything here depends on numpy and scipy only. Lengths are in micrometres, image
+coordinates in pixels (OpenCV's convention: (x, y) = (column, row), origin at the centre of
+the top-left pixel), points are rows.
+"""
+
+from .camera_model import CameraModel
+from .projection_matrix import (
+    camera_centre,
+    decompose_projection_matrix,
+    estimate_projection_matrix,
+    project_points,
+)
+from .reprojection import ReprojectionSummary, reprojection_error, summarize_errors
+from .triangulation import triangulate, triangulate_optimal, triangulation_covariance
+
+__all__ = [
+    "CameraModel",
+    "ReprojectionSummary",
+    "camera_centre",
+    "decompose_projection_matrix",
+    "estimate_projection_matrix",
+    "project_points",
+    "reprojection_error",
+    "summarize_errors",
+    "triangulate",
+    "triangulate_optimal",
+    "triangulation_covariance",
+]

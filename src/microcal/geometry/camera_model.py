@@ -1,0 +1,342 @@
+"""The pinhole camera with lens distortion of thesis Eq 3.3-3.6.
+
+A point ``p`` in the world frame (µm) goes to the camera frame by ``c = R p + t``, to
+normalised image coordinates ``(x, y) = (c_x / c_z, c_y / c_z)``, through the lens distortion
+(radial k1, k2, k3 and tangential p1, p2, the model OpenCV uses), and to pixels by the
+intrinsic matrix ``K = [[fx, s, cx], [0, fy, cy], [0, 0, 1]]``. Without distortion this is
+``q ~ P [p; 1]`` with ``P = K [R | t]`` (Eq 3.6).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .._validation import FloatArray, as_array, as_rows
+from ..errors import InputError
+
+__all__ = ["CameraModel", "distort_normalized", "undistort_normalized"]
+
+_ORTHONORMAL_TOL = 1e-9
+
+
+def distort_normalized(xy: FloatArray, dist: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Apply the lens distortion to normalised image coordinates.
+
+    Parameters
+    ----------
+    xy : (N, 2) float
+        Ideal normalised coordinates (x, y) = (c_x / c_z, c_y / c_z).
+    dist : (5,) float
+        k1, k2, p1, p2, k3.
+
+    Returns
+    -------
+    xy_d : (N, 2) float
+        Distorted normalised coordinates.
+    jac : (N, 2, 2) float
+        d xy_d / d xy.
+    """
+    k1, k2, p1, p2, k3 = dist
+    x = xy[:, 0]
+    y = xy[:, 1]
+    xx, yy, xy_ = x * x, y * y, x * y
+    r2 = xx + yy
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    dradial = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d radial / d r2
+    out = np.empty_like(xy)
+    out[:, 0] = x * radial + 2.0 * p1 * xy_ + p2 * (r2 + 2.0 * xx)
+    out[:, 1] = y * radial + p1 * (r2 + 2.0 * yy) + 2.0 * p2 * xy_
+    jac = np.empty((xy.shape[0], 2, 2))
+    cross = 2.0 * xy_ * dradial + 2.0 * p1 * x + 2.0 * p2 * y
+    jac[:, 0, 0] = radial + 2.0 * xx * dradial + 2.0 * p1 * y + 6.0 * p2 * x
+    jac[:, 0, 1] = cross
+    jac[:, 1, 0] = cross
+    jac[:, 1, 1] = radial + 2.0 * yy * dradial + 6.0 * p1 * y + 2.0 * p2 * x
+    return out, jac
+
+
+def undistort_normalized(
+    xy_d: FloatArray,
+    dist: FloatArray,
+    scale_px: FloatArray,
+    *,
+    tol_px: float = 1e-6,
+    max_iter: int = 30,
+) -> FloatArray:
+    """Invert :func:`distort_normalized` by Newton's method, vectorised over points.
+
+    Parameters
+    ----------
+    xy_d : (N, 2) float
+        Distorted normalised coordinates.
+    dist : (5,) float
+        k1, k2, p1, p2, k3.
+    scale_px : (2, 2) float
+        The linear part of K (``[[fx, s], [0, fy]]``): the convergence test is done in pixels.
+    tol_px : float
+        Stop a point when re-distorting it lands within ``tol_px`` pixels of the input.
+    max_iter : int
+        Newton iterations at most.
+
+    Returns
+    -------
+    xy : (N, 2) float
+        Ideal normalised coordinates; NaN where Newton's method did not converge (far outside
+        the image, where a strong distortion model folds over).
+    """
+    xy = xy_d.copy()
+    active = np.ones(xy.shape[0], dtype=bool)
+    for _ in range(max_iter):
+        if not active.any():
+            break
+        cur = xy[active]
+        fwd, jac = distort_normalized(cur, dist)
+        res = fwd - xy_d[active]
+        err_px = np.abs(res @ scale_px.T).max(axis=1)
+        done = err_px <= tol_px
+        det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            step_x = (jac[:, 1, 1] * res[:, 0] - jac[:, 0, 1] * res[:, 1]) / det
+            step_y = (jac[:, 0, 0] * res[:, 1] - jac[:, 1, 0] * res[:, 0]) / det
+        # The step is taken by converged points too: Newton's quadratic convergence then
+        # leaves them far below the tolerance on the ideal side as well.
+        cur[:, 0] -= step_x
+        cur[:, 1] -= step_y
+        xy[active] = cur
+        idx = np.flatnonzero(active)
+        active[idx[done]] = False
+    if active.any():
+        # One last check for the points whose final step converged.
+        idx = np.flatnonzero(active)
+        fwd, _ = distort_normalized(xy[idx], dist)
+        err_px = np.abs((fwd - xy_d[idx]) @ scale_px.T).max(axis=1)
+        bad = idx[~(err_px <= tol_px)]
+        xy[bad] = np.nan
+    return xy
+
+
+@dataclass(frozen=True, eq=False)
+class CameraModel:
+    """A calibrated camera: intrinsics, lens distortion and pose (thesis Eq 3.3-3.6).
+
+    Parameters
+    ----------
+    K : (3, 3) float
+        Intrinsic matrix ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]`` in pixels; fx, fy > 0.
+    dist : (4,) or (5,) float
+        Distortion k1, k2, p1, p2 and optionally k3 (OpenCV's order); stored as (5,).
+    R : (3, 3) float
+        Rotation from the world frame {G} into the camera frame; orthonormal, det +1.
+    t_um : (3,) float
+        Translation in µm: a world point ``p`` is at ``R p + t_um`` in the camera frame.
+    image_size_px : (int, int)
+        Image width and height in pixels.
+    name : str
+        Free name of the camera ("top", "side", "left" ...).
+    """
+
+    K: FloatArray
+    dist: FloatArray
+    R: FloatArray
+    t_um: FloatArray
+    image_size_px: tuple[int, int]
+    name: str = field(default="camera")
+
+    def __post_init__(self) -> None:
+        K = as_array(self.K, "K", (3, 3))
+        if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
+            raise InputError(
+                f"K: expected upper triangular with K[2, 2] = 1, got rows {K.tolist()}"
+            )
+        if not (K[0, 0] > 0 and K[1, 1] > 0):
+            raise InputError(f"K: expected fx > 0 and fy > 0, got fx={K[0, 0]}, fy={K[1, 1]}")
+        dist = np.asarray(self.dist, dtype=np.float64)
+        if dist.shape == (4,):
+            dist = np.append(dist, 0.0)
+        dist = as_array(dist, "dist", (5,))
+        R = as_array(self.R, "R", (3, 3))
+        ortho = float(np.abs(R @ R.T - np.eye(3)).max())
+        if ortho > _ORTHONORMAL_TOL or np.linalg.det(R) < 0:
+            raise InputError(
+                f"R: expected a rotation (R R^T = I within {_ORTHONORMAL_TOL}, det +1), "
+                f"got deviation {ortho:.2e} and det {np.linalg.det(R):+.6f}"
+            )
+        t = as_array(self.t_um, "t_um", (3,))
+        size = tuple(int(v) for v in self.image_size_px)
+        if len(size) != 2 or min(size) <= 0:
+            raise InputError(
+                f"image_size_px: expected (width, height) > 0, got {self.image_size_px}"
+            )
+        for key, value in (("K", K), ("dist", dist), ("R", R), ("t_um", t)):
+            value.setflags(write=False)
+            object.__setattr__(self, key, value)
+        object.__setattr__(self, "image_size_px", size)
+
+    # --- construction -------------------------------------------------------------------
+    @classmethod
+    def from_projection_matrix(
+        cls,
+        P: ArrayLike,
+        image_size_px: tuple[int, int],
+        dist: ArrayLike | None = None,
+        name: str = "camera",
+    ) -> CameraModel:
+        """Build a camera from a 3x4 projection matrix (world in µm) by RQ decomposition.
+
+        Parameters
+        ----------
+        P : (3, 4) float
+            Projection matrix, any scale and sign.
+        image_size_px : (int, int)
+            Width and height.
+        dist : (4,) or (5,) float, optional
+            Distortion; zero by default.
+        """
+        from .projection_matrix import decompose_projection_matrix
+
+        K, R, t = decompose_projection_matrix(P)
+        K = K.copy()
+        K[1, 0] = K[2, 0] = K[2, 1] = 0.0
+        K[2, 2] = 1.0
+        return cls(K, np.zeros(5) if dist is None else np.asarray(dist, float), R, t,
+                   image_size_px, name)
+
+    # --- derived quantities -------------------------------------------------------------
+    @property
+    def P(self) -> FloatArray:
+        """(3, 4) projection matrix ``K [R | t]`` of the undistorted camera (world in µm)."""
+        return np.asarray(self.K @ np.hstack([self.R, self.t_um[:, None]]), dtype=np.float64)
+
+    @property
+    def centre_um(self) -> FloatArray:
+        """(3,) position of the projection centre in the world frame, µm."""
+        return np.asarray(-self.R.T @ self.t_um, dtype=np.float64)
+
+    @property
+    def has_distortion(self) -> bool:
+        """True if any distortion coefficient is non-zero."""
+        return bool(np.any(self.dist != 0))
+
+    # --- projection ---------------------------------------------------------------------
+    def _to_normalized(self, p: FloatArray) -> tuple[FloatArray, FloatArray]:
+        c = p @ self.R.T + self.t_um
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xy = c[:, :2] / c[:, 2:3]
+        return xy, c
+
+    def _to_pixels(self, xy: FloatArray) -> FloatArray:
+        K = self.K
+        q = np.empty_like(xy)
+        q[:, 0] = K[0, 0] * xy[:, 0] + K[0, 1] * xy[:, 1] + K[0, 2]
+        q[:, 1] = K[1, 1] * xy[:, 1] + K[1, 2]
+        return q
+
+    def project(self, p_um: ArrayLike, *, distort: bool = True) -> FloatArray:
+        """Project world points into the image.
+
+        Parameters
+        ----------
+        p_um : (N, 3) or (3,) float
+            Points in the world frame {G}, µm.
+        distort : bool
+            Apply the lens distortion (the real camera) or not (the ideal pinhole ``P``).
+
+        Returns
+        -------
+        q_px : (N, 2) float
+            Pixel coordinates (x, y). Points at or behind the projection centre give NaN.
+        """
+        p = as_rows(p_um, "p_um", 3)
+        xy, c = self._to_normalized(p)
+        if distort and self.has_distortion:
+            xy, _ = distort_normalized(xy, self.dist)
+        q = self._to_pixels(xy)
+        q[c[:, 2] <= 0] = np.nan
+        return q
+
+    def project_jacobian(self, p_um: ArrayLike, *, distort: bool = True) -> FloatArray:
+        """Derivative of :meth:`project` with respect to the world point.
+
+        Parameters
+        ----------
+        p_um : (N, 3) or (3,) float
+            Points in {G}, µm.
+
+        Returns
+        -------
+        jac : (N, 2, 3) float
+            d q_px / d p_um, pixels per µm.
+        """
+        p = as_rows(p_um, "p_um", 3)
+        xy, c = self._to_normalized(p)
+        n = p.shape[0]
+        dxy_dc = np.zeros((n, 2, 3))
+        inv_z = 1.0 / c[:, 2]
+        dxy_dc[:, 0, 0] = inv_z
+        dxy_dc[:, 1, 1] = inv_z
+        dxy_dc[:, 0, 2] = -xy[:, 0] * inv_z
+        dxy_dc[:, 1, 2] = -xy[:, 1] * inv_z
+        jac = dxy_dc @ self.R
+        if distort and self.has_distortion:
+            _, djac = distort_normalized(xy, self.dist)
+            jac = djac @ jac
+        out: FloatArray = self.K[:2, :2] @ jac
+        return out
+
+    def undistort_px(
+        self, q_px: ArrayLike, *, tol_px: float = 1e-6, max_iter: int = 30
+    ) -> FloatArray:
+        """Remove the lens distortion from observed pixels.
+
+        Parameters
+        ----------
+        q_px : (N, 2) or (2,) float
+            Observed (distorted) pixel coordinates.
+        tol_px : float
+            Convergence: re-distorting the result reproduces the input within ``tol_px``.
+        max_iter : int
+            Newton iterations at most.
+
+        Returns
+        -------
+        q_ideal_px : (N, 2) float
+            Pixels of the ideal pinhole camera ``P`` (same K, no distortion). NaN where the
+            iteration did not converge (only far outside the image for sane distortion).
+        """
+        q = as_rows(q_px, "q_px", 2)
+        if not self.has_distortion:
+            return q.copy()
+        A = self.K[:2, :2]
+        xy_d = np.linalg.solve(A, (q - self.K[:2, 2]).T).T
+        xy = undistort_normalized(xy_d, self.dist, A, tol_px=tol_px, max_iter=max_iter)
+        return self._to_pixels(xy)
+
+    def distort_px(self, q_ideal_px: ArrayLike) -> FloatArray:
+        """Apply the lens distortion to ideal pinhole pixels (inverse of :meth:`undistort_px`).
+
+        Parameters
+        ----------
+        q_ideal_px : (N, 2) or (2,) float
+
+        Returns
+        -------
+        q_px : (N, 2) float
+        """
+        q = as_rows(q_ideal_px, "q_ideal_px", 2)
+        if not self.has_distortion:
+            return q.copy()
+        A = self.K[:2, :2]
+        xy = np.linalg.solve(A, (q - self.K[:2, 2]).T).T
+        xy_d, _ = distort_normalized(xy, self.dist)
+        return self._to_pixels(xy_d)
+
+    def __repr__(self) -> str:
+        fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
+        w, h = self.image_size_px
+        return (
+            f"CameraModel(name={self.name!r}, {w}x{h} px, fx={fx:.1f}, fy={fy:.1f}, "
+            f"cx={cx:.1f}, cy={cy:.1f}, dist={np.round(self.dist, 6).tolist()})"
+        )

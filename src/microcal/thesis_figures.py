@@ -1,0 +1,60 @@
+"""Figures published in the thesis that microcal reproduces and compares against.
+
+Source: "Vision based automatic calibration of microrobotic system", master's thesis,
+Tampere University of Technology, 2012. Section numbers are the thesis's. Pure data.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._validation import FloatArray
+
+__all__ = [
+    "P_SIDE_MM",
+    "P_TOP_MM",
+    "REPROJECTION_ERROR_SIDE_PX",
+    "REPROJECTION_ERROR_TOP_PX",
+    "SIDE_IMAGE_SIZE_PX",
+    "TOP_IMAGE_SIZE_PX",
+    "projection_matrix_um",
+]
+
+#: Section 5.1: camera matrix P of the top camera, world in millimetres (three significant digits).
+P_TOP_MM: FloatArray = np.array(
+    [
+        [1.49e04, -5.47e02, 7.09e02, 1.61e05],
+        [4.30e01, 1.17e04, 8.83e03, 7.93e04],
+        [-6.28e-03, -5.67e-01, 8.23e-01, 3.24e02],
+    ]
+)
+#: Section 5.1: camera matrix P' of the side camera, world in millimetres.
+P_SIDE_MM: FloatArray = np.array(
+    [
+        [1.28e04, 1.45e02, -4.54e02, 8.41e04],
+        [-9.99e01, 1.28e04, 5.45e02, 4.13e04],
+        [8.51e-02, -1.52e-04, 9.96e-01, 2.84e02],
+    ]
+)
+#: Section 5.1, by Eq 3.19.
+REPROJECTION_ERROR_TOP_PX = 0.090917014
+REPROJECTION_ERROR_SIDE_PX = 0.054174204
+#: Section 2.4: top camera 1600 x 1200 px; side camera 2452 x 2056 px, binned 2 x 2 in use.
+TOP_IMAGE_SIZE_PX = (1600, 1200)
+SIDE_IMAGE_SIZE_PX = (1226, 1028)
+
+
+def projection_matrix_um(P_mm: FloatArray) -> FloatArray:
+    """Convert a projection matrix for world points in mm into one for points in µm.
+
+    Parameters
+    ----------
+    P_mm : (3, 4) float
+
+    Returns
+    -------
+    P_um : (3, 4) float
+        ``P_um [p_um; 1] = P_mm [p_mm; 1] / 1000``: the same image points.
+    """
+    out: FloatArray = np.hstack([P_mm[:, :3], P_mm[:, 3:] * 1e3]) / 1e3
+    return out

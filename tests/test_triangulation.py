@@ -1,0 +1,178 @@
+"""Triangulation (Eq 3.18): linear and optimal, against OpenCV, and its covariance."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from microcal import (
+    InputError,
+    reprojection_error,
+    triangulate,
+    triangulate_optimal,
+    triangulation_covariance,
+)
+from microcal.synthetic import random_camera_pair, random_points
+
+CENTRE = np.array([4000.0, 4000.0, 2400.0])
+
+
+def views(cams, p):
+    return cams[0].project(p), cams[1].project(p)
+
+
+@pytest.mark.parametrize("method", ["linear", "optimal"])
+def test_round_trip_without_noise_thesis_cameras(thesis_pair, rng, method):
+    p = random_points(rng, 5000)
+    q1, q2 = views(thesis_pair, p)
+    got = triangulate(thesis_pair[0].P, thesis_pair[1].P, q1, q2, method=method)
+    # Metric: worst-case error relative to the point's distance from the origin.
+    assert np.max(np.linalg.norm(got - p, axis=1) / np.linalg.norm(p, axis=1)) < 1e-9
+
+
+@given(seed=st.integers(0, 2**32 - 1), method=st.sampled_from(["linear", "optimal"]))
+def test_round_trip_without_noise_random_geometry(seed, method):
+    rng = np.random.default_rng(seed)
+    centre = rng.uniform(-5e4, 5e4, 3)
+    cams = random_camera_pair(rng, centre)
+    p = centre + rng.uniform(-5000, 5000, size=(50, 3))
+    q1, q2 = views(cams, p)
+    got = triangulate(cams[0].P, cams[1].P, q1, q2, method=method)
+    assert np.max(np.linalg.norm(got - p, axis=1) / np.linalg.norm(p, axis=1)) < 1e-9
+
+
+def opencv_triangulate(P1, P2, q1, q2):
+    h = cv2.triangulatePoints(P1, P2, q1.T.copy(), q2.T.copy())
+    return (h[:3] / h[3]).T
+
+
+def test_linear_agrees_with_opencv(thesis_pair, rng):
+    P1, P2 = thesis_pair[0].P, thesis_pair[1].P
+    p = random_points(rng, 2000)
+    q1, q2 = views(thesis_pair, p)
+    ours = triangulate(P1, P2, q1, q2)
+    theirs = opencv_triangulate(P1, P2, q1, q2)
+    # Without noise: same point to 1e-9 relative.
+    assert np.max(np.linalg.norm(ours - theirs, axis=1) / np.linalg.norm(p, axis=1)) < 1e-9
+    # With 0.1 px noise both solve the same equations under different constraints; they agree
+    # to a small fraction of the error the noise causes.
+    n1, n2 = q1 + rng.normal(0, 0.1, q1.shape), q2 + rng.normal(0, 0.1, q2.shape)
+    ours = triangulate(P1, P2, n1, n2)
+    theirs = opencv_triangulate(P1, P2, n1, n2)
+    diff = np.linalg.norm(ours - theirs, axis=1)
+    err = np.linalg.norm(ours - p, axis=1)
+    assert np.sqrt(np.mean(diff**2)) < 0.05 * np.sqrt(np.mean(err**2))
+
+
+def test_optimal_never_reprojects_worse_than_linear(thesis_pair, rng):
+    P1, P2 = thesis_pair[0].P, thesis_pair[1].P
+    p = random_points(rng, 3000)
+    q1, q2 = views(thesis_pair, p)
+    q1 = q1 + rng.normal(0, 0.3, q1.shape)
+    q2 = q2 + rng.normal(0, 0.3, q2.shape)
+
+    def cost(x):
+        return reprojection_error(P1, x, q1) ** 2 + reprojection_error(P2, x, q2) ** 2
+
+    lin = triangulate(P1, P2, q1, q2)
+    opt = triangulate(P1, P2, q1, q2, method="optimal")
+    assert np.all(cost(opt) <= cost(lin) * (1 + 1e-12))
+    assert np.mean(cost(opt)) < np.mean(cost(lin))
+
+
+def test_optimal_is_a_stationary_point(thesis_pair, rng):
+    # At the optimum the gradient of the reprojection cost vanishes: check by finite differences.
+    P1, P2 = thesis_pair[0].P, thesis_pair[1].P
+    p = random_points(rng, 20)
+    q1, q2 = views(thesis_pair, p)
+    q1 = q1 + rng.normal(0, 0.5, q1.shape)
+    q2 = q2 + rng.normal(0, 0.5, q2.shape)
+    opt = triangulate_optimal(P1, P2, q1, q2)
+
+    def cost(x):
+        return reprojection_error(P1, x, q1) ** 2 + reprojection_error(P2, x, q2) ** 2
+
+    h = 1e-3
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = h
+        grad = (cost(opt + d) - cost(opt - d)) / (2 * h)
+        assert np.abs(grad).max() < 1e-6
+
+
+def test_covariance_matches_monte_carlo(thesis_pair, rng):
+    P1, P2 = thesis_pair[0].P, thesis_pair[1].P
+    sig1 = np.array([[0.207**2, 0.01], [0.01, 0.172**2]])  # thesis Table 4-1, one corner
+    sig2 = 0.09
+    points = random_points(rng, 4)
+    trials = 20000
+    for p in points:
+        q1, q2 = views(thesis_pair, p[None, :])
+        L1 = np.linalg.cholesky(sig1)
+        n1 = q1 + rng.normal(size=(trials, 2)) @ L1.T
+        n2 = q2 + rng.normal(0, sig2, size=(trials, 2))
+        est = triangulate_optimal(P1, P2, n1, n2, sig1, sig2)
+        cov = triangulation_covariance(P1, P2, p, sig1, sig2)[0]
+        sample = np.cov(est.T)
+        # Metric: variance along each principal direction of the prediction, relative.
+        w, V = np.linalg.eigh(cov)
+        along = np.einsum("ij,ik,kj->j", V, sample, V)
+        np.testing.assert_allclose(along, w, rtol=0.10)
+        # and the normalised errors have mean square 3 (three degrees of freedom).
+        d = est - p
+        m2 = np.einsum("ni,ij,nj->n", d, np.linalg.inv(cov), d)
+        assert m2.mean() == pytest.approx(3.0, rel=0.10)
+
+
+def test_covariance_shape_and_units(thesis_pair, rng):
+    P1, P2 = thesis_pair[0].P, thesis_pair[1].P
+    p = random_points(rng, 7)
+    cov = triangulation_covariance(P1, P2, p, 0.1, 0.1)
+    assert cov.shape == (7, 3, 3)
+    np.testing.assert_allclose(cov, np.transpose(cov, (0, 2, 1)))
+    assert np.all(np.linalg.eigvalsh(cov) > 0)
+    # Doubling the pixel noise doubles the standard deviations in µm.
+    cov2 = triangulation_covariance(P1, P2, p, 0.2, 0.2)
+    np.testing.assert_allclose(cov2, 4 * cov, rtol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("args", "kwargs", "match"),
+    [
+        ((np.eye(3), None, None, None), {}, r"P1: expected shape \(3, 4\), got \(3, 3\)"),
+        ((None, None, np.zeros((5, 3)), None), {}, r"q1_px: expected shape \(N, 2\), got \(5, 3\)"),
+        ((None, None, None, np.zeros((4, 2))), {}, "same number of points, got 5 and 4"),
+        ((None, None, np.full((5, 2), np.nan), None), {}, "q1_px: expected finite values"),
+        ((None, None, None, None), {"method": "svd"}, "method: expected 'linear' or 'optimal'"),
+    ],
+)
+def test_triangulate_rejects_bad_input(thesis_pair, args, kwargs, match):
+    defaults = (thesis_pair[0].P, thesis_pair[1].P, np.zeros((5, 2)), np.zeros((5, 2)))
+    full = [d if a is None else a for a, d in zip(args, defaults, strict=True)]
+    with pytest.raises(InputError, match=match):
+        triangulate(*full, **kwargs)
+
+
+@pytest.mark.parametrize(
+    ("cov", "match"),
+    [
+        (-0.1, "expected a positive pixel standard deviation"),
+        (np.array([[1.0, 2.0], [2.0, 1.0]]), "expected positive definite"),
+        (np.ones((3, 2, 2)), r"cov1_px2: expected shape \(5, 2, 2\), got \(3, 2, 2\)"),
+    ],
+)
+def test_covariance_rejects_bad_pixel_noise(thesis_pair, cov, match):
+    P1, P2 = thesis_pair[0].P, thesis_pair[1].P
+    with pytest.raises(InputError, match=match):
+        triangulation_covariance(P1, P2, np.ones((5, 3)), cov, 0.1)
+
+
+def test_single_pair_is_accepted(thesis_pair):
+    p = np.array([1000.0, 2000.0, 500.0])
+    q1, q2 = views(thesis_pair, p)
+    got = triangulate(thesis_pair[0].P, thesis_pair[1].P, q1[0], q2[0])
+    assert got.shape == (1, 3)
+    np.testing.assert_allclose(got[0], p, rtol=1e-9)
