@@ -74,7 +74,10 @@ def test_undistort_far_outside_gives_nan_not_garbage():
 
 
 def test_project_jacobian_matches_finite_differences(rng):
-    cams = (photo_camera(0.4), look_at_camera(np.array([0, 0, -3e5]), np.zeros(3), 15000, (1600, 1200)))
+    cams = (
+        photo_camera(0.4),
+        look_at_camera(np.array([0, 0, -3e5]), np.zeros(3), 15000, (1600, 1200)),
+    )
     for cam in cams:
         scale = 200.0 if cam.name == "photo" else 4000.0
         p = rng.uniform(-scale, scale, size=(50, 3))
@@ -92,7 +95,8 @@ def test_project_jacobian_matches_finite_differences(rng):
 def test_points_behind_the_camera_project_to_nan():
     cam = look_at_camera(np.array([0.0, 0.0, -1000.0]), np.zeros(3), 1000, (640, 480))
     q = cam.project(np.array([[0.0, 0.0, -2000.0], [0.0, 0.0, 0.0]]))
-    assert np.all(np.isnan(q[0])) and np.all(np.isfinite(q[1]))
+    assert np.all(np.isnan(q[0]))
+    assert np.all(np.isfinite(q[1]))
 
 
 @pytest.mark.parametrize(
@@ -110,8 +114,13 @@ def test_points_behind_the_camera_project_to_nan():
     ],
 )
 def test_camera_model_rejects_bad_parameters(kwargs, match):
-    args = {"K": np.eye(3), "dist": np.zeros(5), "R": np.eye(3), "t_um": np.zeros(3),
-            "image_size_px": (640, 480)}
+    args = {
+        "K": np.eye(3),
+        "dist": np.zeros(5),
+        "R": np.eye(3),
+        "t_um": np.zeros(3),
+        "image_size_px": (640, 480),
+    }
     args.update(kwargs)
     with pytest.raises(InputError, match=match):
         CameraModel(**args)

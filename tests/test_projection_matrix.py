@@ -39,7 +39,8 @@ def test_thesis_camera_matrices_decompose(P_mm, fx, fy, cx, cy):
         assert K[1, 1] == pytest.approx(fy, abs=1.0)
         assert K[0, 2] == pytest.approx(cx, abs=1.0)
         assert K[1, 2] == pytest.approx(cy, abs=1.0)
-        assert np.all(np.diag(K) > 0) and K[2, 2] == 1.0
+        assert np.all(np.diag(K) > 0)
+        assert K[2, 2] == 1.0
         assert np.allclose(np.tril(K, -1), 0.0)
         assert np.abs(R @ R.T - np.eye(3)).max() < 1e-12
         assert np.linalg.det(R) == pytest.approx(1.0, abs=1e-12)

@@ -30,4 +30,6 @@ def test_bad_input():
     with pytest.raises(InputError, match="expected at least one value"):
         summarize_errors(np.array([]))
     with pytest.raises(InputError, match="same number of points, got 2 and 1"):
-        reprojection_error(np.hstack([np.eye(3), np.ones((3, 1))]), np.ones((2, 3)), np.ones((1, 2)))
+        reprojection_error(
+            np.hstack([np.eye(3), np.ones((3, 1))]), np.ones((2, 3)), np.ones((1, 2))
+        )

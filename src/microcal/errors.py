@@ -28,7 +28,7 @@ class InputError(MicrocalError, ValueError):
 
 
 class DegenerateDataError(MicrocalError, ValueError):
-    """The data cannot determine the quantity asked for (too few points, coplanar, rank-deficient)."""
+    """The data cannot determine the quantity asked for (too few points, coplanar, rank loss)."""
 
 
 class DetectionError(MicrocalError, ValueError):

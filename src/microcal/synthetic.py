@@ -122,8 +122,12 @@ def random_camera_pair(
         dist = distance_um * rng.uniform(0.8, 1.2)
         cams.append(
             look_at_camera(
-                target - dist * d, target, f_px * rng.uniform(0.8, 1.2), image_size_px,
-                up=rng.normal(size=3), name=f"cam{i + 1}",
+                target - dist * d,
+                target,
+                f_px * rng.uniform(0.8, 1.2),
+                image_size_px,
+                up=rng.normal(size=3),
+                name=f"cam{i + 1}",
             )
         )
     return cams[0], cams[1]

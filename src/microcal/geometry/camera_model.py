@@ -201,8 +201,9 @@ class CameraModel:
         K = K.copy()
         K[1, 0] = K[2, 0] = K[2, 1] = 0.0
         K[2, 2] = 1.0
-        return cls(K, np.zeros(5) if dist is None else np.asarray(dist, float), R, t,
-                   image_size_px, name)
+        return cls(
+            K, np.zeros(5) if dist is None else np.asarray(dist, float), R, t, image_size_px, name
+        )
 
     # --- derived quantities -------------------------------------------------------------
     @property
@@ -310,7 +311,7 @@ class CameraModel:
         if not self.has_distortion:
             return q.copy()
         A = self.K[:2, :2]
-        xy_d = np.linalg.solve(A, (q - self.K[:2, 2]).T).T
+        xy_d = np.asarray(np.linalg.solve(A, (q - self.K[:2, 2]).T).T, dtype=np.float64)
         xy = undistort_normalized(xy_d, self.dist, A, tol_px=tol_px, max_iter=max_iter)
         return self._to_pixels(xy)
 
@@ -329,7 +330,7 @@ class CameraModel:
         if not self.has_distortion:
             return q.copy()
         A = self.K[:2, :2]
-        xy = np.linalg.solve(A, (q - self.K[:2, 2]).T).T
+        xy = np.asarray(np.linalg.solve(A, (q - self.K[:2, 2]).T).T, dtype=np.float64)
         xy_d, _ = distort_normalized(xy, self.dist)
         return self._to_pixels(xy_d)
 

@@ -185,9 +185,9 @@ def decompose_projection_matrix(P: ArrayLike) -> tuple[FloatArray, FloatArray, F
     D = np.diag(np.sign(np.diag(K)))
     K = K @ D
     R = D @ R
-    t = scipy.linalg.solve_triangular(K, P[:, 3])
-    K = K / K[2, 2]
-    return K, R, t
+    t = np.asarray(scipy.linalg.solve_triangular(K, P[:, 3]), dtype=np.float64)
+    K = np.asarray(K / K[2, 2], dtype=np.float64)
+    return K, np.asarray(R, dtype=np.float64), t
 
 
 def camera_centre(P: ArrayLike) -> FloatArray:
@@ -203,5 +203,4 @@ def camera_centre(P: ArrayLike) -> FloatArray:
         In the world frame, the world's unit.
     """
     P = as_array(P, "P", (3, 4))
-    out: FloatArray = -np.linalg.solve(P[:, :3], P[:, 3])
-    return out
+    return np.asarray(-np.linalg.solve(P[:, :3], P[:, 3]), dtype=np.float64)

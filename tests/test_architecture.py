@@ -1,0 +1,87 @@
+"""The layers of docs/architecture.md: lower layers never import higher ones."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import microcal
+
+PACKAGE = Path(microcal.__file__).parent
+
+# module (or package) prefix -> layer number
+LAYERS = {
+    "errors": 0,
+    "_validation": 0,
+    "_version": 0,
+    "thesis_figures": 0,
+    "geometry": 1,
+    "synthetic": 1,
+    "procedures": 4,
+    "cli": 5,
+    "__main__": 5,
+}
+# third-party packages each layer may use
+ALLOWED_THIRD_PARTY = {
+    0: {"numpy"},
+    1: {"numpy", "scipy"},
+    4: {"numpy", "scipy", "cv2"},
+    5: {"numpy", "scipy", "cv2", "typer", "rich"},
+}
+STDLIB_OK = {
+    "__future__",
+    "dataclasses",
+    "typing",
+    "collections",
+    "sys",
+    "math",
+    "json",
+    "pathlib",
+    "os",
+    "time",
+    "enum",
+    "functools",
+    "itertools",
+    "abc",
+}
+
+
+def layer_of(rel: str) -> int:
+    head = rel.split(".")[0]
+    assert head in LAYERS, f"module microcal.{rel} is not assigned to a layer in this test"
+    return LAYERS[head]
+
+
+def imports(path: Path, rel: str):
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    package_parts = rel.split(".")[:-1] if path.name != "__init__.py" else rel.split(".")
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield alias.name, False
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package_parts[: len(package_parts) - (node.level - 1)]
+                target = ".".join([*base, node.module] if node.module else base)
+                yield target, True
+            else:
+                yield node.module or "", False
+
+
+def test_every_module_respects_its_layer():
+    problems = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        rel = ".".join(path.relative_to(PACKAGE).with_suffix("").parts)
+        if rel == "__init__":
+            continue  # the package root re-exports the public surface
+        rel = rel.removesuffix(".__init__")
+        own = layer_of(rel)
+        for target, internal in imports(path, rel):
+            top = target.split(".")[0]
+            if internal or top == "microcal":
+                name = target.removeprefix("microcal.") if not internal else target
+                if name and layer_of(name) > own:
+                    problems.append(f"microcal.{rel} (layer {own}) imports {target}")
+            elif top not in STDLIB_OK and top not in ALLOWED_THIRD_PARTY[own]:
+                problems.append(f"microcal.{rel} (layer {own}) imports third-party {top}")
+    assert not problems, "\n".join(problems)

@@ -1,0 +1,58 @@
+"""The command line, driven with typer's CliRunner."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+from typer.testing import CliRunner
+
+from microcal import __version__
+from microcal.cli import app
+
+runner = CliRunner()
+
+
+def test_help_lists_commands():
+    result = runner.invoke(app, ["--help"])
+    assert result.exit_code == 0
+    assert "demo" in result.output
+
+
+def test_version():
+    result = runner.invoke(app, ["--version"])
+    assert result.exit_code == 0
+    assert __version__ in result.output
+
+
+def test_demo_says_what_it_ran_and_reports_figures():
+    result = runner.invoke(app, ["demo", "--seed", "1", "--poses", "50"])
+    assert result.exit_code == 0, result.output
+    assert "camera-geometry core only" in result.output
+    assert "not built yet" in result.output
+    assert "RMS error" in result.output
+
+
+def test_demo_help_has_an_example():
+    result = runner.invoke(app, ["demo", "--help"])
+    assert result.exit_code == 0
+    assert "Example: microcal demo" in result.output
+
+
+@pytest.mark.parametrize(
+    "args",
+    [["demo", "--poses", "0"], ["demo", "--seed", "abc"], ["demo", "--no-such-option"], ["nope"]],
+)
+def test_user_errors_exit_2_without_traceback(args):
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2
+    assert "Traceback" not in result.output
+
+
+def test_installed_entry_point_runs():
+    out = subprocess.run(
+        [sys.executable, "-m", "microcal", "--version"], capture_output=True, text=True, check=False
+    )
+    assert out.returncode == 0, out.stderr
+    assert __version__ in out.stdout
