@@ -50,6 +50,31 @@ def test_user_errors_exit_2_without_traceback(args):
     assert "Traceback" not in result.output
 
 
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["demo", "--poses", "0"], "Invalid value for '--poses'"),
+        (["demo", "--seed", "abc"], "Invalid value for '--seed'"),
+        (["demo", "--bogus"], "No such option: --bogus"),
+        (["nope"], "No such command 'nope'"),
+    ],
+)
+def test_entry_point_prints_one_line_for_user_errors(args, message):
+    out = subprocess.run(
+        [sys.executable, "-m", "microcal", *args],
+        capture_output=True,
+        text=True,
+        check=False,
+        stdin=subprocess.DEVNULL,
+    )
+    assert out.returncode == 2
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1, out.stderr
+    assert lines[0].startswith("microcal: error: ")
+    assert message in lines[0]
+    assert "--help" in lines[0]
+
+
 def test_installed_entry_point_runs():
     out = subprocess.run(
         [sys.executable, "-m", "microcal", "--version"], capture_output=True, text=True, check=False

@@ -6,7 +6,7 @@ Every user error ends with one line on stderr and exit code 2, never a traceback
 from __future__ import annotations
 
 import sys
-from typing import Annotated
+from typing import Annotated, NoReturn
 
 import typer
 from rich.console import Console
@@ -81,10 +81,22 @@ def demo(
     )
 
 
-def main() -> None:
-    """Entry point of the ``microcal`` command."""
+def _fail(message: str) -> NoReturn:
+    print(f"microcal: error: {message}", file=sys.stderr)
+    sys.exit(2)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point of the ``microcal`` command: user errors end in one line and exit code 2."""
+    args = sys.argv[1:] if argv is None else argv
     try:
-        app()
+        code = app(args=args or ["--help"], prog_name="microcal", standalone_mode=False)
+    except typer.TyperException as exc:  # usage errors: bad option, value or command
+        ctx = getattr(exc, "ctx", None)
+        hint = f" (see: {ctx.command_path} --help)" if ctx is not None else ""
+        _fail(f"{exc.format_message()}{hint}")
+    except (typer.Abort, KeyboardInterrupt):
+        _fail("interrupted")
     except MicrocalError as exc:
-        print(f"microcal: error: {exc}", file=sys.stderr)
-        sys.exit(2)
+        _fail(str(exc))
+    sys.exit(code if isinstance(code, int) else 0)
