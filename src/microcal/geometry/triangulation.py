@@ -31,7 +31,9 @@ from .projection_matrix import normalize_projection_matrix
 __all__ = ["triangulate", "triangulate_optimal", "triangulation_covariance"]
 
 
-def _lstsq_columns(A: FloatArray, b: FloatArray) -> tuple[FloatArray, FloatArray]:
+def _lstsq_columns(
+    A: FloatArray, b: FloatArray, *, with_rinv: bool = False
+) -> tuple[FloatArray, FloatArray | None]:
     """Batched least squares ``min ||A x - b||`` for many small systems at once.
 
     Parameters
@@ -43,8 +45,9 @@ def _lstsq_columns(A: FloatArray, b: FloatArray) -> tuple[FloatArray, FloatArray
     Returns
     -------
     x : (3, N) float
-    Rinv : (3, 3, N) float
-        Inverse of the triangular factor R of ``A = Q R``; ``Rinv Rinv^T = (A^T A)^-1``.
+    Rinv : (3, 3, N) float or None
+        With ``with_rinv``: inverse of the triangular factor R of ``A = Q R``, so that
+        ``Rinv Rinv^T = (A^T A)^-1``.
     """
     a0, a1, a2 = A[0], A[1], A[2]
     r00 = np.sqrt(np.einsum("mn,mn->n", a0, a0))
@@ -69,6 +72,8 @@ def _lstsq_columns(A: FloatArray, b: FloatArray) -> tuple[FloatArray, FloatArray
     x2 = c2 / r22
     x1 = (c1 - r12 * x2) / r11
     x0 = (c0 - r01 * x1 - r02 * x2) / r00
+    if not with_rinv:
+        return np.stack([x0, x1, x2]), None
     Rinv = np.zeros((3, 3, r00.shape[0]))
     Rinv[0, 0] = 1.0 / r00
     Rinv[1, 1] = 1.0 / r11
@@ -289,6 +294,7 @@ def triangulation_covariance(
     Ws = (_whitening(cov1_px2, n, "cov1_px2"), _whitening(cov2_px2, n, "cov2_px2"))
     zeros = np.zeros((n, 2))
     _, jac = _whitened_system((P1n, P2n), (zeros, zeros), Ws, p)
-    _, Rinv = _lstsq_columns(jac, np.zeros((4, n)))
+    _, Rinv = _lstsq_columns(jac, np.zeros((4, n)), with_rinv=True)
+    assert Rinv is not None
     out: FloatArray = np.einsum("ikn,jkn->nij", Rinv, Rinv)
     return out
