@@ -12,6 +12,7 @@ PACKAGE = Path(microcal.__file__).parent
 # module (or package) prefix -> layer number
 LAYERS = {
     "errors": 0,
+    "error_summary": 0,
     "_validation": 0,
     "_version": 0,
     "thesis_figures": 0,

@@ -20,10 +20,11 @@ def test_summary_figures():
     assert s.n == 4
     assert s.rms == pytest.approx(np.sqrt(26 / 4))
     assert s.mean == pytest.approx(2.0)
+    assert s.std == pytest.approx(np.std([3, 4, 0, 1], ddof=1))
     assert s.median == pytest.approx(2.0)
     assert s.max == 4.0
     assert s.p95 == pytest.approx(np.percentile([3, 4, 0, 1], 95))
-    assert s.as_dict()["rms"] == s.rms
+    assert s.as_dict("_px")["rms_px"] == s.rms
 
 
 def test_bad_input():

@@ -6,6 +6,7 @@ coordinates in pixels; see ``docs/conventions.md``.
 """
 
 from ._version import __version__
+from .error_summary import ErrorSummary, summarize_errors
 from .errors import (
     DegenerateDataError,
     DetectionError,
@@ -15,36 +16,47 @@ from .errors import (
     LimitError,
     MicrocalError,
 )
+from .formats.calibration_file import Calibration, load_calibration
 from .geometry import (
     CameraModel,
-    ReprojectionSummary,
     camera_centre,
     decompose_projection_matrix,
     estimate_projection_matrix,
     project_points,
     reprojection_error,
-    summarize_errors,
     triangulate,
     triangulate_optimal,
     triangulation_covariance,
 )
+from .kinematics import (
+    KinematicModel,
+    fit_matrix_model,
+    fit_polynomial_model,
+    stepwise_fit,
+)
 
 __all__ = [
+    "Calibration",
     "CameraModel",
     "DegenerateDataError",
     "DetectionError",
     "DeviceError",
+    "ErrorSummary",
     "FormatError",
     "InputError",
+    "KinematicModel",
     "LimitError",
     "MicrocalError",
-    "ReprojectionSummary",
     "__version__",
     "camera_centre",
     "decompose_projection_matrix",
     "estimate_projection_matrix",
+    "fit_matrix_model",
+    "fit_polynomial_model",
+    "load_calibration",
     "project_points",
     "reprojection_error",
+    "stepwise_fit",
     "summarize_errors",
     "triangulate",
     "triangulate_optimal",

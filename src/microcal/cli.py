@@ -6,8 +6,11 @@ Every user error ends with one line on stderr and exit code 2, never a traceback
 from __future__ import annotations
 
 import sys
-from typing import Annotated, NoReturn
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated, Any, NoReturn
 
+import numpy as np
 import typer
 from rich.console import Console
 from rich.table import Table
@@ -79,6 +82,127 @@ def demo(
         f"max {result.max_error_um:.2f} µm; predicted std x/y/z {sx:.2f}/{sy:.2f}/{sz:.2f} µm; "
         f"Mahalanobis mean square {result.mahalanobis_mean_square:.2f} (3 = honest covariance)."
     )
+
+
+class ModelChoice(StrEnum):
+    matrix = "matrix"
+    polynomial = "polynomial"
+
+
+class SelectChoice(StrEnum):
+    stepwise = "stepwise"
+    all = "all"
+
+
+def _measurements_path(source: Path) -> Path:
+    return source / "measurements.csv" if source.is_dir() else source
+
+
+@app.command()
+def fit(
+    source: Annotated[
+        Path,
+        typer.Argument(help="Run directory (with measurements.csv) or a measurements CSV file."),
+    ],
+    out: Annotated[
+        Path, typer.Option("--out", "-o", help="Calibration file to write or update.")
+    ] = Path("calibration.json"),
+    model: Annotated[
+        ModelChoice, typer.Option(help="Kinematic model (thesis Eq 4.5 or 4.6).")
+    ] = ModelChoice.polynomial,
+    select: Annotated[
+        SelectChoice, typer.Option(help="Polynomial terms: stepwise selection or all.")
+    ] = SelectChoice.stepwise,
+    penter: Annotated[float, typer.Option(help="Stepwise: p-value to enter.")] = 0.05,
+    premove: Annotated[float, typer.Option(help="Stepwise: p-value to leave.")] = 0.10,
+    train: Annotated[
+        int | None,
+        typer.Option(
+            min=1, help="Fit on the first N poses, validate on the rest (default: 110/170 of them)."
+        ),
+    ] = None,
+    folds: Annotated[
+        int | None, typer.Option(min=2, help="Validate by K-fold cross-validation instead.")
+    ] = None,
+    seed: Annotated[int, typer.Option(help="Seed of the cross-validation folds.")] = 0,
+    temperature: Annotated[
+        bool, typer.Option(help="Add temperature terms T, T² (needs temperature_c).")
+    ] = False,
+    manipulator: Annotated[
+        str, typer.Option(help="Name of the manipulator in the calibration file.")
+    ] = "m1",
+    mat: Annotated[
+        Path | None, typer.Option(help="Also export the calibration as a MATLAB .mat file.")
+    ] = None,
+) -> None:
+    """Identify a manipulator's kinematic model from measured positions.
+
+    Example: microcal fit runs/a --model polynomial --train 110 --out calibration.json
+    """
+    from .formats.calibration_file import (
+        Calibration,
+        ManipulatorCalibration,
+        export_mat,
+        load_calibration,
+        provenance,
+        write_calibration,
+    )
+    from .formats.measurements import read_measurements
+    from .procedures.identification import identify
+
+    console = Console()
+    path = _measurements_path(source)
+    meas = read_measurements(path)
+    existing = load_calibration(out) if out.exists() else None
+    result = identify(
+        meas,
+        model.value,
+        select=select.value,
+        penter=penter,
+        premove=premove,
+        train=train,
+        folds=folds,
+        seed=seed,
+        temperature=temperature,
+    )
+    entry = ManipulatorCalibration(manipulator, result.model, result.validation)
+    manipulators = dict(existing.manipulators) if existing else {}
+    manipulators[manipulator] = entry
+    calibration = Calibration(
+        manipulators,
+        cameras=existing.cameras if existing else {},
+        provenance=provenance({"measurements": path}, command="fit", model=model.value),
+    )
+    write_calibration(out, calibration)
+    if mat is not None:
+        export_mat(mat, calibration)
+    m = result.model
+    console.print(
+        f"{model.value} model of {manipulator!r} from {len(meas.pose)} poses of {path}"
+        + (f" ({meas.n_failed} failed poses skipped)" if meas.n_failed else "")
+    )
+    table = Table(title="Selected terms: coefficient ± standard error (µm per unit of the term)")
+    table.add_column("term")
+    for axis in "xyz":
+        table.add_column(f"{axis} (µm)", justify="right")
+    for a, t in enumerate(m.terms):
+        if not m.selected[:, a].any():
+            continue
+        cells = []
+        for axis in range(3):
+            if m.selected[axis, a]:
+                se = float(np.sqrt(m.covariance[axis, a, a]))
+                cells.append(f"{m.coefficients[axis, a]:.6g} ± {se:.2g}")
+            else:
+                cells.append("-")
+        table.add_row(t.name, *cells)
+    console.print(table)
+    v: dict[str, Any] = result.validation
+    console.print(
+        f"validation ({v['method']}): mean {v['mean_um']:.2f} µm, std {v['std_um']:.2f}, "
+        f"max {v['max_um']:.2f}, RMS {v['rms_um']:.2f}, 95 % {v['p95_um']:.2f}"
+    )
+    console.print(f"wrote {out}" + (f" and {mat}" if mat else ""))
 
 
 def _fail(message: str) -> NoReturn:

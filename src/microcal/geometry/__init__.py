@@ -12,18 +12,16 @@ from .projection_matrix import (
     estimate_projection_matrix,
     project_points,
 )
-from .reprojection import ReprojectionSummary, reprojection_error, summarize_errors
+from .reprojection import reprojection_error
 from .triangulation import triangulate, triangulate_optimal, triangulation_covariance
 
 __all__ = [
     "CameraModel",
-    "ReprojectionSummary",
     "camera_centre",
     "decompose_projection_matrix",
     "estimate_projection_matrix",
     "project_points",
     "reprojection_error",
-    "summarize_errors",
     "triangulate",
     "triangulate_optimal",
     "triangulation_covariance",

@@ -7,16 +7,15 @@ values, not the distance; this is the distance.)
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .._validation import FloatArray, as_array, as_rows
+from .._validation import FloatArray, as_rows
+from ..error_summary import ErrorSummary, summarize_errors
 from ..errors import InputError
 from .projection_matrix import project_points
 
-__all__ = ["ReprojectionSummary", "reprojection_error", "summarize_errors"]
+__all__ = ["ErrorSummary", "reprojection_error", "summarize_errors"]
 
 
 def reprojection_error(P: ArrayLike, p_um: ArrayLike, q_px: ArrayLike) -> FloatArray:
@@ -43,40 +42,3 @@ def reprojection_error(P: ArrayLike, p_um: ArrayLike, q_px: ArrayLike) -> FloatA
         )
     out: FloatArray = np.linalg.norm(project_points(P, p) - q, axis=1)
     return out
-
-
-@dataclass(frozen=True)
-class ReprojectionSummary:
-    """Summary figures of a set of per-point errors (same unit as the errors)."""
-
-    n: int
-    rms: float
-    mean: float
-    median: float
-    p95: float
-    max: float
-
-    def as_dict(self) -> dict[str, float | int]:
-        """The figures as a plain dict (for JSON)."""
-        return asdict(self)
-
-
-def summarize_errors(errors: ArrayLike) -> ReprojectionSummary:
-    """RMS, mean, median, 95th percentile and maximum of per-point errors.
-
-    Parameters
-    ----------
-    errors : (N,) float
-        Non-negative errors, N >= 1.
-    """
-    e = as_array(errors, "errors", (None,))
-    if e.size == 0:
-        raise InputError("errors: expected at least one value, got none")
-    return ReprojectionSummary(
-        n=int(e.size),
-        rms=float(np.sqrt(np.mean(e**2))),
-        mean=float(e.mean()),
-        median=float(np.median(e)),
-        p95=float(np.percentile(e, 95)),
-        max=float(e.max()),
-    )

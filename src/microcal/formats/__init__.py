@@ -1,0 +1,1 @@
+"""File formats (edges layer): calibration.json, measurements.csv, MATLAB export."""

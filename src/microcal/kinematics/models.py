@@ -1,0 +1,370 @@
+"""Kinematic models of a Cartesian micromanipulator: matrix (Eq 4.5) and polynomial (Eq 4.6-4.10).
+
+A model maps inputs ``u`` (the joint values ``dx, dy, dz`` in µm, and optionally further
+measured inputs such as the temperature ``T``) to the end-effector position in {G} (µm):
+``p_axis = sum_a coef[axis, a] * term_a(u)`` for axis in x, y, z. Each axis has its own
+subset of terms (after stepwise selection). The base position ``P_B`` of the thesis is the
+constant term.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .._validation import FloatArray, as_array, as_rows
+from ..errors import DegenerateDataError, FormatError, InputError
+from .least_squares import check_design, fit_least_squares
+from .stepwise import StepwiseResult, stepwise_fit
+from .terms import (
+    JOINTS,
+    Term,
+    design_jacobian,
+    design_matrix,
+    matrix_terms,
+    parse_term,
+    polynomial_terms,
+)
+
+__all__ = ["AXES", "KinematicModel", "fit_matrix_model", "fit_model", "fit_polynomial_model"]
+
+#: Output axes of every model, in {G}.
+AXES: tuple[str, ...] = ("x", "y", "z")
+ModelKind = Literal["matrix", "polynomial"]
+
+
+@dataclass(frozen=True, eq=False)
+class KinematicModel:
+    """A model linear in its coefficients, one row of coefficients per output axis.
+
+    Attributes
+    ----------
+    kind : {"matrix", "polynomial"}
+    inputs : tuple of str
+        Names of the input columns (joints first, then further inputs such as ``T``).
+    joints : tuple of str
+        The inputs that are joint commands (a compensator solves for them).
+    terms : tuple of Term
+        The candidate terms (m of them).
+    coefficients : (3, m) float
+        Zero where a term is not selected for an axis.
+    selected : (3, m) bool
+    covariance : (3, m, m) float
+        Covariance of each axis's coefficients (µm² per unit of the terms); zero rows and
+        columns for unselected terms.
+    selection : dict
+        How the terms were chosen: ``{"method": "all" | "stepwise", "penter": ..., ...}``.
+    """
+
+    kind: ModelKind
+    inputs: tuple[str, ...]
+    joints: tuple[str, ...]
+    terms: tuple[Term, ...]
+    coefficients: FloatArray
+    selected: np.ndarray
+    covariance: FloatArray
+    selection: dict[str, Any]
+
+    def __post_init__(self) -> None:
+        m = len(self.terms)
+        if self.coefficients.shape != (3, m) or self.selected.shape != (3, m):
+            raise InputError(
+                f"coefficients, selected: expected shape (3, {m}), got "
+                f"{self.coefficients.shape} and {self.selected.shape}"
+            )
+        if self.covariance.shape != (3, m, m):
+            raise InputError(
+                f"covariance: expected shape (3, {m}, {m}), got {self.covariance.shape}"
+            )
+        missing = [j for j in self.joints if j not in self.inputs]
+        if missing:
+            raise InputError(f"joints {missing} are not among the inputs {list(self.inputs)}")
+        for t in self.terms:
+            unknown = [n for n in t.inputs if n not in self.inputs]
+            if unknown:
+                raise InputError(
+                    f"term {t.name} uses {unknown}, not among the inputs {list(self.inputs)}"
+                )
+
+    # --- evaluation ----------------------------------------------------------------------
+    @property
+    def n_parameters(self) -> int:
+        """Number of selected coefficients over the three axes."""
+        return int(self.selected.sum())
+
+    @property
+    def extra_inputs(self) -> tuple[str, ...]:
+        """Inputs that are not joints (given, not solved for)."""
+        return tuple(i for i in self.inputs if i not in self.joints)
+
+    def _inputs(self, u: ArrayLike) -> FloatArray:
+        return as_rows(u, "u", len(self.inputs))
+
+    def predict_um(self, u: ArrayLike) -> FloatArray:
+        """End-effector positions for the given inputs.
+
+        Parameters
+        ----------
+        u : (N, k) or (k,) float
+            Inputs in the order of :attr:`inputs` (joints in µm first).
+
+        Returns
+        -------
+        p_um : (N, 3) float
+            Positions in {G}, µm.
+        """
+        X = design_matrix(self._inputs(u), self.inputs, self.terms)
+        out: FloatArray = X @ self.coefficients.T
+        return out
+
+    def jacobian(self, u: ArrayLike) -> FloatArray:
+        """Derivative of the position with respect to the joints.
+
+        Parameters
+        ----------
+        u : (N, k) or (k,) float
+
+        Returns
+        -------
+        J : (N, 3, j) float
+            ``J[n, axis, b] = d p_axis / d joint_b`` (µm per µm).
+        """
+        dX = design_jacobian(self._inputs(u), self.inputs, self.terms, self.joints)
+        out: FloatArray = np.einsum("am,nmb->nab", self.coefficients, dX)
+        return out
+
+    def prediction_std_um(self, u: ArrayLike) -> FloatArray:
+        """Standard deviation of the prediction from the coefficients' uncertainty.
+
+        Returns
+        -------
+        std_um : (N, 3) float
+        """
+        X = design_matrix(self._inputs(u), self.inputs, self.terms)
+        var = np.einsum("nm,amk,nk->na", X, self.covariance, X)
+        out: FloatArray = np.sqrt(np.maximum(var, 0.0))
+        return out
+
+    def axis_terms(self, axis: int) -> list[tuple[str, float, float]]:
+        """(term name, coefficient, standard error) of the selected terms of one axis."""
+        se = np.sqrt(np.maximum(np.diagonal(self.covariance[axis]), 0.0))
+        return [
+            (t.name, float(self.coefficients[axis, a]), float(se[a]))
+            for a, t in enumerate(self.terms)
+            if self.selected[axis, a]
+        ]
+
+    @property
+    def R(self) -> FloatArray:
+        """(3, j) coefficients of the linear joint terms (the matrix R of Eq 4.5)."""
+        R = np.zeros((3, len(self.joints)))
+        for a, t in enumerate(self.terms):
+            if t.degree == 1 and t.inputs[0] in self.joints:
+                R[:, self.joints.index(t.inputs[0])] = self.coefficients[:, a]
+        return R
+
+    @property
+    def p_base_um(self) -> FloatArray:
+        """(3,) the constant term: the end-effector at zero inputs (P_B of Eq 4.5), µm."""
+        for a, t in enumerate(self.terms):
+            if t.degree == 0:
+                out: FloatArray = self.coefficients[:, a].copy()
+                return out
+        return np.zeros(3)
+
+    # --- serialisation ---------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-ready dict (the ``model`` object of calibration.json)."""
+        return {
+            "kind": self.kind,
+            "inputs": list(self.inputs),
+            "joints": list(self.joints),
+            "outputs": [f"{a}_um" for a in AXES],
+            "terms": [t.name for t in self.terms],
+            "selected": self.selected.tolist(),
+            "coefficients": self.coefficients.tolist(),
+            "covariance": self.covariance.tolist(),
+            "selection": dict(self.selection),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> KinematicModel:
+        """Inverse of :meth:`to_dict`; raises FormatError naming what is wrong."""
+        try:
+            terms = tuple(parse_term(t) for t in data["terms"])
+            m = len(terms)
+            coef = np.asarray(data["coefficients"], dtype=np.float64)
+            sel = np.asarray(data["selected"], dtype=bool)
+            cov = np.asarray(data["covariance"], dtype=np.float64)
+            if coef.shape != (3, m) or sel.shape != (3, m) or cov.shape != (3, m, m):
+                raise FormatError(
+                    f"model: expected coefficients (3, {m}), selected (3, {m}) and covariance "
+                    f"(3, {m}, {m}) for {m} terms, got {coef.shape}, {sel.shape}, {cov.shape}"
+                )
+            if not (np.all(np.isfinite(coef)) and np.all(np.isfinite(cov))):
+                raise FormatError("model: coefficients and covariance must be finite numbers")
+            kind = data["kind"]
+            if kind not in ("matrix", "polynomial"):
+                raise FormatError(f"model.kind: expected 'matrix' or 'polynomial', got {kind!r}")
+            return cls(
+                kind=kind,
+                inputs=tuple(data["inputs"]),
+                joints=tuple(data["joints"]),
+                terms=terms,
+                coefficients=coef,
+                selected=sel,
+                covariance=cov,
+                selection=dict(data.get("selection", {})),
+            )
+        except KeyError as exc:
+            raise FormatError(f"model: missing key {exc.args[0]!r}") from None
+        except (InputError, TypeError, ValueError) as exc:
+            if isinstance(exc, FormatError):
+                raise
+            raise FormatError(f"model: {exc}") from None
+
+
+def _inputs_and_targets(
+    u: ArrayLike, p_um: ArrayLike, inputs: Sequence[str]
+) -> tuple[FloatArray, FloatArray]:
+    U = as_array(u, "u", (None, len(inputs)))
+    P = as_array(p_um, "p_um", (U.shape[0], 3))
+    return U, P
+
+
+def _check_inputs_move(U: FloatArray, inputs: Sequence[str]) -> None:
+    for j, name in enumerate(inputs):
+        if np.ptp(U[:, j]) == 0:
+            raise DegenerateDataError(
+                f"input {name!r} has the same value in every sample: its effect cannot be "
+                f"identified (move that axis over its range)"
+            )
+
+
+def fit_model(
+    u: ArrayLike,
+    p_um: ArrayLike,
+    terms: Sequence[Term],
+    *,
+    kind: ModelKind,
+    inputs: Sequence[str] = JOINTS,
+    joints: Sequence[str] = JOINTS,
+    select: Literal["all", "stepwise"] = "all",
+    penter: float = 0.05,
+    premove: float = 0.10,
+) -> KinematicModel:
+    """Fit a model with the given terms to measured positions.
+
+    Parameters
+    ----------
+    u : (N, k) float
+        Inputs (joints in µm first, in the order of ``inputs``).
+    p_um : (N, 3) float
+        Measured end-effector positions in {G}, µm.
+    terms : sequence of Term
+        Candidate terms; the constant is always fitted (as the intercept in stepwise).
+    select : {"all", "stepwise"}
+        Fit every term, or select per axis by :func:`stepwise_fit`.
+
+    Raises
+    ------
+    DegenerateDataError
+        Too few samples for the terms, an input that never changes, or a rank-deficient design.
+    """
+    inputs = tuple(inputs)
+    U, P = _inputs_and_targets(u, p_um, inputs)
+    _check_inputs_move(U, inputs)
+    terms = tuple(terms)
+    if Term() not in terms:
+        terms = (*terms, Term())
+    names = [t.name for t in terms]
+    X = design_matrix(U, inputs, terms)
+    m = len(terms)
+    n = U.shape[0]
+    if n <= m and select == "all":
+        raise DegenerateDataError(
+            f"fit: expected more samples than terms, got {n} samples for {m} terms per axis; "
+            f"acquire more poses or choose a smaller model"
+        )
+    check_design(X, names)
+    const = names.index("1")
+    coef = np.zeros((3, m))
+    selected = np.zeros((3, m), dtype=bool)
+    cov = np.zeros((3, m, m))
+    steps: list[list[dict[str, Any]]] = []
+    for axis in range(3):
+        if select == "stepwise":
+            others = [a for a in range(m) if a != const]
+            sw: StepwiseResult = stepwise_fit(X[:, others], P[:, axis], penter, premove)
+            chosen = [others[i] for i in np.flatnonzero(sw.in_model)] + [const]
+            steps.append(
+                [
+                    {"action": s.action, "term": names[others[s.column]], "pval": s.pval}
+                    for s in sw.history
+                ]
+            )
+        elif select == "all":
+            chosen = list(range(m))
+        else:
+            raise InputError(f"select: expected 'all' or 'stepwise', got {select!r}")
+        chosen.sort()
+        fit = fit_least_squares(X[:, chosen], P[:, axis], [names[a] for a in chosen])
+        coef[axis, chosen] = fit.coef
+        selected[axis, chosen] = True
+        cov[axis][np.ix_(chosen, chosen)] = fit.covariance
+    selection: dict[str, Any] = {"method": select, "n_samples": n}
+    if select == "stepwise":
+        selection |= {"penter": penter, "premove": premove, "history": steps}
+    return KinematicModel(kind, inputs, tuple(joints), terms, coef, selected, cov, selection)
+
+
+def fit_matrix_model(d_um: ArrayLike, p_um: ArrayLike) -> KinematicModel:
+    """The matrix model of Eq 4.5, ``p = R d + P_B``, by least squares (Eq 4.14).
+
+    Parameters
+    ----------
+    d_um : (N, 3) float
+        Joint commands dx, dy, dz, µm.
+    p_um : (N, 3) float
+        Measured positions in {G}, µm.
+    """
+    return fit_model(d_um, p_um, matrix_terms(), kind="matrix")
+
+
+def fit_polynomial_model(
+    u: ArrayLike,
+    p_um: ArrayLike,
+    *,
+    select: Literal["all", "stepwise"] = "stepwise",
+    penter: float = 0.05,
+    premove: float = 0.10,
+    degree: int = 2,
+    extra: dict[str, int] | None = None,
+) -> KinematicModel:
+    """The polynomial model of Eq 4.6-4.10, terms selected stepwise by default.
+
+    Parameters
+    ----------
+    u : (N, 3 + e) float
+        Joint commands dx, dy, dz (µm), then the extra inputs in the order of ``extra``.
+    p_um : (N, 3) float
+    extra : dict, optional
+        Further inputs and their highest power, e.g. ``{"T": 2}`` for T and T² (Eq 4.10).
+    """
+    extra = dict(extra or {})
+    inputs = JOINTS + tuple(extra)
+    terms = polynomial_terms(JOINTS, degree, extra)
+    return fit_model(
+        u,
+        p_um,
+        terms,
+        kind="polynomial",
+        inputs=inputs,
+        select=select,
+        penter=penter,
+        premove=premove,
+    )

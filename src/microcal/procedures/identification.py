@@ -1,0 +1,119 @@
+"""Identification of a manipulator's kinematic model from measurements (thesis 4.3, 5.2).
+
+Fits the matrix or the polynomial model, validates it the thesis's way (fit on the first
+poses, validate on the rest) or by k-fold cross-validation, and packs the result for
+calibration.json.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from .._validation import FloatArray
+from ..errors import DegenerateDataError, InputError
+from ..formats.measurements import Measurements
+from ..kinematics import (
+    CrossValidation,
+    KinematicModel,
+    Validation,
+    cross_validate,
+    fit_matrix_model,
+    fit_polynomial_model,
+    validate_split,
+)
+
+__all__ = ["THESIS_SPLIT", "Identification", "default_train", "identify"]
+
+#: The thesis's split: 110 of 170 poses fit, the last 60 validate (section 5.2).
+THESIS_SPLIT = (110, 170)
+
+
+def default_train(n: int) -> int:
+    """Poses used for fitting by default: the thesis's 110 / 170 share of ``n``."""
+    return max(1, min(n - 1, round(n * THESIS_SPLIT[0] / THESIS_SPLIT[1])))
+
+
+@dataclass(frozen=True)
+class Identification:
+    """An identified model and how well it predicts poses it was not fitted to."""
+
+    model: KinematicModel
+    validation: dict[str, object]  # the calibration.json "validation" object
+    split: Validation | None
+    cross_validation: CrossValidation | None
+    inputs: FloatArray  # (N, k) used
+    positions_um: FloatArray  # (N, 3) used
+
+
+def identify(
+    meas: Measurements,
+    model: Literal["matrix", "polynomial"] = "polynomial",
+    *,
+    select: Literal["stepwise", "all"] = "stepwise",
+    penter: float = 0.05,
+    premove: float = 0.10,
+    train: int | None = None,
+    folds: int | None = None,
+    seed: int = 0,
+    temperature: bool = False,
+) -> Identification:
+    """Fit and validate a kinematic model.
+
+    Parameters
+    ----------
+    meas : Measurements
+        Joint commands and measured positions.
+    model : {"matrix", "polynomial"}
+    select : {"stepwise", "all"}
+        For the polynomial model: stepwise selection (default) or every term.
+    train : int, optional
+        Fit on the first ``train`` poses, validate on the rest (default: the thesis's share).
+    folds : int, optional
+        Validate by k-fold cross-validation instead; the stored model is fitted on all poses.
+    temperature : bool
+        Add T and T² terms (Eq 4.10); the file must have a ``temperature_c`` column.
+    """
+    if train is not None and folds is not None:
+        raise InputError("choose one validation: --train N or --folds K, not both")
+    u = meas.d_um
+    extra: dict[str, int] = {}
+    if temperature:
+        if meas.temperature_c is None:
+            raise InputError("temperature: the measurements have no 'temperature_c' column")
+        u = np.column_stack([u, meas.temperature_c])
+        extra = {"T": 2}
+    if model == "matrix" and temperature:
+        raise InputError("temperature terms need the polynomial model (Eq 4.10)")
+
+    def fit(u_fit: FloatArray, p_fit: FloatArray) -> KinematicModel:
+        if model == "matrix":
+            return fit_matrix_model(u_fit, p_fit)
+        if model == "polynomial":
+            return fit_polynomial_model(
+                u_fit, p_fit, select=select, penter=penter, premove=premove, extra=extra
+            )
+        raise InputError(f"model: expected 'matrix' or 'polynomial', got {model!r}")
+
+    n = u.shape[0]
+    if folds is not None:
+        cv = cross_validate(fit, u, meas.p_um, folds, seed)
+        final = fit(u, meas.p_um)
+        s = cv.summary.as_dict("_um")
+        validation: dict[str, object] = {
+            "method": f"{folds}-fold cross-validation",
+            "n_fit": n - n // folds,
+            "n_validate": n,
+            **{k: v for k, v in s.items() if k != "n"},
+        }
+        return Identification(final, validation, None, cv, u, meas.p_um)
+    n_fit = default_train(n) if train is None else train
+    if n - n_fit < 1 or n_fit < 1:
+        raise DegenerateDataError(
+            f"train: expected between 1 and {n - 1} poses for fitting ({n} usable), got {n_fit}"
+        )
+    val = validate_split(fit, u, meas.p_um, n_fit)
+    validation = {"method": f"first {n_fit} fit, last {n - n_fit} validate", **val.as_dict()}
+    return Identification(val.model, validation, val, None, u, meas.p_um)
