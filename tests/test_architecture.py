@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+import sys
 from pathlib import Path
 
 import microcal
@@ -17,8 +18,11 @@ LAYERS = {
     "_version": 0,
     "thesis_figures": 0,
     "geometry": 1,
+    "kinematics": 1,
     "synthetic": 1,
+    "sim": 3,
     "procedures": 4,
+    "formats": 5,
     "cli": 5,
     "__main__": 5,
 }
@@ -26,25 +30,11 @@ LAYERS = {
 ALLOWED_THIRD_PARTY = {
     0: {"numpy"},
     1: {"numpy", "scipy"},
+    3: {"numpy", "scipy", "cv2"},
     4: {"numpy", "scipy", "cv2"},
-    5: {"numpy", "scipy", "cv2", "typer", "rich"},
+    5: {"numpy", "scipy", "cv2", "typer", "rich", "pydantic"},
 }
-STDLIB_OK = {
-    "__future__",
-    "dataclasses",
-    "typing",
-    "collections",
-    "sys",
-    "math",
-    "json",
-    "pathlib",
-    "os",
-    "time",
-    "enum",
-    "functools",
-    "itertools",
-    "abc",
-}
+STDLIB_OK = set(sys.stdlib_module_names)
 
 
 def layer_of(rel: str) -> int:

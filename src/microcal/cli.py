@@ -16,7 +16,7 @@ from rich.console import Console
 from rich.table import Table
 
 from ._version import __version__
-from .errors import MicrocalError
+from .errors import InputError, MicrocalError
 
 app = typer.Typer(
     name="microcal",
@@ -153,9 +153,12 @@ def fit(
     console = Console()
     path = _measurements_path(source)
     meas = read_measurements(path)
+    if temperature and meas.temperature_c is None:
+        raise InputError(f"--temperature: {path} has no 'temperature_c' column")
     existing = load_calibration(out) if out.exists() else None
     result = identify(
-        meas,
+        meas.d_um,
+        meas.p_um,
         model.value,
         select=select.value,
         penter=penter,
@@ -163,7 +166,7 @@ def fit(
         train=train,
         folds=folds,
         seed=seed,
-        temperature=temperature,
+        temperature_c=meas.temperature_c if temperature else None,
     )
     entry = ManipulatorCalibration(manipulator, result.model, result.validation)
     manipulators = dict(existing.manipulators) if existing else {}
@@ -183,8 +186,8 @@ def fit(
     )
     table = Table(title="Selected terms: coefficient ± standard error (µm per unit of the term)")
     table.add_column("term")
-    for axis in "xyz":
-        table.add_column(f"{axis} (µm)", justify="right")
+    for axis_name in "xyz":
+        table.add_column(f"{axis_name} (µm)", justify="right")
     for a, t in enumerate(m.terms):
         if not m.selected[:, a].any():
             continue

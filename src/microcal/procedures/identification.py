@@ -14,7 +14,6 @@ import numpy as np
 
 from .._validation import FloatArray
 from ..errors import DegenerateDataError, InputError
-from ..formats.measurements import Measurements
 from ..kinematics import (
     CrossValidation,
     KinematicModel,
@@ -49,7 +48,8 @@ class Identification:
 
 
 def identify(
-    meas: Measurements,
+    d_um: FloatArray,
+    p_um: FloatArray,
     model: Literal["matrix", "polynomial"] = "polynomial",
     *,
     select: Literal["stepwise", "all"] = "stepwise",
@@ -58,14 +58,16 @@ def identify(
     train: int | None = None,
     folds: int | None = None,
     seed: int = 0,
-    temperature: bool = False,
+    temperature_c: FloatArray | None = None,
 ) -> Identification:
     """Fit and validate a kinematic model.
 
     Parameters
     ----------
-    meas : Measurements
-        Joint commands and measured positions.
+    d_um : (N, 3) float
+        Joint commands, µm.
+    p_um : (N, 3) float
+        Measured positions in {G}, µm.
     model : {"matrix", "polynomial"}
     select : {"stepwise", "all"}
         For the polynomial model: stepwise selection (default) or every term.
@@ -73,19 +75,18 @@ def identify(
         Fit on the first ``train`` poses, validate on the rest (default: the thesis's share).
     folds : int, optional
         Validate by k-fold cross-validation instead; the stored model is fitted on all poses.
-    temperature : bool
-        Add T and T² terms (Eq 4.10); the file must have a ``temperature_c`` column.
+    temperature_c : (N,) float, optional
+        Ambient temperature; when given, T and T² terms join the polynomial model (Eq 4.10).
     """
     if train is not None and folds is not None:
         raise InputError("choose one validation: --train N or --folds K, not both")
-    u = meas.d_um
+    u = np.asarray(d_um, dtype=np.float64)
+    positions = np.asarray(p_um, dtype=np.float64)
     extra: dict[str, int] = {}
-    if temperature:
-        if meas.temperature_c is None:
-            raise InputError("temperature: the measurements have no 'temperature_c' column")
-        u = np.column_stack([u, meas.temperature_c])
+    if temperature_c is not None:
+        u = np.column_stack([u, temperature_c])
         extra = {"T": 2}
-    if model == "matrix" and temperature:
+    if model == "matrix" and temperature_c is not None:
         raise InputError("temperature terms need the polynomial model (Eq 4.10)")
 
     def fit(u_fit: FloatArray, p_fit: FloatArray) -> KinematicModel:
@@ -99,8 +100,8 @@ def identify(
 
     n = u.shape[0]
     if folds is not None:
-        cv = cross_validate(fit, u, meas.p_um, folds, seed)
-        final = fit(u, meas.p_um)
+        cv = cross_validate(fit, u, positions, folds, seed)
+        final = fit(u, positions)
         s = cv.summary.as_dict("_um")
         validation: dict[str, object] = {
             "method": f"{folds}-fold cross-validation",
@@ -108,12 +109,12 @@ def identify(
             "n_validate": n,
             **{k: v for k, v in s.items() if k != "n"},
         }
-        return Identification(final, validation, None, cv, u, meas.p_um)
+        return Identification(final, validation, None, cv, u, positions)
     n_fit = default_train(n) if train is None else train
     if n - n_fit < 1 or n_fit < 1:
         raise DegenerateDataError(
             f"train: expected between 1 and {n - 1} poses for fitting ({n} usable), got {n_fit}"
         )
-    val = validate_split(fit, u, meas.p_um, n_fit)
+    val = validate_split(fit, u, positions, n_fit)
     validation = {"method": f"first {n_fit} fit, last {n - n_fit} validate", **val.as_dict()}
-    return Identification(val.model, validation, val, None, u, meas.p_um)
+    return Identification(val.model, validation, val, None, u, positions)
