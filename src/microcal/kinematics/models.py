@@ -285,10 +285,10 @@ def fit_model(
     X = design_matrix(U, inputs, terms)
     m = len(terms)
     n = U.shape[0]
-    if n <= m and select == "all":
+    if n <= m:
         raise DegenerateDataError(
-            f"fit: expected more samples than terms, got {n} samples for {m} terms per axis; "
-            f"acquire more poses or choose a smaller model"
+            f"fit: expected more samples than candidate terms, got {n} samples for {m} terms "
+            f"per axis; acquire more poses or choose a smaller model"
         )
     check_design(X, names)
     const = names.index("1")

@@ -1,0 +1,76 @@
+"""A synthetic acquisition run without rendering: true positions seen through the cameras.
+
+Until rendered images and detection are wired in, this gives what a run measures: random
+joint commands (the thesis's uniform design), the true end-effector positions (with
+hysteresis from the order of the moves), their projections into both cameras perturbed by
+the virtual point's pixel noise (thesis Table 4-1), and the optimal triangulation of those
+pixels with its covariance. Seeded; ground truth included for tests and benchmarks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._validation import FloatArray
+from ..geometry import CameraModel, triangulate_optimal, triangulation_covariance
+from ..synthetic import THESIS_WORKSPACE_MAX_UM, THESIS_WORKSPACE_MIN_UM, thesis_cameras
+from .kinematics import TrueKinematics, approach_signs, thesis_kinematics
+
+__all__ = ["VIRTUAL_POINT_STD_PX", "SyntheticRun", "measure_positions", "synthetic_run"]
+
+#: Thesis Table 4-1: standard deviation of the virtual point, px (x, y).
+VIRTUAL_POINT_STD_PX = (0.087, 0.045)
+
+
+@dataclass(frozen=True)
+class SyntheticRun:
+    """Commands, truth and measurements of one synthetic run."""
+
+    d_um: FloatArray  # (N, 3) joint commands, in execution order
+    true_um: FloatArray  # (N, 3) true positions in {G}
+    measured_um: FloatArray  # (N, 3) triangulated from noisy pixels
+    covariance_um2: FloatArray  # (N, 3, 3) of the measured positions
+    truth: TrueKinematics
+
+
+def measure_positions(
+    p_true_um: FloatArray,
+    cameras: tuple[CameraModel, CameraModel],
+    rng: np.random.Generator,
+    pixel_std_px: tuple[float, float] = VIRTUAL_POINT_STD_PX,
+) -> tuple[FloatArray, FloatArray]:
+    """Project true points into both cameras, add pixel noise, triangulate optimally.
+
+    Returns
+    -------
+    p_um : (N, 3) float
+        Measured positions.
+    cov_um2 : (N, 3, 3) float
+        Their first-order covariance.
+    """
+    cov_px2 = np.diag(np.square(pixel_std_px))
+    n = p_true_um.shape[0]
+    q = [cam.project(p_true_um) + rng.normal(0.0, pixel_std_px, (n, 2)) for cam in cameras]
+    P1, P2 = cameras[0].P, cameras[1].P
+    p = triangulate_optimal(P1, P2, q[0], q[1], cov_px2, cov_px2)
+    return p, triangulation_covariance(P1, P2, p, cov_px2, cov_px2)
+
+
+def synthetic_run(
+    n_poses: int = 170,
+    seed: int = 0,
+    truth: TrueKinematics | None = None,
+    cameras: tuple[CameraModel, CameraModel] | None = None,
+    d_um: FloatArray | None = None,
+) -> SyntheticRun:
+    """A run of ``n_poses`` uniform random commands over the thesis's travel (or ``d_um``)."""
+    rng = np.random.default_rng(seed)
+    truth = truth or thesis_kinematics()
+    cameras = cameras or thesis_cameras()
+    if d_um is None:
+        d_um = rng.uniform(THESIS_WORKSPACE_MIN_UM, THESIS_WORKSPACE_MAX_UM, (n_poses, 3))
+    true = truth.position_um(d_um, approach_signs(d_um))
+    measured, cov = measure_positions(true, cameras, rng)
+    return SyntheticRun(d_um, true, measured, cov, truth)

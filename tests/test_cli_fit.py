@@ -1,0 +1,105 @@
+"""`microcal fit`: the identification command, its output and its user errors."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from microcal import load_calibration
+from microcal.cli import app
+from microcal.formats.measurements import write_measurements
+from microcal.sim.synthetic_run import synthetic_run
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    run = synthetic_run(170, seed=21)
+    d = tmp_path_factory.mktemp("run")
+    T = np.linspace(21.0, 23.0, 170)
+    write_measurements(d / "measurements.csv", run.d_um, run.measured_um, temperature_c=T)
+    return d
+
+
+def test_fit_writes_a_calibration_and_prints_the_model(run_dir, tmp_path):
+    out = tmp_path / "calibration.json"
+    mat = tmp_path / "calibration.mat"
+    result = runner.invoke(app, ["fit", str(run_dir), "--out", str(out), "--mat", str(mat)])
+    assert result.exit_code == 0, result.output
+    assert "dz^2" in result.output
+    assert "first 110 fit, last 60 validate" in result.output
+    cal = load_calibration(out)
+    assert cal.manipulator("m1").model.kind == "polynomial"
+    assert cal.manipulator("m1").validation["n_validate"] == 60
+    assert mat.exists()
+
+
+def test_fit_adds_a_second_manipulator_and_keeps_the_first(run_dir, tmp_path):
+    out = tmp_path / "calibration.json"
+    assert runner.invoke(app, ["fit", str(run_dir), "-o", str(out)]).exit_code == 0
+    result = runner.invoke(
+        app, ["fit", str(run_dir / "measurements.csv"), "-o", str(out), "--model", "matrix",
+              "--manipulator", "m2", "--folds", "5"],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    cal = load_calibration(out)
+    assert sorted(cal.manipulators) == ["m1", "m2"]
+    assert cal.manipulator("m2").validation["method"] == "5-fold cross-validation"
+
+
+def test_temperature_terms(run_dir, tmp_path):
+    out = tmp_path / "c.json"
+    result = runner.invoke(
+        app, ["fit", str(run_dir), "-o", str(out), "--temperature", "--select", "all"]
+    )
+    assert result.exit_code == 0, result.output
+    assert "T^2" in [t.name for t in load_calibration(out).manipulator().model.terms]
+
+
+def _write(path, rows):
+    path.write_text("pose,status,dx_um,dy_um,dz_um,x_um,y_um,z_um\n" + "\n".join(rows) + "\n")
+    return path
+
+
+@pytest.mark.parametrize(
+    ("setup", "args", "message"),
+    [
+        ("none", ["fit", "{tmp}/missing"], "no such file"),
+        ("few", ["fit", "{tmp}/few.csv"], "expected more samples than candidate terms"),
+        ("still", ["fit", "{tmp}/still.csv", "--select", "all"], "input 'dz' has the same value in every sample"),
+        ("good", ["fit", "{run}", "--train", "170"], "train: expected between 1 and 169"),
+        ("good", ["fit", "{run}", "--train", "50", "--folds", "5"], "choose one validation"),
+        ("good", ["fit", "{run}", "--model", "cubic"], "Invalid value for '--model'"),
+        ("good", ["fit", "{run}", "--penter", "0.2"], "expected 0 < penter <= premove < 1"),
+        ("badcal", ["fit", "{run}", "--out", "{tmp}/bad.json"], "not a JSON file"),
+        ("notemp", ["fit", "{tmp}/few.csv", "--temperature"], "has no 'temperature_c' column"),
+    ],
+)  # fmt: skip
+def test_user_errors_exit_2_with_one_line(run_dir, tmp_path, setup, args, message):
+    rng = np.random.default_rng(0)
+    if setup in ("few", "notemp"):
+        _write(tmp_path / "few.csv", [f"{i},ok,{i},{2 * i},{i * i},1,2,{i}" for i in range(1, 9)])
+    if setup == "still":
+        d = rng.uniform(0, 8000, (40, 3))
+        _write(
+            tmp_path / "still.csv",
+            [f"{i + 1},ok,{a},{b},5,{a},{b},5" for i, (a, b, _) in enumerate(d)],
+        )
+    if setup == "badcal":
+        (tmp_path / "bad.json").write_text("{oops")
+    argv = [a.format(tmp=tmp_path, run=run_dir) for a in args]
+    out = subprocess.run([sys.executable, "-m", "microcal", *argv], capture_output=True, text=True,
+                         check=False, stdin=subprocess.DEVNULL, cwd=tmp_path)  # fmt: skip
+    assert out.returncode == 2, out.stderr + out.stdout
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1, out.stderr
+    assert message in lines[0]
+    assert "Traceback" not in out.stderr
+    if setup == "badcal":
+        assert (tmp_path / "bad.json").read_text() == "{oops"  # nothing overwritten
+    assert not (tmp_path / "calibration.json").exists()
