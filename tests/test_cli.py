@@ -29,9 +29,11 @@ def test_version():
 def test_demo_says_what_it_ran_and_reports_figures():
     result = runner.invoke(app, ["demo", "--seed", "1", "--poses", "50"])
     assert result.exit_code == 0, result.output
-    assert "camera-geometry core only" in result.output
+    assert "camera-geometry core" in result.output
+    assert "kinematic identification" in result.output
     assert "not built yet" in result.output
     assert "RMS error" in result.output
+    assert "oracle" in result.output
 
 
 def test_demo_help_has_an_example():

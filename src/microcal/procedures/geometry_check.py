@@ -15,6 +15,7 @@ measurement will do, on synthetic pixel coordinates instead of rendered images:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -110,4 +111,63 @@ def run_geometry_check(seed: int = 0, n_points: int = 170) -> GeometryCheck:
         max_error_um=float(norms.max()),
         mean_predicted_std_um=np.sqrt(np.diagonal(cov, axis1=1, axis2=2)).mean(axis=0),
         mahalanobis_mean_square=float(m2.mean()),
+    )
+
+
+@dataclass(frozen=True)
+class IdentificationCheck:
+    """Validation figures (µm, Eq 5.1 over the validation poses) of both models and the oracle."""
+
+    n_poses: int
+    n_fit: int
+    matrix: dict[str, float]
+    polynomial: dict[str, float]
+    oracle: dict[str, float]
+    polynomial_terms: dict[str, list[str]]
+
+
+#: Thesis section 5.2.2: prediction errors over the 60 validation poses, µm.
+THESIS_VALIDATION_UM = {
+    "matrix": {"mean": 4.58, "std": 2.50, "max": 8.35},
+    "polynomial": {"mean": 2.59, "std": 1.32, "max": 5.28},
+}
+
+
+def _number(value: object) -> float:
+    assert isinstance(value, int | float)
+    return float(value)
+
+
+def run_identification_check(seed: int = 0, n_poses: int = 170) -> IdentificationCheck:
+    """Identify both models on a synthetic run of the thesis preset, validate the thesis's way.
+
+    The run's true positions come from the simulator's true kinematics; the measured ones
+    are their projections into the thesis's cameras with the virtual point's pixel noise,
+    triangulated. The oracle predicts with the true kinematics.
+    """
+    from ..error_summary import summarize_errors
+    from ..sim.synthetic_run import synthetic_run
+    from .identification import default_train, identify
+
+    run = synthetic_run(n_poses, seed=seed)
+    n_fit = default_train(n_poses)
+    figures = {}
+    terms: dict[str, list[str]] = {}
+    kinds: tuple[Literal["matrix"], Literal["polynomial"]] = ("matrix", "polynomial")
+    for kind in kinds:
+        ident = identify(run.d_um, run.measured_um, kind, train=n_fit)
+        figures[kind] = {k: _number(ident.validation[f"{k}_um"]) for k in ("mean", "std", "max")}
+        if kind == "polynomial":
+            terms = {
+                axis: [name for name, _, _ in ident.model.axis_terms(i)]
+                for i, axis in enumerate("xyz")
+            }
+    oracle = summarize_errors(np.linalg.norm(run.measured_um[n_fit:] - run.true_um[n_fit:], axis=1))
+    return IdentificationCheck(
+        n_poses,
+        n_fit,
+        figures["matrix"],
+        figures["polynomial"],
+        {"mean": oracle.mean, "std": oracle.std, "max": oracle.max},
+        terms,
     )
