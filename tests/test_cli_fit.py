@@ -49,7 +49,10 @@ def test_fit_adds_a_second_manipulator_and_keeps_the_first(run_dir, tmp_path):
     assert result.exit_code == 0, result.output
     cal = load_calibration(out)
     assert sorted(cal.manipulators) == ["m1", "m2"]
-    assert cal.manipulator("m2").validation["method"] == "5-fold cross-validation"
+    v = cal.manipulator("m2").validation
+    assert v["method"] == "first 110 fit, last 60 validate"
+    assert v["cross_validation"]["folds"] == 5
+    assert "5-fold cross-validation" in result.output
 
 
 def test_temperature_terms(run_dir, tmp_path):
@@ -73,7 +76,7 @@ def _write(path, rows):
         ("few", ["fit", "{tmp}/few.csv"], "expected more samples than candidate terms"),
         ("still", ["fit", "{tmp}/still.csv", "--select", "all"], "input 'dz' has the same value in every sample"),
         ("good", ["fit", "{run}", "--train", "170"], "train: expected between 1 and 169"),
-        ("good", ["fit", "{run}", "--train", "50", "--folds", "5"], "choose one validation"),
+        ("good", ["fit", "{run}", "--folds", "1"], "Invalid value for '--folds'"),
         ("good", ["fit", "{run}", "--model", "cubic"], "Invalid value for '--model'"),
         ("good", ["fit", "{run}", "--penter", "0.2"], "expected 0 < penter <= premove < 1"),
         ("badcal", ["fit", "{run}", "--out", "{tmp}/bad.json"], "not a JSON file"),

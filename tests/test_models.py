@@ -102,7 +102,7 @@ def test_prediction_std_is_positive_and_grows_outside(joints, rng):
             "expected more samples than candidate terms, got 8 samples for 10",
         ),
         ("still", DegenerateDataError, "input 'dy' has the same value in every sample"),
-        ("nan", InputError, "p_um: expected finite values"),
+        ("nan", DegenerateDataError, r"p_um: 1 sample\(s\) with NaN or infinite values \(rows 5\)"),
         ("shape", InputError, r"p_um: expected shape \(170, 3\), got \(170, 2\)"),
         ("plane", DegenerateDataError, "is a linear combination of the others"),
     ],

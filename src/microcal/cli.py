@@ -238,8 +238,23 @@ def fit(
     v: dict[str, Any] = result.validation
     console.print(
         f"validation ({v['method']}): mean {v['mean_um']:.2f} µm, std {v['std_um']:.2f}, "
-        f"max {v['max_um']:.2f}, RMS {v['rms_um']:.2f}, 95 % {v['p95_um']:.2f}"
+        f"max {v['max_um']:.2f}, RMS {v['rms_um']:.2f}, 95 % {v['p95_um']:.2f}; "
+        "RMS per axis x/y/z " + "/".join(f"{r:.2f}" for r in v["rms_axis_um"].values()) + " µm"
     )
+    if "cross_validation" in v:
+        cv = v["cross_validation"]
+        console.print(
+            f"{cv['folds']}-fold cross-validation (selection repeated per fold): mean "
+            f"{cv['mean_um']:.2f} µm, std {cv['std_um']:.2f}, max {cv['max_um']:.2f}"
+        )
+        unstable = [
+            f"{axis}:{term} {share:.0%}"
+            for axis, shares in cv["term_frequency"].items()
+            for term, share in shares.items()
+            if 0 < share < 1
+        ]
+        if unstable:
+            console.print("terms not selected in every fold: " + ", ".join(unstable))
     console.print(f"wrote {out}" + (f" and {mat}" if mat else ""))
 
 

@@ -231,8 +231,16 @@ class KinematicModel:
 def _inputs_and_targets(
     u: ArrayLike, p_um: ArrayLike, inputs: Sequence[str]
 ) -> tuple[FloatArray, FloatArray]:
-    U = as_array(u, "u", (None, len(inputs)))
-    P = as_array(p_um, "p_um", (U.shape[0], 3))
+    U = as_array(u, "u", (None, len(inputs)), finite=False)
+    P = as_array(p_um, "p_um", (U.shape[0], 3), finite=False)
+    for name, arr in (("u", U), ("p_um", P)):
+        bad = np.flatnonzero(~np.all(np.isfinite(arr), axis=1))
+        if bad.size:
+            rows = ", ".join(str(i) for i in bad[:5]) + (" ..." if bad.size > 5 else "")
+            raise DegenerateDataError(
+                f"{name}: {bad.size} sample(s) with NaN or infinite values (rows {rows}); "
+                f"drop the failed poses before fitting"
+            )
     return U, P
 
 

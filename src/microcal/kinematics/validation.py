@@ -61,11 +61,17 @@ class Validation:
     residuals_um: FloatArray  # (n_validate, 3) measured - predicted, per axis
     summary: ErrorSummary
 
-    def as_dict(self) -> dict[str, float | int]:
+    def as_dict(self) -> dict[str, object]:
         """The ``validation`` object of calibration.json."""
         s = self.summary.as_dict("_um")
         del s["n"]
-        return {"n_fit": self.n_fit, "n_validate": self.n_validate, **s}
+        rms_axis = np.sqrt(np.mean(self.residuals_um**2, axis=0))
+        return {
+            "n_fit": self.n_fit,
+            "n_validate": self.n_validate,
+            **s,
+            "rms_axis_um": {axis: float(v) for axis, v in zip("xyz", rms_axis, strict=True)},
+        }
 
 
 def validate_split(fit: Fitter, u: ArrayLike, p_um: ArrayLike, n_fit: int) -> Validation:

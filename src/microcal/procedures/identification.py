@@ -73,13 +73,13 @@ def identify(
         For the polynomial model: stepwise selection (default) or every term.
     train : int, optional
         Fit on the first ``train`` poses, validate on the rest (default: the thesis's share).
+        The model returned is the one fitted on those poses.
     folds : int, optional
-        Validate by k-fold cross-validation instead; the stored model is fitted on all poses.
+        Also cross-validate the whole procedure (selection included) with this many folds;
+        its figures and how often each term was selected join the validation.
     temperature_c : (N,) float, optional
         Ambient temperature; when given, T and T² terms join the polynomial model (Eq 4.10).
     """
-    if train is not None and folds is not None:
-        raise InputError("choose one validation: --train N or --folds K, not both")
     u = np.asarray(d_um, dtype=np.float64)
     positions = np.asarray(p_um, dtype=np.float64)
     extra: dict[str, int] = {}
@@ -99,22 +99,18 @@ def identify(
         raise InputError(f"model: expected 'matrix' or 'polynomial', got {model!r}")
 
     n = u.shape[0]
-    if folds is not None:
-        cv = cross_validate(fit, u, positions, folds, seed)
-        final = fit(u, positions)
-        s = cv.summary.as_dict("_um")
-        validation: dict[str, object] = {
-            "method": f"{folds}-fold cross-validation",
-            "n_fit": n - n // folds,
-            "n_validate": n,
-            **{k: v for k, v in s.items() if k != "n"},
-        }
-        return Identification(final, validation, None, cv, u, positions)
     n_fit = default_train(n) if train is None else train
     if n - n_fit < 1 or n_fit < 1:
         raise DegenerateDataError(
             f"train: expected between 1 and {n - 1} poses for fitting ({n} usable), got {n_fit}"
         )
     val = validate_split(fit, u, positions, n_fit)
-    validation = {"method": f"first {n_fit} fit, last {n - n_fit} validate", **val.as_dict()}
-    return Identification(val.model, validation, val, None, u, positions)
+    validation: dict[str, object] = {
+        "method": f"first {n_fit} fit, last {n - n_fit} validate",
+        **val.as_dict(),
+    }
+    cv = None
+    if folds is not None:
+        cv = cross_validate(fit, u, positions, folds, seed)
+        validation["cross_validation"] = cv.as_dict()
+    return Identification(val.model, validation, val, cv, u, positions)
