@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any, Literal
 
 import numpy as np
@@ -23,7 +24,6 @@ from .stepwise import StepwiseResult, stepwise_fit
 from .terms import (
     JOINTS,
     Term,
-    design_jacobian,
     design_matrix,
     matrix_terms,
     parse_term,
@@ -35,6 +35,70 @@ __all__ = ["AXES", "KinematicModel", "fit_matrix_model", "fit_model", "fit_polyn
 #: Output axes of every model, in {G}.
 AXES: tuple[str, ...] = ("x", "y", "z")
 ModelKind = Literal["matrix", "polynomial"]
+
+
+class _Compiled:
+    """A model reduced to its selected terms as exponent tables, for fast evaluation.
+
+    The value of every term is gathered from one table of powers of the inputs; the
+    Jacobian uses the derivative polynomials (exponent lowered by one, coefficient times
+    the exponent), prepared once. Points are processed in chunks so that temporaries stay
+    small whatever N is.
+    """
+
+    CHUNK = 32768
+
+    def __init__(self, model: KinematicModel) -> None:
+        used = np.flatnonzero(model.selected.any(axis=0))
+        index = {name: i for i, name in enumerate(model.inputs)}
+        k = len(model.inputs)
+        exps = np.zeros((used.size, k), dtype=np.intp)
+        for row, a in enumerate(used):
+            for name, power in model.terms[a].powers:
+                exps[row, index[name]] = power
+        self.k = k
+        self.exps = exps
+        self.coef = np.ascontiguousarray(model.coefficients[:, used])  # (3, m)
+        self.max_exp = int(exps.max()) if exps.size else 0
+        self.deriv: list[tuple[np.ndarray, FloatArray]] = []
+        for j in model.joints:
+            col = index[j]
+            rows = np.flatnonzero(exps[:, col] > 0)
+            lowered = exps[rows].copy()
+            lowered[:, col] -= 1
+            self.deriv.append((lowered, self.coef[:, rows] * exps[rows, col]))
+        self.rows = np.arange(k)[None, :]
+
+    def _table(self, u: FloatArray) -> FloatArray:
+        T = np.empty((self.k, self.max_exp + 1, u.shape[0]))
+        T[:, 0] = 1.0
+        if self.max_exp >= 1:
+            T[:, 1] = u.T
+        for e in range(2, self.max_exp + 1):
+            T[:, e] = T[:, e - 1] * T[:, 1]
+        return T
+
+    def _eval(self, T: FloatArray, exps: np.ndarray, coef: FloatArray) -> FloatArray:
+        if exps.shape[0] == 0:
+            return np.zeros((3, T.shape[2]))
+        terms = T[self.rows.T, exps.T].prod(axis=0)  # (m, c)
+        out: FloatArray = coef @ terms
+        return out
+
+    def predict(self, u: FloatArray) -> FloatArray:
+        out = np.empty((u.shape[0], 3))
+        for s in range(0, u.shape[0], self.CHUNK):
+            T = self._table(u[s : s + self.CHUNK])
+            out[s : s + self.CHUNK] = self._eval(T, self.exps, self.coef).T
+        return out
+
+    def jacobian(self, u: FloatArray) -> FloatArray:
+        J = np.empty((u.shape[0], 3, len(self.deriv)))
+        for s in range(0, u.shape[0], self.CHUNK):
+            T = self._table(u[s : s + self.CHUNK])
+            for b, (exps, coef) in enumerate(self.deriv):
+                J[s : s + self.CHUNK, :, b] = self._eval(T, exps, coef).T
+        return J
 
 
 @dataclass(frozen=True, eq=False)
@@ -117,9 +181,7 @@ class KinematicModel:
         p_um : (N, 3) float
             Positions in {G}, µm.
         """
-        X = design_matrix(self._inputs(u), self.inputs, self.terms)
-        out: FloatArray = X @ self.coefficients.T
-        return out
+        return self._compiled.predict(self._inputs(u))
 
     def jacobian(self, u: ArrayLike) -> FloatArray:
         """Derivative of the position with respect to the joints.
@@ -133,9 +195,11 @@ class KinematicModel:
         J : (N, 3, j) float
             ``J[n, axis, b] = d p_axis / d joint_b`` (µm per µm).
         """
-        dX = design_jacobian(self._inputs(u), self.inputs, self.terms, self.joints)
-        out: FloatArray = np.einsum("am,nmb->nab", self.coefficients, dX)
-        return out
+        return self._compiled.jacobian(self._inputs(u))
+
+    @cached_property
+    def _compiled(self) -> _Compiled:
+        return _Compiled(self)
 
     def prediction_std_um(self, u: ArrayLike) -> FloatArray:
         """Standard deviation of the prediction from the coefficients' uncertainty.

@@ -1,0 +1,305 @@
+"""Compensators: joint commands that put the end-effector at a desired position (thesis 4.4).
+
+- :func:`matrix_compensator` inverts the matrix model (Eq 4.16) by solving ``R d = p - P_B``
+  (a linear solve, not the adjugate formula the thesis wrote out).
+- :func:`optimal_compensator` solves ``F(d) = model(d) - p = 0`` (Eq 4.17-4.19) for any
+  model of the term library, vectorised over N targets: Newton steps with the analytic
+  Jacobian, started from the solution of the model's linear part, each step accepted only if
+  it lowers the residual (halved otherwise); targets that still fail get a
+  Levenberg-Marquardt solve of their own. Extra inputs (temperature) are given, not solved.
+
+A target whose joints would leave the soft limits is refused with :class:`LimitError`; a
+solution is never clipped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.optimize
+from numpy.typing import ArrayLike
+
+from .._validation import FloatArray, as_array, as_rows
+from ..errors import DegenerateDataError, InputError, LimitError
+from .models import KinematicModel
+
+__all__ = [
+    "MAX_CONDITION",
+    "Compensation",
+    "Compensator",
+    "check_limits",
+    "matrix_compensator",
+    "optimal_compensator",
+]
+
+#: A linear part whose condition number exceeds this cannot be inverted reliably.
+MAX_CONDITION = 1e6
+
+
+@dataclass(frozen=True)
+class Compensation:
+    """Joint commands for N targets and how well they solve the model."""
+
+    d_um: FloatArray  # (N, j) joint commands
+    converged: np.ndarray  # (N,) bool
+    residual_um: FloatArray  # (N,) |model(d) - p|
+    iterations: int  # Newton iterations taken by the batch
+    n_fallback: int  # targets solved by the Levenberg-Marquardt fallback
+
+
+def _linear_part(model: KinematicModel, extra: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """R (3, j) and the offset (N, 3) of the model's terms that are not joint-dependent."""
+    R = model.R
+    j = len(model.joints)
+    if R.shape != (3, j) or j != 3:
+        raise InputError(f"compensator: expected a model with 3 joints, got {list(model.joints)}")
+    cond = np.linalg.cond(R)
+    if not np.isfinite(cond) or cond > MAX_CONDITION:
+        raise DegenerateDataError(
+            f"compensator: the model's linear part R is singular or ill-conditioned "
+            f"(condition number {cond:.3g} > {MAX_CONDITION:.0e}); the joints cannot be solved "
+            f"for - was every axis moved during identification?"
+        )
+    n = extra.shape[0]
+    # Terms without joints: the constant and the powers of extra inputs.
+    offset = np.zeros((n, 3))
+    u0 = np.hstack([np.zeros((n, j)), extra])
+    mask = np.array([not set(t.inputs) & set(model.joints) for t in model.terms])
+    if mask.any():
+        from .terms import design_matrix
+
+        X = design_matrix(
+            u0, model.inputs, [t for t, keep in zip(model.terms, mask, strict=True) if keep]
+        )
+        offset = X @ model.coefficients[:, mask].T
+    return R, offset
+
+
+def _extra_inputs(model: KinematicModel, n: int, extra: ArrayLike | None) -> FloatArray:
+    names = model.extra_inputs
+    if not names:
+        if extra is not None and np.size(extra):
+            raise InputError(f"extra: this model has no inputs besides the joints, got {extra}")
+        return np.zeros((n, 0))
+    if extra is None:
+        raise InputError(
+            f"extra: this model also needs {list(names)} (for example the temperature)"
+        )
+    e = np.asarray(extra, dtype=np.float64)
+    if e.ndim == 0 or e.shape == (len(names),):
+        e = np.broadcast_to(e.reshape(1, -1), (n, len(names)))
+    return as_array(e, "extra", (n, len(names)))
+
+
+def check_limits(
+    d_um: FloatArray, limits_um: ArrayLike | None, p_um: FloatArray | None = None
+) -> None:
+    """Raise LimitError if any row of ``d_um`` leaves ``limits_um`` ((j, 2) low/high per joint)."""
+    if limits_um is None:
+        return
+    lim = as_array(limits_um, "limits_um", (d_um.shape[1], 2))
+    outside = (d_um < lim[:, 0]) | (d_um > lim[:, 1]) | ~np.isfinite(d_um)
+    bad = np.flatnonzero(outside.any(axis=1))
+    if bad.size:
+        i = int(bad[0])
+        k = int(np.flatnonzero(outside[i])[0])
+        target = f" for target {np.round(p_um[i], 3).tolist()} µm" if p_um is not None else ""
+        raise LimitError(
+            f"{bad.size} of {d_um.shape[0]} target(s) need joints outside the soft limits: "
+            f"joint {k} = {d_um[i, k]:.3f} µm{target}, limits [{lim[k, 0]:g}, {lim[k, 1]:g}] µm; "
+            f"nothing was moved"
+        )
+
+
+def _solve3(J: FloatArray, r: FloatArray) -> FloatArray:
+    """Solve ``J x = r`` for N 3x3 systems at once.
+
+    Few systems: LAPACK through ``numpy.linalg.solve`` (one call). Many: Cramer's rule over
+    arrays, a few dozen vectorised operations however large N is (the Jacobians here are
+    close to the identity, so the explicit determinant is harmless).
+    """
+    if r.shape[0] < 256:
+        out: FloatArray = np.linalg.solve(J, r[:, :, None])[:, :, 0]
+        return out
+    a, b, c = J[:, 0, 0], J[:, 0, 1], J[:, 0, 2]
+    d, e, f = J[:, 1, 0], J[:, 1, 1], J[:, 1, 2]
+    g, h, i = J[:, 2, 0], J[:, 2, 1], J[:, 2, 2]
+    A = e * i - f * h
+    B = f * g - d * i
+    C = d * h - e * g
+    det = a * A + b * B + c * C
+    x = np.empty_like(r)
+    r0, r1, r2 = r[:, 0], r[:, 1], r[:, 2]
+    x[:, 0] = (A * r0 + (c * h - b * i) * r1 + (b * f - c * e) * r2) / det
+    x[:, 1] = (B * r0 + (a * i - c * g) * r1 + (c * d - a * f) * r2) / det
+    x[:, 2] = (C * r0 + (b * g - a * h) * r1 + (a * e - b * d) * r2) / det
+    return x
+
+
+class Compensator:
+    """A model prepared for repeated inversion: its linear part checked and factored once.
+
+    Parameters
+    ----------
+    model : KinematicModel
+        Joints dx, dy, dz; any terms.
+    limits_um : (3, 2) float, optional
+        Soft limits (low, high) per joint; solutions outside raise LimitError.
+
+    Raises
+    ------
+    DegenerateDataError
+        If the model's linear part is singular or ill-conditioned.
+    """
+
+    def __init__(self, model: KinematicModel, limits_um: ArrayLike | None = None) -> None:
+        self.model = model
+        self.limits_um = None if limits_um is None else as_array(limits_um, "limits_um", (3, 2))
+        self._R, _ = _linear_part(model, np.zeros((1, len(model.extra_inputs))))
+        self._constant_only = not model.extra_inputs
+        self._p_base = model.p_base_um
+
+    def _start(self, p: FloatArray, e: FloatArray) -> FloatArray:
+        if self._constant_only:
+            offset = self._p_base
+        else:
+            _, offset = _linear_part(self.model, e)
+        out: FloatArray = np.linalg.solve(self._R, (p - offset).T).T
+        return out
+
+    def linear(self, p_um: ArrayLike, *, extra: ArrayLike | None = None) -> FloatArray:
+        """Joints from the linear part alone, ``R^-1 (p - P_B)`` (Eq 4.16); (N, 3)."""
+        p = as_rows(p_um, "p_um", 3)
+        e = _extra_inputs(self.model, p.shape[0], extra)
+        d = self._start(p, e)
+        check_limits(d, self.limits_um, p)
+        return d
+
+    def solve(
+        self,
+        p_um: ArrayLike,
+        *,
+        extra: ArrayLike | None = None,
+        tol_um: float = 1e-9,
+        max_iter: int = 20,
+    ) -> Compensation:
+        """Solve the whole model for the joints (Eq 4.17-4.19); see :func:`optimal_compensator`."""
+        p = as_rows(p_um, "p_um", 3)
+        n = p.shape[0]
+        e = _extra_inputs(self.model, n, extra)
+        d = self._start(p, e)
+        compiled = self.model._compiled
+
+        def residual(dd: FloatArray, ee: FloatArray, pp: FloatArray) -> FloatArray:
+            uu = dd if ee.shape[1] == 0 else np.hstack([dd, ee])
+            out: FloatArray = compiled.predict(uu) - pp
+            return out
+
+        def jacobian(dd: FloatArray, ee: FloatArray) -> FloatArray:
+            return compiled.jacobian(dd if ee.shape[1] == 0 else np.hstack([dd, ee]))
+
+        r = residual(d, e, p)
+        norm = np.sqrt(np.einsum("ij,ij->i", r, r))
+        active = norm > tol_um
+        iterations = 0
+        while active.any() and iterations < max_iter:
+            iterations += 1
+            idx = np.flatnonzero(active)
+            step = -_solve3(jacobian(d[idx], e[idx]), r[idx])
+            for _ in range(6):  # backtracking: halve the step where it does not help
+                trial = d[idx] + step
+                r_trial = residual(trial, e[idx], p[idx])
+                n_trial = np.sqrt(np.einsum("ij,ij->i", r_trial, r_trial))
+                better = np.isfinite(n_trial) & (n_trial < norm[idx])
+                take = idx[better]
+                d[take], r[take], norm[take] = trial[better], r_trial[better], n_trial[better]
+                if better.all():
+                    break
+                idx, step = idx[~better], step[~better] / 2.0
+            active = norm > tol_um
+        n_fallback = 0
+        for i in np.flatnonzero(active):
+            n_fallback += 1
+            sol = scipy.optimize.least_squares(
+                lambda x, i=i: residual(x[None, :], e[i : i + 1], p[i : i + 1])[0],
+                d[i],
+                jac=lambda x, i=i: jacobian(x[None, :], e[i : i + 1])[0],
+                method="lm",
+                xtol=1e-15,
+                ftol=1e-15,
+                gtol=1e-15,
+            )
+            res = float(np.linalg.norm(sol.fun))
+            if res < norm[i]:
+                d[i], norm[i] = sol.x, res
+        converged = norm <= tol_um
+        check_limits(d[converged], self.limits_um, p[converged])
+        return Compensation(d, converged, norm, iterations, n_fallback)
+
+
+def matrix_compensator(
+    model: KinematicModel,
+    p_um: ArrayLike,
+    *,
+    extra: ArrayLike | None = None,
+    limits_um: ArrayLike | None = None,
+) -> FloatArray:
+    """Joint commands from the model's linear part: ``d = R^-1 (p - P_B)`` (Eq 4.16).
+
+    Exact for the matrix model; for a polynomial model it ignores the nonlinear terms (it is
+    the optimal compensator's starting point).
+
+    Parameters
+    ----------
+    model : KinematicModel
+    p_um : (N, 3) or (3,) float
+        Desired positions in {G}, µm.
+    extra : float or (N, e) float, optional
+        Values of the model's extra inputs (temperature), if it has any.
+    limits_um : (3, 2) float, optional
+        Soft limits (low, high) per joint; targets outside raise LimitError.
+
+    Returns
+    -------
+    d_um : (N, 3) float
+    """
+    return Compensator(model, limits_um).linear(p_um, extra=extra)
+
+
+def optimal_compensator(
+    model: KinematicModel,
+    p_um: ArrayLike,
+    *,
+    extra: ArrayLike | None = None,
+    limits_um: ArrayLike | None = None,
+    tol_um: float = 1e-9,
+    max_iter: int = 20,
+) -> Compensation:
+    """Solve the model for the joints (Eq 4.17-4.19), vectorised over N targets.
+
+    Parameters
+    ----------
+    model : KinematicModel
+        Any model of the term library with joints dx, dy, dz.
+    p_um : (N, 3) or (3,) float
+        Desired positions in {G}, µm.
+    extra : float or (N, e) float, optional
+        Values of the model's extra inputs, given (not solved for).
+    limits_um : (3, 2) float, optional
+        Soft limits per joint; a converged solution outside raises LimitError.
+    tol_um : float
+        A target has converged when ``|model(d) - p|`` is at most this.
+    max_iter : int
+        Newton iterations at most before the fallback.
+
+    Returns
+    -------
+    Compensation
+
+    Notes
+    -----
+    For repeated calls with the same model, build a :class:`Compensator` once and call its
+    ``solve``: the linear part is then checked and factored only once.
+    """
+    return Compensator(model, limits_um).solve(p_um, extra=extra, tol_um=tol_um, max_iter=max_iter)
