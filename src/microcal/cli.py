@@ -15,6 +15,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from ._validation import FloatArray
 from ._version import __version__
 from .errors import InputError, MicrocalError
 
@@ -203,7 +204,10 @@ def fit(
         seed=seed,
         temperature_c=meas.temperature_c if temperature else None,
     )
-    entry = ManipulatorCalibration(manipulator, result.model, result.validation)
+    joint_range = np.column_stack([meas.d_um.min(axis=0), meas.d_um.max(axis=0)])
+    entry = ManipulatorCalibration(
+        manipulator, result.model, result.validation, {"joint_range_um": joint_range.tolist()}
+    )
     manipulators = dict(existing.manipulators) if existing else {}
     manipulators[manipulator] = entry
     calibration = Calibration(
@@ -256,6 +260,71 @@ def fit(
         if unstable:
             console.print("terms not selected in every fold: " + ", ".join(unstable))
     console.print(f"wrote {out}" + (f" and {mat}" if mat else ""))
+
+
+def _parse_limits(text: str) -> FloatArray:
+    try:
+        pairs = [tuple(float(v) for v in part.split(":")) for part in text.split(",")]
+        arr = np.array(pairs, dtype=np.float64)
+    except ValueError:
+        arr = np.zeros(0)
+    if arr.shape != (3, 2) or np.any(arr[:, 0] >= arr[:, 1]):
+        raise InputError(
+            f"--limits: expected LOW:HIGH for each joint, as 0:8000,0:8000,0:4800, got {text!r}"
+        )
+    return arr
+
+
+@app.command()
+def solve(
+    calibration: Annotated[Path, typer.Argument(help="calibration.json")],
+    position_um: Annotated[
+        list[float],
+        typer.Argument(help="Desired position X Y Z in {G}, µm (use -- before negative values)."),
+    ],
+    manipulator: Annotated[
+        str | None, typer.Option(help="Manipulator name (optional if only one).")
+    ] = None,
+    temperature: Annotated[
+        float | None, typer.Option(help="Ambient temperature, °C, for models with T terms.")
+    ] = None,
+    limits: Annotated[
+        str | None, typer.Option(help="Soft limits per joint, LOW:HIGH,LOW:HIGH,LOW:HIGH in µm.")
+    ] = None,
+) -> None:
+    """Print the joint commands that put the end-effector at a position (the compensator).
+
+    Example: microcal solve calibration.json 2000 2000 300 --limits 0:8000,0:8000,0:4800
+    """
+    from .formats.calibration_file import load_calibration
+
+    if len(position_um) != 3:
+        raise InputError(f"position: expected 3 numbers X Y Z in µm, got {len(position_um)}")
+    target = np.array(position_um, dtype=np.float64)
+    if not np.all(np.isfinite(target)):
+        raise InputError(f"position: expected finite numbers, got {position_um}")
+    m = load_calibration(calibration).manipulator(manipulator)
+    lim = _parse_limits(limits) if limits else None
+    extra = None if temperature is None else np.array([[temperature]])
+    d = m.joints_for(target, extra=extra, limits_um=lim)[0]
+    u = d if extra is None else np.concatenate([d, extra[0]])
+    reached = m.predict_um(u)[0]
+    print("dx_um dy_um dz_um")
+    print(" ".join(f"{v:.4f}" for v in d))
+    rng = m.joint_range_um
+    if rng is not None and np.any((d < rng[:, 0]) | (d > rng[:, 1])):
+        print(
+            "note: these joints lie outside the range the model was identified on "
+            + ",".join(f"{lo:.0f}:{hi:.0f}" for lo, hi in rng)
+            + " µm; the model extrapolates there",
+            file=sys.stderr,
+        )
+    print(
+        f"{m.model.kind} model of {m.name!r}: model(d) - target = "
+        + ", ".join(f"{v:.2e}" for v in reached - target)
+        + " µm",
+        file=sys.stderr,
+    )
 
 
 def _fail(message: str) -> NoReturn:

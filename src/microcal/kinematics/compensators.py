@@ -120,8 +120,7 @@ def _solve3(J: FloatArray, r: FloatArray) -> FloatArray:
     close to the identity, so the explicit determinant is harmless).
     """
     if r.shape[0] < 256:
-        out: FloatArray = np.linalg.solve(J, r[:, :, None])[:, :, 0]
-        return out
+        return np.asarray(np.linalg.solve(J, r[:, :, None])[:, :, 0], dtype=np.float64)
     a, b, c = J[:, 0, 0], J[:, 0, 1], J[:, 0, 2]
     d, e, f = J[:, 1, 0], J[:, 1, 1], J[:, 1, 2]
     g, h, i = J[:, 2, 0], J[:, 2, 1], J[:, 2, 2]
@@ -165,8 +164,7 @@ class Compensator:
             offset = self._p_base
         else:
             _, offset = _linear_part(self.model, e)
-        out: FloatArray = np.linalg.solve(self._R, (p - offset).T).T
-        return out
+        return np.asarray(np.linalg.solve(self._R, (p - offset).T).T, dtype=np.float64)
 
     def linear(self, p_um: ArrayLike, *, extra: ArrayLike | None = None) -> FloatArray:
         """Joints from the linear part alone, ``R^-1 (p - P_B)`` (Eq 4.16); (N, 3)."""
@@ -205,6 +203,14 @@ class Compensator:
         iterations = 0
         while active.any() and iterations < max_iter:
             iterations += 1
+            if active.all():  # the usual case: no index bookkeeping
+                trial = d - _solve3(jacobian(d, e), r)
+                r_trial = residual(trial, e, p)
+                n_trial = np.sqrt(np.einsum("ij,ij->i", r_trial, r_trial))
+                if np.all(n_trial < norm):
+                    d, r, norm = trial, r_trial, n_trial
+                    active = norm > tol_um
+                    continue
             idx = np.flatnonzero(active)
             step = -_solve3(jacobian(d[idx], e[idx]), r[idx])
             for _ in range(6):  # backtracking: halve the step where it does not help
