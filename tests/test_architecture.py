@@ -21,6 +21,8 @@ LAYERS = {
     "kinematics": 1,
     "metrics": 1,
     "synthetic": 1,
+    "vision": 2,
+    "devices": 3,
     "sim": 3,
     "procedures": 4,
     "formats": 5,
@@ -31,6 +33,7 @@ LAYERS = {
 ALLOWED_THIRD_PARTY = {
     0: {"numpy"},
     1: {"numpy", "scipy"},
+    2: {"numpy", "scipy", "cv2"},
     3: {"numpy", "scipy", "cv2"},
     4: {"numpy", "scipy", "cv2"},
     5: {"numpy", "scipy", "cv2", "typer", "rich", "pydantic"},

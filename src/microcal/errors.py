@@ -12,10 +12,13 @@ __all__ = [
     "DegenerateDataError",
     "DetectionError",
     "DeviceError",
+    "DeviceTimeoutError",
     "FormatError",
+    "FrameError",
     "InputError",
     "LimitError",
     "MicrocalError",
+    "MoveError",
 ]
 
 
@@ -45,3 +48,15 @@ class FormatError(MicrocalError, ValueError):
 
 class DeviceError(MicrocalError, RuntimeError):
     """A device failed, timed out or reported an error."""
+
+
+class DeviceTimeoutError(DeviceError):
+    """A device did not answer in time (transient: the operation may be retried)."""
+
+
+class MoveError(DeviceError):
+    """A move failed (the controller reported an error, or the positioner did not arrive)."""
+
+
+class FrameError(DeviceError):
+    """A camera delivered no frame, or a broken one (transient: grab again)."""

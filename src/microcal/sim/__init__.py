@@ -1,5 +1,16 @@
-"""The simulated microrobotic platform (devices layer): microcal's default rig and test bed."""
+"""The simulated microrobotic platform (devices layer): microcal's default rig and test bed.
+
+``microcal.sim.platform(preset="thesis", seed=0)`` returns the whole platform.
+"""
 
 from .kinematics import TrueKinematics, thesis_kinematics
+from .platforms import PlatformConfig, SimPlatform, load_overrides, platform
 
-__all__ = ["TrueKinematics", "thesis_kinematics"]
+__all__ = [
+    "PlatformConfig",
+    "SimPlatform",
+    "TrueKinematics",
+    "load_overrides",
+    "platform",
+    "thesis_kinematics",
+]

@@ -1,0 +1,215 @@
+"""The simulated microscope camera (a :class:`Camera` backend): rendered frames.
+
+A grab renders every target in the scene into the frame (only the pixels they cover), blurs
+each by its defocus, applies vignetting, converts to electrons, adds shot and read noise and
+quantises to the camera's bit depth. The scene may shake against the camera by a small random
+offset per frame (vibration). Faults are injected at given rates: dropped frames and
+timeouts raise the exceptions a real driver would; occlusion and glare spoil the image.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from .._validation import FloatArray
+from ..devices.base import Camera, Clock
+from ..errors import DeviceTimeoutError, FrameError
+from ..geometry.camera_model import CameraModel
+from .render import Placement, Reflectance, render_placement, roi_of
+
+__all__ = ["CameraFaults", "ImageFormation", "SimCamera"]
+
+
+@dataclass(frozen=True)
+class ImageFormation:
+    """How light becomes numbers in the simulated camera.
+
+    Attributes
+    ----------
+    full_well_e : float
+        Electrons at the top of the output range.
+    illumination : float
+        Signal of a white (reflectance 1) object at the nominal exposure, as a fraction of the
+        full well.
+    read_noise_e : float
+        Read noise, electrons RMS.
+    vignetting : float
+        Relative loss of light at the image corners (quadratic in the radius).
+    blur_sigma_px : float
+        Blur (optics) of an object in the focal plane, px.
+    defocus_px_per_mm : float
+        Growth of the blur per mm of depth away from the focal plane.
+    focus_depth_um : float
+        Depth of the focal plane from the camera centre, µm.
+    jitter_px : (float, float)
+        Standard deviation of the per-frame shift of the scene (vibration), px.
+    supersample : int
+        Subsamples per pixel side in the rendering.
+    nominal_exposure_s : float
+        Exposure at which ``illumination`` holds; the signal scales with the exposure.
+    readout_s : float
+        Simulated time a frame takes besides the exposure.
+    """
+
+    full_well_e: float = 6000.0
+    illumination: float = 0.85
+    read_noise_e: float = 300.0
+    vignetting: float = 0.2
+    blur_sigma_px: float = 1.7
+    defocus_px_per_mm: float = 0.4
+    focus_depth_um: float = 0.0
+    jitter_px: tuple[float, float] = (0.0, 0.0)
+    supersample: int = 2
+    nominal_exposure_s: float = 0.02
+    readout_s: float = 0.03
+
+
+@dataclass(frozen=True)
+class CameraFaults:
+    """Fault rates per grab (0 = never)."""
+
+    drop_rate: float = 0.0
+    timeout_rate: float = 0.0
+    occlusion_rate: float = 0.0
+    glare_rate: float = 0.0
+
+
+@dataclass
+class FrameTruth:
+    """What the last frame showed, for tests: time, vibration shift and true features."""
+
+    t_s: float
+    offset_px: FloatArray
+    features_px: list[FloatArray] = field(default_factory=list)  # per placement, (N, 2)
+    placements: list[Placement] = field(default_factory=list)
+    spoiled: str = ""  # "occlusion" or "glare" when a fault spoiled the frame
+
+
+class SimCamera(Camera):
+    """A camera that renders the scene through a :class:`CameraModel`.
+
+    Parameters
+    ----------
+    model : CameraModel
+        The true camera (intrinsics, distortion, pose).
+    scene : callable t_s -> list of Placement
+        The targets in view at a given time.
+    clock : Clock
+    rng : numpy.random.Generator
+    pixel_size_um : float
+        Physical pixel size (informational).
+    bit_depth : int
+    formation : ImageFormation
+    faults : CameraFaults
+    """
+
+    def __init__(
+        self,
+        model: CameraModel,
+        scene: Callable[[float], list[Placement]],
+        clock: Clock,
+        rng: np.random.Generator,
+        *,
+        pixel_size_um: float = 4.4,
+        bit_depth: int = 8,
+        formation: ImageFormation | None = None,
+        faults: CameraFaults | None = None,
+        reflectance: Reflectance | None = None,
+    ) -> None:
+        super().__init__(model.name, model.image_size_px, pixel_size_um, bit_depth, 0.02)
+        self.model = model
+        self.scene = scene
+        self.clock = clock
+        self.rng = rng
+        self.formation = formation or ImageFormation()
+        self._exposure_s = self.formation.nominal_exposure_s
+        self.faults = faults or CameraFaults()
+        self.reflectance = reflectance or Reflectance()
+        w, h = model.image_size_px
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+        r2 = ((xx - (w - 1) / 2) ** 2 + (yy - (h - 1) / 2) ** 2) / ((w / 2) ** 2 + (h / 2) ** 2)
+        self._vignette = (1.0 - self.formation.vignetting * r2).astype(np.float32)
+        self.last_truth: FrameTruth | None = None
+
+    def _blur_sigma(self, placement: Placement) -> float:
+        f = self.formation
+        centre = placement.R @ placement.target.centre_um + placement.t_um
+        depth = float((self.model.R @ centre + self.model.t_um)[2])
+        defocus = f.defocus_px_per_mm * abs(depth - f.focus_depth_um) / 1000.0
+        return float(np.hypot(f.blur_sigma_px, defocus))
+
+    def render_reflectance(
+        self, t_s: float, offset_px: FloatArray
+    ) -> tuple[NDArray[np.float32], FrameTruth]:
+        """Noise-free reflectance image of the scene at ``t_s`` (blurred, no vignetting)."""
+        w, h = self.model.image_size_px
+        image = np.full((h, w), self.reflectance.background, dtype=np.float32)
+        truth = FrameTruth(t_s, offset_px)
+        for placement in self.scene(t_s):
+            sigma = self._blur_sigma(placement)
+            roi = roi_of(self.model, placement, 4.0 * sigma + 3.0, offset_px)
+            truth.placements.append(placement)
+            truth.features_px.append(self.model.project(placement.points_world_um()) + offset_px)
+            if roi is None:
+                continue
+            value, alpha = render_placement(
+                self.model,
+                placement,
+                roi,
+                supersample=self.formation.supersample,
+                offset_px=offset_px,
+                reflectance=self.reflectance,
+            )
+            x0, y0, x1, y1 = roi
+            patch = image[y0:y1, x0:x1]
+            patch = patch * (1.0 - alpha) + value * alpha
+            image[y0:y1, x0:x1] = cv2.GaussianBlur(patch.astype(np.float32), (0, 0), sigma)
+        return image, truth
+
+    def _spoil(self, image: NDArray[np.float32], truth: FrameTruth) -> None:
+        f = self.faults
+        kind = ""
+        if f.occlusion_rate and self.rng.random() < f.occlusion_rate:
+            kind = "occlusion"
+        elif f.glare_rate and self.rng.random() < f.glare_rate:
+            kind = "glare"
+        if not kind or not truth.features_px:
+            return
+        pts = truth.features_px[0]
+        centre = pts[self.rng.integers(len(pts))]
+        spread = float(np.ptp(pts[:, 0]) + np.ptp(pts[:, 1])) / 4 + 5
+        axes = (int(spread * self.rng.uniform(0.6, 1.2)), int(spread * self.rng.uniform(0.4, 0.9)))
+        value = 0.02 if kind == "occlusion" else 1.4
+        cv2.ellipse(image, (int(centre[0]), int(centre[1])), axes, float(self.rng.uniform(0, 180)),
+                    0, 360, value, -1)  # fmt: skip
+        truth.spoiled = kind
+
+    def grab(self) -> NDArray[np.unsignedinteger]:
+        f = self.faults
+        if f.timeout_rate and self.rng.random() < f.timeout_rate:
+            self.clock.sleep(1.0)
+            raise DeviceTimeoutError(f"{self.name}: no frame within the timeout")
+        if f.drop_rate and self.rng.random() < f.drop_rate:
+            self.clock.sleep(self.exposure_s + self.formation.readout_s)
+            raise FrameError(f"{self.name}: frame dropped (incomplete transfer)")
+        t = self.clock.now_s()
+        offset = self.rng.normal(0.0, 1.0, 2) * np.asarray(self.formation.jitter_px)
+        image, truth = self.render_reflectance(t, offset)
+        self._spoil(image, truth)
+        fm = self.formation
+        signal = fm.full_well_e * fm.illumination * (self.exposure_s / fm.nominal_exposure_s)
+        electrons = image * self._vignette * np.float32(signal)
+        noise = self.rng.standard_normal(electrons.shape, dtype=np.float32)
+        electrons += np.sqrt(np.maximum(electrons, 0) + np.float32(fm.read_noise_e**2)) * noise
+        top = 2**self.bit_depth - 1
+        dn = electrons * np.float32(top / fm.full_well_e)
+        np.rint(dn, out=dn)
+        np.clip(dn, 0, top, out=dn)
+        self.clock.sleep(self.exposure_s + fm.readout_s)
+        self.last_truth = truth
+        return dn.astype(self.dtype)

@@ -1,0 +1,147 @@
+"""The simulated stick-slip micromanipulator (a :class:`Manipulator` backend).
+
+Each joint travels at ``speed_um_s`` to its target; the device's own position loop reports
+"moving" until ``loop_settle_s`` after the last joint arrived. The end-effector's true
+position follows :class:`TrueKinematics` (static errors, hysteresis from each joint's
+approach direction, thermal drift) and keeps creeping after the move with the kinematics'
+time constant. The position readout has its own sensor noise. Faults are injected at the
+given rates: a move the controller refuses (:class:`MoveError`) and a command that times out
+(:class:`DeviceTimeoutError`); neither moves anything.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .._validation import FloatArray
+from ..devices.base import Clock, Manipulator
+from ..errors import DeviceTimeoutError, MoveError
+from .kinematics import TrueKinematics
+
+__all__ = ["ManipulatorFaults", "SimManipulator"]
+
+
+@dataclass(frozen=True)
+class ManipulatorFaults:
+    """Fault rates per command (0 = never)."""
+
+    move_failure_rate: float = 0.0
+    timeout_rate: float = 0.0
+
+
+class SimManipulator(Manipulator):
+    """A simulated Cartesian manipulator with true kinematics, timing, creep and faults.
+
+    Parameters
+    ----------
+    truth : TrueKinematics
+    clock : Clock
+        Usually a :class:`SimClock`.
+    rng : numpy.random.Generator
+        For sensor noise and faults.
+    limits_um : (3, 2) float
+        Soft travel limits per joint.
+    speed_um_s : float
+        Joint speed while moving (default 2000 µm/s).
+    loop_settle_s : float
+        The device's own position loop settles this long after arrival (default 0.4 s).
+    sensor_noise_um : float
+        Standard deviation of the position readout (default 0.05 µm).
+    temperature_c : float
+        Ambient temperature at time zero (default: the kinematics' reference).
+    temperature_drift_c_per_h : float
+        Linear drift of the ambient temperature (default 0).
+    faults : ManipulatorFaults
+    """
+
+    def __init__(
+        self,
+        truth: TrueKinematics,
+        clock: Clock,
+        rng: np.random.Generator,
+        *,
+        name: str = "m1",
+        limits_um: ArrayLike = ((0.0, 8000.0), (0.0, 8000.0), (0.0, 4800.0)),
+        speed_um_s: float = 2000.0,
+        loop_settle_s: float = 0.4,
+        sensor_noise_um: float = 0.05,
+        temperature_c: float | None = None,
+        temperature_drift_c_per_h: float = 0.0,
+        faults: ManipulatorFaults | None = None,
+    ) -> None:
+        super().__init__(name, ("x", "y", "z"), limits_um)
+        self.truth = truth
+        self.clock = clock
+        self.rng = rng
+        self.speed_um_s = float(speed_um_s)
+        self.loop_settle_s = float(loop_settle_s)
+        self.sensor_noise_um = float(sensor_noise_um)
+        self.temperature_c0 = (
+            truth.reference_temperature_c if temperature_c is None else temperature_c
+        )
+        self.temperature_drift_c_per_h = float(temperature_drift_c_per_h)
+        self.faults = faults or ManipulatorFaults()
+        self._start = self.limits_um[:, 0].copy()
+        self._target = self._start.copy()
+        self._t0 = clock.now_s()
+        self._t_arrive = self._t0
+        self._step = np.zeros(3)
+        self._signs = np.ones(3)
+
+    # --- the device protocol -------------------------------------------------------------
+    def _fault(self, what: str) -> None:
+        if self.faults.timeout_rate and self.rng.random() < self.faults.timeout_rate:
+            raise DeviceTimeoutError(f"{self.name}: no answer to {what} within the timeout")
+
+    def _move(self, d_um: FloatArray) -> None:
+        self._fault("the move command")
+        if self.faults.move_failure_rate and self.rng.random() < self.faults.move_failure_rate:
+            raise MoveError(f"{self.name}: the controller refused the move (simulated fault)")
+        now = self.clock.now_s()
+        current = self.joints_um(now)
+        step = d_um - current
+        self._signs = np.where(step > 0, 1.0, np.where(step < 0, -1.0, self._signs))
+        self._start, self._target, self._t0 = current, d_um.copy(), now
+        self._step = step
+        self._t_arrive = now + float(np.abs(step).max()) / self.speed_um_s
+
+    def position_um(self) -> FloatArray:
+        self._fault("the position query")
+        d = self.joints_um(self.clock.now_s())
+        out: FloatArray = d + self.rng.normal(0.0, self.sensor_noise_um, 3)
+        return out
+
+    def is_moving(self) -> bool:
+        self._fault("the status query")
+        return self.clock.now_s() < self._t_arrive + self.loop_settle_s
+
+    def stop(self) -> None:
+        now = self.clock.now_s()
+        current = self.joints_um(now)
+        self._step = current - self._start
+        self._start = self._target = current
+        self._t0 = self._t_arrive = now
+
+    # --- ground truth (tests and benchmarks only) ---------------------------------------
+    def joints_um(self, t_s: float) -> FloatArray:
+        """True joint positions at time ``t_s`` (each joint at its own constant speed)."""
+        delta = self._target - self._start
+        travelled = np.minimum(np.abs(delta), self.speed_um_s * max(t_s - self._t0, 0.0))
+        out: FloatArray = self._start + np.sign(delta) * travelled
+        return out
+
+    def temperature_at(self, t_s: float) -> float:
+        """Ambient temperature at time ``t_s``, °C."""
+        return self.temperature_c0 + self.temperature_drift_c_per_h * t_s / 3600.0
+
+    def true_position_um(self, t_s: float | None = None) -> FloatArray:
+        """True end-effector position in {G} at time ``t_s`` (now by default), (3,) µm."""
+        t = self.clock.now_s() if t_s is None else t_s
+        d = self.joints_um(t)
+        p = self.truth.position_um(d, self._signs[None, :], self.temperature_at(t))[0]
+        creep = self.truth.creep_um(self._step, t - self._t_arrive)[0]
+        out: FloatArray = p + creep
+        return out

@@ -1,0 +1,217 @@
+"""The whole simulated platform: manipulator, two cameras, clock, scene and ground truth.
+
+``microcal.sim.platform(preset="thesis", seed=0)`` builds the thesis's platform (section 2.4
+and 5.1): a top camera of 1600 x 1200 px with the thesis's P, a side camera of 2452 x 2056 px
+binned 2 x 2 with the thesis's P', both with a plausible lens distortion; a three-axis
+stick-slip manipulator with the true kinematics of :func:`thesis_kinematics`; the 4 x 3
+chessboard (pitch 400 µm) on the gripper, its inner-corner centroid being the end-effector.
+
+Every value can be changed: ``platform(..., overrides={"top.formation.read_noise_e": 30})``
+or a TOML file (:func:`load_overrides`) whose tables mirror those dotted names.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._validation import FloatArray
+from ..errors import FormatError, InputError
+from ..geometry.camera_model import CameraModel
+from ..synthetic import thesis_cameras
+from ..vision.targets import Target, parse_target
+from .camera import CameraFaults, ImageFormation, SimCamera
+from .clock import SimClock
+from .kinematics import thesis_kinematics
+from .manipulator import ManipulatorFaults, SimManipulator
+from .render import Placement
+
+__all__ = ["PlatformConfig", "Scene", "SimPlatform", "load_overrides", "platform"]
+
+
+@dataclass
+class CameraConfig:
+    """One simulated camera."""
+
+    dist: tuple[float, ...]
+    pixel_size_um: float
+    bit_depth: int = 8
+    formation: ImageFormation = field(default_factory=ImageFormation)
+    faults: CameraFaults = field(default_factory=CameraFaults)
+
+
+@dataclass
+class ManipulatorConfig:
+    """The simulated manipulator (see :class:`SimManipulator`)."""
+
+    limits_um: tuple[tuple[float, float], ...] = ((0.0, 8000.0), (0.0, 8000.0), (0.0, 4800.0))
+    speed_um_s: float = 2000.0
+    loop_settle_s: float = 0.4
+    sensor_noise_um: float = 0.05
+    temperature_c: float = 22.0
+    temperature_drift_c_per_h: float = 0.0
+    faults: ManipulatorFaults = field(default_factory=ManipulatorFaults)
+
+
+@dataclass
+class PlatformConfig:
+    """Every parameter of a simulated platform."""
+
+    board: str = "chessboard:4x3:400"
+    top: CameraConfig = field(
+        default_factory=lambda: CameraConfig(
+            dist=(0.5, 0.0, 1e-3, -1e-3, 0.0),
+            pixel_size_um=4.4,
+            formation=ImageFormation(jitter_px=(0.06, 0.0)),
+        )
+    )
+    side: CameraConfig = field(
+        default_factory=lambda: CameraConfig(
+            dist=(0.4, 0.0, -1e-3, 1e-3, 0.0),
+            pixel_size_um=6.9,
+            formation=ImageFormation(jitter_px=(0.06, 0.0)),
+        )
+    )
+    manipulator: ManipulatorConfig = field(default_factory=ManipulatorConfig)
+
+
+PRESETS = ("thesis",)
+
+
+def _set_dotted(obj: Any, dotted: str, value: Any) -> Any:
+    head, _, rest = dotted.partition(".")
+    if not dataclasses.is_dataclass(obj) or not any(
+        f.name == head for f in dataclasses.fields(obj)
+    ):
+        raise InputError(f"override {dotted!r}: no setting {head!r} here")
+    current = getattr(obj, head)
+    if rest:
+        return dataclasses.replace(obj, **{head: _set_dotted(current, rest, value)})  # type: ignore[type-var]
+    if isinstance(current, tuple) and isinstance(value, list):
+        value = tuple(tuple(v) if isinstance(v, list) else v for v in value)
+    if (
+        current is not None
+        and not isinstance(value, type(current))
+        and not (isinstance(current, float) and isinstance(value, int))
+    ):
+        raise InputError(
+            f"override {dotted!r}: expected {type(current).__name__}, got {type(value).__name__}"
+        )
+    return dataclasses.replace(obj, **{head: value})  # type: ignore[type-var]
+
+
+def load_overrides(path: str | Path) -> dict[str, Any]:
+    """Read a TOML file of platform settings into dotted overrides.
+
+    ``[top.formation]\\nread_noise_e = 30`` becomes ``{"top.formation.read_noise_e": 30}``.
+    """
+    try:
+        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise FormatError(f"{path}: no such file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise FormatError(f"{path}: not valid TOML ({exc})") from None
+    out: dict[str, Any] = {}
+
+    def walk(prefix: str, node: dict[str, Any]) -> None:
+        for key, value in node.items():
+            name = f"{prefix}.{key}" if prefix else key
+            if isinstance(value, dict):
+                walk(name, value)
+            else:
+                out[name] = value
+
+    walk("", data)
+    return out
+
+
+class Scene:
+    """What the cameras see: the board on the end-effector and an optional fixed target."""
+
+    def __init__(self, manipulator: SimManipulator, board: Target, board_R: FloatArray) -> None:
+        self.manipulator = manipulator
+        self.board = board
+        self.board_R = board_R
+        self.show_board = True
+        self.fixed: Placement | None = None
+
+    def board_placement(self, t_s: float) -> Placement:
+        """The board, its inner-corner centroid at the end-effector's true position."""
+        p = self.manipulator.true_position_um(t_s)
+        return Placement(self.board, self.board_R, p - self.board_R @ self.board.centre_um)
+
+    def __call__(self, t_s: float) -> list[Placement]:
+        out = [] if self.fixed is None else [self.fixed]
+        if self.show_board:
+            out.append(self.board_placement(t_s))
+        return out
+
+
+@dataclass
+class SimPlatform:
+    """The simulated platform; ``truth_*`` members are for tests and benchmarks only."""
+
+    config: PlatformConfig
+    clock: SimClock
+    manipulator: SimManipulator
+    cameras: dict[str, SimCamera]
+    scene: Scene
+    seed: int
+
+    @property
+    def camera_models(self) -> dict[str, CameraModel]:
+        """The true camera models (ground truth)."""
+        return {name: cam.model for name, cam in self.cameras.items()}
+
+    def truth_position_um(self) -> FloatArray:
+        """True end-effector position now, (3,) µm in {G}."""
+        return self.manipulator.true_position_um()
+
+
+def platform(
+    preset: str = "thesis", seed: int = 0, overrides: dict[str, Any] | None = None
+) -> SimPlatform:
+    """Build a simulated platform.
+
+    Parameters
+    ----------
+    preset : str
+        ``"thesis"``: the thesis's platform.
+    seed : int
+        Seed of every random draw (noise, faults, vibration); same seed, same frames.
+    overrides : dict, optional
+        Dotted settings of :class:`PlatformConfig`, e.g. ``{"top.bit_depth": 12}``.
+    """
+    if preset not in PRESETS:
+        raise InputError(f"preset: expected one of {list(PRESETS)}, got {preset!r}")
+    config = PlatformConfig()
+    for key, value in (overrides or {}).items():
+        config = _set_dotted(config, key, value)
+    root = np.random.SeedSequence(seed)
+    s_manip, s_top, s_side = root.spawn(3)
+    clock = SimClock()
+    mc = config.manipulator
+    manipulator = SimManipulator(
+        thesis_kinematics(), clock, np.random.default_rng(s_manip),
+        limits_um=mc.limits_um, speed_um_s=mc.speed_um_s, loop_settle_s=mc.loop_settle_s,
+        sensor_noise_um=mc.sensor_noise_um, temperature_c=mc.temperature_c,
+        temperature_drift_c_per_h=mc.temperature_drift_c_per_h, faults=mc.faults,
+    )  # fmt: skip
+    board = parse_target(config.board)
+    scene = Scene(manipulator, board, np.eye(3))
+    models = thesis_cameras(np.array(config.top.dist), np.array(config.side.dist))
+    centre = np.array([5000.0, 4800.0, 2700.0])  # middle of the end-effector's travel in {G}
+    cameras = {}
+    for model, cfg, seq in zip(models, (config.top, config.side), (s_top, s_side), strict=True):
+        focus = float((model.R @ centre + model.t_um)[2])
+        formation = dataclasses.replace(cfg.formation, focus_depth_um=focus)
+        cameras[model.name] = SimCamera(
+            model, scene, clock, np.random.default_rng(seq), pixel_size_um=cfg.pixel_size_um,
+            bit_depth=cfg.bit_depth, formation=formation, faults=cfg.faults,
+        )  # fmt: skip
+    return SimPlatform(config, clock, manipulator, cameras, scene, seed)

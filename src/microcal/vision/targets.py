@@ -1,0 +1,137 @@
+"""Calibration and end-effector targets: their geometry in their own plane.
+
+Target specs are strings:
+
+- ``chessboard:COLSxROWS:PITCH_UM``: COLS x ROWS *inner* corners, squares of PITCH µm
+  (OpenCV's pattern size); the thesis's end-effector board is ``chessboard:4x3:400``.
+- ``dotgrid:COLSxROWS:PITCH_UM[:DIAMETER_UM]``: a symmetric grid of dots (the thesis's
+  chrome-on-glass target: pitch 125 µm, dots 62.5 µm, the default diameter pitch / 2).
+- ``charuco:COLSxROWS:PITCH_UM[:MARKER_UM]``: a ChArUco board of COLS x ROWS *squares*
+  (OpenCV's convention), ArUco markers of the 4x4 dictionary (default size 0.7 pitch).
+
+The target frame: x along the columns, y along the rows, z = 0 on the target; the first
+feature (inner corner or dot) is at the origin.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from .._validation import FloatArray
+from ..errors import InputError
+
+__all__ = ["Target", "parse_target"]
+
+TargetKind = Literal["chessboard", "dotgrid", "charuco"]
+_SPEC = re.compile(
+    r"^(chessboard|dotgrid|charuco):(\d+)x(\d+):([0-9.]+)(?::([0-9.]+))?$", re.IGNORECASE
+)
+
+
+@dataclass(frozen=True)
+class Target:
+    """A planar target.
+
+    Attributes
+    ----------
+    kind : {"chessboard", "dotgrid", "charuco"}
+    cols, rows : int
+        Inner corners (chessboard), dots (dotgrid) or squares (charuco).
+    pitch_um : float
+        Square size or dot spacing, µm.
+    feature_um : float
+        Dot diameter (dotgrid) or marker size (charuco); 0 for a chessboard.
+    """
+
+    kind: TargetKind
+    cols: int
+    rows: int
+    pitch_um: float
+    feature_um: float = 0.0
+
+    @property
+    def spec(self) -> str:
+        """The spec string this target parses from."""
+        base = f"{self.kind}:{self.cols}x{self.rows}:{self.pitch_um:g}"
+        return base + (f":{self.feature_um:g}" if self.kind != "chessboard" else "")
+
+    @property
+    def pattern_size(self) -> tuple[int, int]:
+        """(cols, rows) of the detected features: inner corners or dots."""
+        if self.kind == "charuco":
+            return (self.cols - 1, self.rows - 1)
+        return (self.cols, self.rows)
+
+    def points_um(self) -> FloatArray:
+        """Feature positions in the target frame, row by row (x fastest), (N, 3) µm.
+
+        Inner corners for chessboards and ChArUco boards, dot centres for dot grids; in the
+        order OpenCV's detectors return them for an unrotated view.
+        """
+        c, r = self.pattern_size
+        gx, gy = np.meshgrid(np.arange(c) * self.pitch_um, np.arange(r) * self.pitch_um)
+        return np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
+
+    def extent_um(self) -> tuple[float, float, float, float]:
+        """(x_min, x_max, y_min, y_max) of the printed pattern in the target frame."""
+        p = self.pitch_um
+        c, r = self.pattern_size
+        if self.kind == "dotgrid":
+            m = self.feature_um
+            return (-m, (c - 1) * p + m, -m, (r - 1) * p + m)
+        return (-p, c * p, -p, r * p)
+
+    @property
+    def centre_um(self) -> FloatArray:
+        """Mean of the feature positions (the virtual point of Eq 4.13 for a chessboard)."""
+        out: FloatArray = self.points_um().mean(axis=0)
+        return out
+
+
+def parse_target(spec: str) -> Target:
+    """Parse a target spec string (see the module docstring).
+
+    Raises
+    ------
+    InputError
+        A one-line message with the expected form.
+    """
+    m = _SPEC.match(spec.strip())
+    if not m:
+        raise InputError(
+            f"target {spec!r}: expected KIND:COLSxROWS:PITCH_UM with KIND chessboard, dotgrid "
+            f"or charuco, e.g. chessboard:4x3:400"
+        )
+    kind = m.group(1).lower()
+    cols, rows = int(m.group(2)), int(m.group(3))
+    try:
+        pitch = float(m.group(4))
+        feature = float(m.group(5)) if m.group(5) else 0.0
+    except ValueError:
+        raise InputError(f"target {spec!r}: the pitch and feature size must be numbers") from None
+    if pitch <= 0:
+        raise InputError(f"target {spec!r}: expected a pitch > 0 µm, got {pitch:g}")
+    minimum = 3 if kind == "charuco" else 2
+    if cols < minimum or rows < minimum:
+        raise InputError(
+            f"target {spec!r}: expected at least {minimum}x{minimum}, got {cols}x{rows}"
+        )
+    if kind == "chessboard" and feature:
+        raise InputError(f"target {spec!r}: a chessboard takes no feature size")
+    if kind == "dotgrid":
+        feature = feature or pitch / 2
+        if not 0 < feature < pitch:
+            raise InputError(
+                f"target {spec!r}: expected a dot diameter below the pitch {pitch:g} µm"
+            )
+    if kind == "charuco":
+        feature = feature or 0.7 * pitch
+        if not 0 < feature < pitch:
+            raise InputError(
+                f"target {spec!r}: expected a marker size below the pitch {pitch:g} µm"
+            )
+    return Target(kind, cols, rows, pitch, feature)  # type: ignore[arg-type]
