@@ -166,9 +166,8 @@ class SimCamera(Camera):
                 reflectance=self.reflectance,
             )
             x0, y0, x1, y1 = roi
-            patch = image[y0:y1, x0:x1]
-            patch = patch * (1.0 - alpha) + value * alpha
-            image[y0:y1, x0:x1] = cv2.GaussianBlur(patch.astype(np.float32), (0, 0), sigma)
+            patch = (image[y0:y1, x0:x1] * (1.0 - alpha) + value * alpha).astype(np.float32)
+            image[y0:y1, x0:x1] = cv2.GaussianBlur(patch, (0, 0), sigma)
         return image, truth
 
     def _spoil(self, image: NDArray[np.float32], truth: FrameTruth) -> None:
@@ -212,4 +211,5 @@ class SimCamera(Camera):
         np.clip(dn, 0, top, out=dn)
         self.clock.sleep(self.exposure_s + fm.readout_s)
         self.last_truth = truth
-        return dn.astype(self.dtype)
+        frame: NDArray[np.unsignedinteger] = dn.astype(self.dtype)
+        return frame

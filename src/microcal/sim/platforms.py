@@ -83,15 +83,16 @@ class PlatformConfig:
 PRESETS = ("thesis",)
 
 
-def _set_dotted(obj: Any, dotted: str, value: Any) -> Any:
+def _set_dotted(obj: Any, dotted: str, value: Any, full: str = "") -> Any:
+    full = full or dotted
     head, _, rest = dotted.partition(".")
     if not dataclasses.is_dataclass(obj) or not any(
         f.name == head for f in dataclasses.fields(obj)
     ):
-        raise InputError(f"override {dotted!r}: no setting {head!r} here")
+        raise InputError(f"override {full!r}: no setting {head!r} here")
     current = getattr(obj, head)
     if rest:
-        return dataclasses.replace(obj, **{head: _set_dotted(current, rest, value)})  # type: ignore[type-var]
+        return dataclasses.replace(obj, **{head: _set_dotted(current, rest, value, full)})  # type: ignore[type-var]
     if isinstance(current, tuple) and isinstance(value, list):
         value = tuple(tuple(v) if isinstance(v, list) else v for v in value)
     if (
@@ -100,7 +101,7 @@ def _set_dotted(obj: Any, dotted: str, value: Any) -> Any:
         and not (isinstance(current, float) and isinstance(value, int))
     ):
         raise InputError(
-            f"override {dotted!r}: expected {type(current).__name__}, got {type(value).__name__}"
+            f"override {full!r}: expected {type(current).__name__}, got {type(value).__name__}"
         )
     return dataclasses.replace(obj, **{head: value})  # type: ignore[type-var]
 

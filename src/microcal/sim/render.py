@@ -153,7 +153,11 @@ def _reflectance(
     if t.kind == "chessboard":
         # Square (i, j) with i = floor(u / p) is black when i + j is even; the corner at
         # the origin is an inner corner.
-        checker = _square_wave_filtered(u, p, wu) * _square_wave_filtered(v, p, wv)
+        # Evaluated just inside the pattern: a footprint that straddles the pattern's edge
+        # takes the edge square's colour, weighted by the coverage below.
+        uc = np.clip(u, x0 + wu / 2, x1 - wu / 2)
+        vc = np.clip(v, y0 + wv / 2, y1 - wv / 2)
+        checker = _square_wave_filtered(uc, p, wu) * _square_wave_filtered(vc, p, wv)
         inner = refl.white + (refl.black - refl.white) * (1.0 + checker) / 2.0
     else:
         tex = _charuco_texture(t.cols, t.rows, t.pitch_um, t.feature_um)
@@ -211,9 +215,11 @@ def render_placement(
     # Ideal (undistorted) pixel coordinates at the pixel centres and their derivatives,
     # from the neighbours (distortion varies slowly: linear within a pixel).
     ideal = camera.undistort_px(q).reshape(*shape, 2)
+    d_dx: FloatArray
+    d_dy: FloatArray
     if camera.has_distortion and min(shape) > 1:
-        d_dx = np.gradient(ideal, axis=1)
-        d_dy = np.gradient(ideal, axis=0)
+        d_dx = np.asarray(np.gradient(ideal, axis=1), dtype=np.float64)
+        d_dy = np.asarray(np.gradient(ideal, axis=0), dtype=np.float64)
     else:
         d_dx = np.zeros_like(ideal)
         d_dx[..., 0] = 1.0
