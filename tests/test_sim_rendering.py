@@ -110,9 +110,12 @@ def test_frame_format_and_twelve_bit():
     plat = sim.platform("thesis", seed=0, overrides={"top.bit_depth": 12})
     top = plat.cameras["top"].grab()
     side = plat.cameras["side"].grab()
-    assert top.shape == (1200, 1600) and top.dtype == np.uint16
-    assert top.max() > 255 and top.max() <= 4095
-    assert side.shape == (1028, 1226) and side.dtype == np.uint8
+    assert top.shape == (1200, 1600)
+    assert top.dtype == np.uint16
+    assert top.max() > 255
+    assert top.max() <= 4095
+    assert side.shape == (1028, 1226)
+    assert side.dtype == np.uint8
 
 
 def test_charuco_and_dot_grid_render():
@@ -121,9 +124,10 @@ def test_charuco_and_dot_grid_render():
         t = parse_target(spec)
         pl = Placement(t, np.eye(3), np.array([3000.0, 3000.0, 1000.0]))
         roi = roi_of(top, pl, 4)
-        value, alpha = render_placement(top, pl, roi)
+        value, _alpha = render_placement(top, pl, roi)
         assert value.shape == (roi[3] - roi[1], roi[2] - roi[0])
-        assert 0.0 <= value.min() < 0.3 and value.max() > 0.7
+        assert 0.0 <= value.min() < 0.3
+        assert value.max() > 0.7
     # The dots (bright chrome on dark glass) sit where they should: intensity-weighted
     # centroids of the rendered dots against the projected centres.
     n, _, _, rough = cv2.connectedComponentsWithStats((value > 0.35).astype(np.uint8))

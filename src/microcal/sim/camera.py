@@ -2,9 +2,12 @@
 
 A grab renders every target in the scene into the frame (only the pixels they cover), blurs
 each by its defocus, applies vignetting, converts to electrons, adds shot and read noise and
-quantises to the camera's bit depth. The scene may shake against the camera by a small random
-offset per frame (vibration). Faults are injected at given rates: dropped frames and
-timeouts raise the exceptions a real driver would; occlusion and glare spoil the image.
+quantises to the camera's bit depth. The noise of the regions the targets cover is drawn
+fresh for every frame; the background's comes from a pool of noise (two frames' worth,
+drawn once) read at a random offset, which looks the same and costs nothing. The scene may
+shake against the camera by a small random offset per frame (vibration). Faults are
+injected at given rates: dropped frames and timeouts raise the exceptions a real driver
+would; occlusion and glare spoil the image.
 """
 
 from __future__ import annotations
@@ -135,6 +138,10 @@ class SimCamera(Camera):
         r2 = ((xx - (w - 1) / 2) ** 2 + (yy - (h - 1) / 2) ** 2) / ((w / 2) ** 2 + (h / 2) ** 2)
         self._vignette = (1.0 - self.formation.vignetting * r2).astype(np.float32)
         self.last_truth: FrameTruth | None = None
+        # Background noise comes from a pool read at a random offset each frame; the regions
+        # the targets cover get freshly drawn noise (see grab).
+        self._pool = self.rng.standard_normal(2 * w * h, dtype=np.float32)
+        self._rois: list[tuple[int, int, int, int]] = []
 
     def _blur_sigma(self, placement: Placement) -> float:
         f = self.formation
@@ -150,6 +157,7 @@ class SimCamera(Camera):
         w, h = self.model.image_size_px
         image = np.full((h, w), self.reflectance.background, dtype=np.float32)
         truth = FrameTruth(t_s, offset_px)
+        self._rois = []
         for placement in self.scene(t_s):
             sigma = self._blur_sigma(placement)
             roi = roi_of(self.model, placement, 4.0 * sigma + 3.0, offset_px)
@@ -165,6 +173,7 @@ class SimCamera(Camera):
                 offset_px=offset_px,
                 reflectance=self.reflectance,
             )
+            self._rois.append(roi)
             x0, y0, x1, y1 = roi
             patch = (image[y0:y1, x0:x1] * (1.0 - alpha) + value * alpha).astype(np.float32)
             image[y0:y1, x0:x1] = cv2.GaussianBlur(patch, (0, 0), sigma)
@@ -201,12 +210,24 @@ class SimCamera(Camera):
         image, truth = self.render_reflectance(t, offset)
         self._spoil(image, truth)
         fm = self.formation
-        signal = fm.full_well_e * fm.illumination * (self.exposure_s / fm.nominal_exposure_s)
-        electrons = image * self._vignette * np.float32(signal)
-        noise = self.rng.standard_normal(electrons.shape, dtype=np.float32)
-        electrons += np.sqrt(np.maximum(electrons, 0) + np.float32(fm.read_noise_e**2)) * noise
         top = 2**self.bit_depth - 1
-        dn = electrons * np.float32(top / fm.full_well_e)
+        k = np.float32(top / fm.full_well_e)  # DN per electron
+        signal = fm.full_well_e * fm.illumination * (self.exposure_s / fm.nominal_exposure_s)
+        # Mean DN, then shot and read noise: std in DN = sqrt(DN * k + (read_noise * k)^2).
+        dn = image
+        dn *= self._vignette
+        dn *= np.float32(signal) * k
+        spread = np.multiply(dn, k)
+        np.maximum(spread, 0, out=spread)
+        spread += np.float32((fm.read_noise_e * k) ** 2)
+        np.sqrt(spread, out=spread)
+        h, w = dn.shape
+        start = int(self.rng.integers(0, h * w))
+        noisy = spread * self._pool[start : start + h * w].reshape(h, w)
+        for x0, y0, x1, y1 in self._rois:
+            fresh = self.rng.standard_normal((y1 - y0, x1 - x0), dtype=np.float32)
+            noisy[y0:y1, x0:x1] = spread[y0:y1, x0:x1] * fresh
+        dn += noisy
         np.rint(dn, out=dn)
         np.clip(dn, 0, top, out=dn)
         self.clock.sleep(self.exposure_s + fm.readout_s)

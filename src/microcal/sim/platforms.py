@@ -67,14 +67,14 @@ class PlatformConfig:
         default_factory=lambda: CameraConfig(
             dist=(0.5, 0.0, 1e-3, -1e-3, 0.0),
             pixel_size_um=4.4,
-            formation=ImageFormation(jitter_px=(0.06, 0.0)),
+            formation=ImageFormation(jitter_px=(0.05, 0.0)),
         )
     )
     side: CameraConfig = field(
         default_factory=lambda: CameraConfig(
             dist=(0.4, 0.0, -1e-3, 1e-3, 0.0),
             pixel_size_um=6.9,
-            formation=ImageFormation(jitter_px=(0.06, 0.0)),
+            formation=ImageFormation(jitter_px=(0.05, 0.0)),
         )
     )
     manipulator: ManipulatorConfig = field(default_factory=ManipulatorConfig)
