@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 from hypothesis import settings
@@ -21,3 +24,9 @@ def rng() -> np.random.Generator:
 @pytest.fixture(scope="session")
 def thesis_pair():
     return thesis_cameras()
+
+
+def run_microcal(*args: object, cwd=None) -> subprocess.CompletedProcess[str]:
+    """Run ``python -m microcal ARGS`` as a user would: no standard input, output captured."""
+    return subprocess.run([sys.executable, "-m", "microcal", *map(str, args)], capture_output=True,
+                          text=True, check=False, stdin=subprocess.DEVNULL, cwd=cwd)  # fmt: skip

@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import pytest
 from typer.testing import CliRunner
 
+from conftest import run_microcal
 from microcal import __version__
 from microcal.cli import app
 
@@ -62,13 +60,7 @@ def test_user_errors_exit_2_without_traceback(args):
     ],
 )
 def test_entry_point_prints_one_line_for_user_errors(args, message):
-    out = subprocess.run(
-        [sys.executable, "-m", "microcal", *args],
-        capture_output=True,
-        text=True,
-        check=False,
-        stdin=subprocess.DEVNULL,
-    )
+    out = run_microcal(*args)
     assert out.returncode == 2
     lines = out.stderr.strip().splitlines()
     assert len(lines) == 1, out.stderr
@@ -78,8 +70,6 @@ def test_entry_point_prints_one_line_for_user_errors(args, message):
 
 
 def test_installed_entry_point_runs():
-    out = subprocess.run(
-        [sys.executable, "-m", "microcal", "--version"], capture_output=True, text=True, check=False
-    )
+    out = run_microcal("--version")
     assert out.returncode == 0, out.stderr
     assert __version__ in out.stdout

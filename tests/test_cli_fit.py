@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from conftest import run_microcal
 from microcal import load_calibration
 from microcal.cli import app
 from microcal.formats.measurements import write_measurements
@@ -96,8 +94,7 @@ def test_user_errors_exit_2_with_one_line(run_dir, tmp_path, setup, args, messag
     if setup == "badcal":
         (tmp_path / "bad.json").write_text("{oops")
     argv = [a.format(tmp=tmp_path, run=run_dir) for a in args]
-    out = subprocess.run([sys.executable, "-m", "microcal", *argv], capture_output=True, text=True,
-                         check=False, stdin=subprocess.DEVNULL, cwd=tmp_path)  # fmt: skip
+    out = run_microcal(*argv, cwd=tmp_path)
     assert out.returncode == 2, out.stderr + out.stdout
     lines = out.stderr.strip().splitlines()
     assert len(lines) == 1, out.stderr

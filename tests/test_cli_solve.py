@@ -2,20 +2,13 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
+from conftest import run_microcal as microcal
 from microcal import load_calibration
 from microcal.formats.measurements import write_measurements
 from microcal.sim.synthetic_run import synthetic_run
-
-
-def microcal(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "microcal", *map(str, args)], capture_output=True,
-                          text=True, check=False, stdin=subprocess.DEVNULL, cwd=cwd)  # fmt: skip
 
 
 @pytest.fixture(scope="module")

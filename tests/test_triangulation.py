@@ -24,6 +24,11 @@ def views(cams, p):
     return cams[0].project(p), cams[1].project(p)
 
 
+def reprojection_cost(P1, P2, q1, q2, p):
+    """Sum of the squared reprojection errors in both views, per point."""
+    return reprojection_error(P1, p, q1) ** 2 + reprojection_error(P2, p, q2) ** 2
+
+
 @pytest.mark.parametrize("method", ["linear", "optimal"])
 def test_round_trip_without_noise_thesis_cameras(thesis_pair, rng, method):
     p = random_points(rng, 5000)
@@ -73,14 +78,11 @@ def test_optimal_never_reprojects_worse_than_linear(thesis_pair, rng):
     q1, q2 = views(thesis_pair, p)
     q1 = q1 + rng.normal(0, 0.3, q1.shape)
     q2 = q2 + rng.normal(0, 0.3, q2.shape)
-
-    def cost(x):
-        return reprojection_error(P1, x, q1) ** 2 + reprojection_error(P2, x, q2) ** 2
-
     lin = triangulate(P1, P2, q1, q2)
     opt = triangulate(P1, P2, q1, q2, method="optimal")
-    assert np.all(cost(opt) <= cost(lin) * (1 + 1e-12))
-    assert np.mean(cost(opt)) < np.mean(cost(lin))
+    c_lin, c_opt = reprojection_cost(P1, P2, q1, q2, lin), reprojection_cost(P1, P2, q1, q2, opt)
+    assert np.all(c_opt <= c_lin * (1 + 1e-12))
+    assert np.mean(c_opt) < np.mean(c_lin)
 
 
 def test_optimal_is_a_stationary_point(thesis_pair, rng):
@@ -93,7 +95,7 @@ def test_optimal_is_a_stationary_point(thesis_pair, rng):
     opt = triangulate_optimal(P1, P2, q1, q2)
 
     def cost(x):
-        return reprojection_error(P1, x, q1) ** 2 + reprojection_error(P2, x, q2) ** 2
+        return reprojection_cost(P1, P2, q1, q2, x)
 
     h = 1e-3
     for k in range(3):
