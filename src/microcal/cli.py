@@ -105,7 +105,7 @@ def demo(
         )
     o = ident.oracle
     table.add_row(
-        "oracle (true model)",
+        "oracle",
         f"{o['mean']:.2f}",
         f"{o['std']:.2f}",
         f"{o['max']:.2f}",
