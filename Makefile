@@ -24,8 +24,8 @@ test: $(STAMP)  ## run the test suite
 	$(BIN)/python -m pytest -n $(JOBS) -q
 
 lint: $(STAMP)  ## ruff (lint and format check) and mypy
-	$(BIN)/ruff check src tests benchmarks
-	$(BIN)/ruff format --check src tests benchmarks
+	$(BIN)/ruff check src tests benchmarks scripts
+	$(BIN)/ruff format --check src tests benchmarks scripts
 	$(BIN)/mypy
 
 bench: $(STAMP)  ## run the benchmarks; results in benchmarks/results/
