@@ -155,10 +155,14 @@ class SimCamera(Camera):
     ) -> tuple[NDArray[np.float32], FrameTruth]:
         """Noise-free reflectance image of the scene at ``t_s`` (blurred, no vignetting)."""
         w, h = self.model.image_size_px
-        image = np.full((h, w), self.reflectance.background, dtype=np.float32)
+        placements = self.scene(t_s)
+        # A dot grid's glass plate (25 mm in the thesis) fills the view: glass is the background.
+        plate = any(p.target.kind == "dotgrid" for p in placements)
+        level = self.reflectance.glass if plate else self.reflectance.background
+        image = np.full((h, w), level, dtype=np.float32)
         truth = FrameTruth(t_s, offset_px)
         self._rois = []
-        for placement in self.scene(t_s):
+        for placement in placements:
             sigma = self._blur_sigma(placement)
             roi = roi_of(self.model, placement, 4.0 * sigma + 3.0, offset_px)
             truth.placements.append(placement)

@@ -1,0 +1,293 @@
+"""Target detection in images: chessboards, dot grids, ChArUco boards.
+
+Every detector takes an image of any usual kind (8 or 16 bit, grey or colour) and returns a
+:class:`Detection`: the features found, their ids (index into ``Target.points_um()``), their
+pixel positions with sub-pixel accuracy and a quality figure; or, when there is no target,
+``found=False`` with the reason. An image without a target is not an error.
+
+- Chessboard: OpenCV's classic detector, refined by ``cornerSubPix`` with a window scaled to
+  the square size in pixels; the sector-based detector (``findChessboardCornersSB``) when the
+  classic one fails. The corner order is made canonical: the first row runs towards +x in
+  the image (OpenCV may return it reversed).
+- Dot grid: dots segmented by Otsu's threshold, centres from background-subtracted
+  intensity moments in a window, then indexed on the lattice (two lattice vectors from the
+  neighbours, grid coordinates by rounding); works for dense grids of thousands of dots.
+- ChArUco: OpenCV's ChArUco detector; ids are OpenCV's corner ids.
+
+The quality figure is the RMS residual (px) of a homography from the target plane to the
+detected features: near the detection noise for a good detection.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from .._validation import FloatArray
+from ..errors import InputError
+from .targets import Target
+
+__all__ = ["Detection", "detect", "to_gray", "window_px"]
+
+
+@dataclass(frozen=True)
+class Detection:
+    """Features of one target found in one image.
+
+    Attributes
+    ----------
+    found : bool
+    ids : (N,) int
+        Indices into ``target.points_um()``.
+    q_px : (N, 2) float
+        Pixel positions (OpenCV convention), in the whole image's coordinates.
+    quality_px : float
+        RMS residual of a plane homography through the features (NaN if not found).
+    reason : str
+        Why nothing was found ("" when found).
+    method : str
+        Which detector found it.
+    """
+
+    found: bool
+    ids: NDArray[np.intp] = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
+    q_px: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    quality_px: float = float("nan")
+    reason: str = ""
+    method: str = ""
+
+    @classmethod
+    def none(cls, reason: str) -> Detection:
+        """Nothing found, for ``reason``."""
+        return cls(False, reason=reason)
+
+
+def to_gray(image: NDArray[np.generic]) -> NDArray[np.float32]:
+    """Grey float32 image from any 2D or colour image (colour: OpenCV's BGR weights)."""
+    img = np.asarray(image)
+    if img.ndim == 3 and img.shape[2] in (3, 4):
+        img = cv2.cvtColor(img[:, :, :3].astype(np.float32), cv2.COLOR_BGR2GRAY)
+    if img.ndim != 2:
+        raise InputError(f"image: expected (H, W) or (H, W, 3), got shape {img.shape}")
+    return img.astype(np.float32, copy=False)
+
+
+def _to_uint8(gray: NDArray[np.float32]) -> NDArray[np.uint8]:
+    """Stretch to 8 bits between the 0.5 and 99.5 percentiles (for OpenCV's finders)."""
+    lo, hi = np.percentile(gray, (0.5, 99.5))
+    if hi <= lo:
+        return np.zeros(gray.shape, dtype=np.uint8)
+    out: NDArray[np.uint8] = np.clip((gray - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)
+    return out
+
+
+def window_px(square_px: float) -> int:
+    """Half-size of the cornerSubPix window for squares of ``square_px`` pixels."""
+    return max(2, round(0.4 * square_px))
+
+
+def _homography_rms(target: Target, ids: NDArray[np.intp], q: FloatArray) -> float:
+    if len(ids) < 4:
+        return float("nan")
+    plane = target.points_um()[ids, :2]
+    H, _ = cv2.findHomography(plane, q, 0)
+    if H is None:
+        return float("nan")
+    proj = cv2.perspectiveTransform(plane.reshape(-1, 1, 2), H).reshape(-1, 2)
+    return float(np.sqrt(np.mean(np.sum((proj - q) ** 2, axis=1))))
+
+
+def _canonical_order(corners: FloatArray, cols: int, rows: int) -> FloatArray:
+    """Reverse OpenCV's order if the first row runs towards -x in the image."""
+    grid = corners.reshape(rows, cols, 2)
+    if grid[0, -1, 0] - grid[0, 0, 0] < 0:
+        grid = grid[::-1, ::-1]
+    return grid.reshape(-1, 2)
+
+
+def _detect_chessboard(gray: NDArray[np.float32], target: Target) -> Detection:
+    size = target.pattern_size
+    img8 = _to_uint8(gray)
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
+    found, corners = cv2.findChessboardCorners(img8, size, flags=flags)
+    method = "classic"
+    if not found:
+        found, corners = cv2.findChessboardCornersSB(img8, size, flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
+        method = "sector-based"
+        if not found:
+            return Detection.none(f"no {size[0]}x{size[1]} chessboard found")
+    q = corners.reshape(-1, 2).astype(np.float64)
+    q = _canonical_order(q, *size)
+    spacing = np.linalg.norm(np.diff(q.reshape(size[1], size[0], 2), axis=1), axis=2)
+    half = window_px(float(np.median(spacing)))
+    if method == "classic":
+        crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 1e-3)
+        q = cv2.cornerSubPix(
+            gray, q.reshape(-1, 1, 2).astype(np.float32), (half, half), (-1, -1), crit
+        )
+        q = q.reshape(-1, 2).astype(np.float64)
+    ids = np.arange(len(q), dtype=np.intp)
+    return Detection(True, ids, q, _homography_rms(target, ids, q), method=method)
+
+
+def _dot_centres(gray: NDArray[np.float32], bright: bool) -> FloatArray:
+    """Centres of the dots: local maxima of the smoothed image, refined by moments.
+
+    Local maxima (not a global threshold) separate dense, blurred dots whose valleys never
+    fall back to the glass level; maxima closer than a third of the dot pitch are merged.
+    """
+    signal = (gray if bright else -gray).astype(np.float32)
+    smooth = cv2.GaussianBlur(signal, (0, 0), 1.0)
+    lo, hi = np.percentile(smooth, (5.0, 99.8))
+    if hi <= lo:
+        return np.zeros((0, 2))
+    level = lo + 0.5 * (hi - lo)
+    peaks = (smooth >= cv2.dilate(smooth, np.ones((3, 3), np.uint8))) & (smooth > level)
+    ys, xs = np.nonzero(peaks)
+    if len(xs) < 4:
+        return np.column_stack([xs, ys]).astype(np.float64)
+    from scipy.spatial import cKDTree
+
+    pts = np.column_stack([xs, ys]).astype(np.float64)
+    dist, _ = cKDTree(pts).query(pts, k=2)
+    pitch = float(np.median(dist[:, 1]))
+    radius = max(1, int(round(0.35 * pitch)))
+    size = 2 * radius + 1
+    kernel = np.ones((size, size), np.uint8)
+    prominence = smooth - cv2.erode(smooth, kernel)
+    peaks &= (smooth >= cv2.dilate(smooth, kernel)) & (prominence > 0.1 * (hi - lo))
+    ys, xs = np.nonzero(peaks)
+    h, w = gray.shape
+    centres = []
+    yy, xx = np.mgrid[-radius : radius + 1, -radius : radius + 1]
+    for x, y in zip(xs.tolist(), ys.tolist(), strict=True):
+        if x < radius or y < radius or x + radius >= w or y + radius >= h:
+            continue
+        win = signal[y - radius : y + radius + 1, x - radius : x + radius + 1].astype(np.float64)
+        weight = np.clip(win - win.min(), 0.0, None)
+        total = weight.sum()
+        if total <= 0:
+            continue
+        centres.append(
+            (x + float((xx * weight).sum() / total), y + float((yy * weight).sum() / total))
+        )
+    return np.array(centres).reshape(-1, 2)
+
+
+def _index_lattice(
+    centres: FloatArray, cols: int, rows: int
+) -> tuple[NDArray[np.intp], FloatArray] | str:
+    """Grid coordinates of dot centres; ids row by row from the dot nearest the top left."""
+    if len(centres) < 4:
+        return f"only {len(centres)} dots segmented"
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(centres)
+    _, nn = tree.query(centres, k=5)
+    diffs = (centres[nn[:, 1:]] - centres[:, None, :]).reshape(-1, 2)
+    pitch = float(np.median(np.linalg.norm(diffs, axis=1)))
+    near = diffs[np.abs(np.linalg.norm(diffs, axis=1) - pitch) < 0.3 * pitch]
+    angles = np.mod(np.arctan2(near[:, 1], near[:, 0]), np.pi)
+    hist, edges = np.histogram(angles, bins=36, range=(0, np.pi))
+    a0 = edges[np.argmax(hist)] + np.pi / 72
+    close = np.abs(np.angle(np.exp(2j * (angles - a0)))) < 0.3
+    a0 = float(np.angle(np.mean(np.exp(2j * angles[close]))) / 2)
+    u = np.array([np.cos(a0), np.sin(a0)])
+    v = np.array([-u[1], u[0]])
+    if abs(u[0]) < abs(v[0]):  # u is the lattice direction closest to image x
+        u, v = v, u
+    u = u if u[0] > 0 else -u
+    v = v if v[1] > 0 else -v
+    # Lattice vectors with their own lengths (the grid may be seen in perspective).
+    lu = near[np.abs(near @ u) > 0.8 * pitch]
+    lv = near[np.abs(near @ v) > 0.8 * pitch]
+    a = np.median(np.where((lu @ u)[:, None] > 0, lu, -lu), axis=0)
+    b = np.median(np.where((lv @ v)[:, None] > 0, lv, -lv), axis=0)
+    origin = centres[np.argmin(centres @ (u + v))]
+    basis = np.column_stack([a, b])
+    ij = np.rint(np.linalg.solve(basis, (centres - origin).T).T).astype(int)
+    # Refine with a homography from the grid to the image and re-index once.
+    H, _ = cv2.findHomography(ij.astype(np.float64), centres, 0)
+    if H is not None:
+        back = cv2.perspectiveTransform(centres.reshape(-1, 1, 2), np.linalg.inv(H)).reshape(-1, 2)
+        ij = np.rint(back).astype(int)
+    ij -= ij.min(axis=0)
+    span = ij.max(axis=0) + 1
+    if tuple(span) != (cols, rows) or len(np.unique(ij, axis=0)) != len(ij):
+        return f"dots form a {span[0]}x{span[1]} lattice, expected {cols}x{rows} (all of the grid in view)"
+    return (ij[:, 1] * cols + ij[:, 0]).astype(np.intp), centres
+
+
+def _detect_dotgrid(gray: NDArray[np.float32], target: Target) -> Detection:
+    bright = float(np.median(gray)) < float(np.mean(gray))  # chrome dots on dark glass
+    centres = _dot_centres(gray, bright)
+    cols, rows = target.pattern_size
+    if len(centres) < cols * rows:
+        return Detection.none(f"found {len(centres)} dots, expected {cols * rows}")
+    if len(centres) > cols * rows:
+        return Detection.none(f"found {len(centres)} blobs, expected {cols * rows} dots")
+    indexed = _index_lattice(centres, cols, rows)
+    if isinstance(indexed, str):
+        return Detection.none(indexed)
+    ids, q = indexed
+    order = np.argsort(ids)
+    ids, q = ids[order], q[order]
+    return Detection(True, ids, q, _homography_rms(target, ids, q), method="dots")
+
+
+def _detect_charuco(gray: NDArray[np.float32], target: Target) -> Detection:
+    dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_250)
+    board = cv2.aruco.CharucoBoard(
+        (target.cols, target.rows), target.pitch_um, target.feature_um, dictionary
+    )
+    detector = cv2.aruco.CharucoDetector(board)
+    corners, ids, _, _ = detector.detectBoard(_to_uint8(gray))
+    if ids is None or len(ids) < 4:
+        return Detection.none("no ChArUco corners found")
+    ids = ids.reshape(-1).astype(np.intp)
+    q = corners.reshape(-1, 2).astype(np.float64)
+    return Detection(True, ids, q, _homography_rms(target, ids, q), method="charuco")
+
+
+def detect(
+    image: NDArray[np.generic],
+    target: Target,
+    *,
+    roi: tuple[int, int, int, int] | None = None,
+) -> Detection:
+    """Find a target in an image.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, 3) array
+        8 or 16 bit, or float; colour in OpenCV's BGR order.
+    target : Target
+    roi : (x0, y0, x1, y1), optional
+        Search only this box (end exclusive); positions are still in whole-image pixels.
+
+    Returns
+    -------
+    Detection
+        ``found=False`` with a reason when the target is not (all) there.
+    """
+    gray = to_gray(image)
+    x0 = y0 = 0
+    if roi is not None:
+        h, w = gray.shape
+        x0, y0 = max(0, int(roi[0])), max(0, int(roi[1]))
+        x1, y1 = min(w, int(roi[2])), min(h, int(roi[3]))
+        if x1 - x0 < 8 or y1 - y0 < 8:
+            return Detection.none(f"region of interest {roi} is outside the {w}x{h} image")
+        gray = gray[y0:y1, x0:x1]
+    if target.kind == "chessboard":
+        det = _detect_chessboard(gray, target)
+    elif target.kind == "dotgrid":
+        det = _detect_dotgrid(gray, target)
+    else:
+        det = _detect_charuco(gray, target)
+    if det.found and (x0 or y0):
+        det = Detection(True, det.ids, det.q_px + [x0, y0], det.quality_px, method=det.method)
+    return det
