@@ -154,7 +154,7 @@ def _dot_centres(gray: NDArray[np.float32], bright: bool) -> FloatArray:
     pts = np.column_stack([xs, ys]).astype(np.float64)
     dist, _ = cKDTree(pts).query(pts, k=2)
     pitch = float(np.median(dist[:, 1]))
-    radius = max(1, int(round(0.35 * pitch)))
+    radius = max(1, round(0.35 * pitch))
     size = 2 * radius + 1
     kernel = np.ones((size, size), np.uint8)
     prominence = smooth - cv2.erode(smooth, kernel)
@@ -217,7 +217,10 @@ def _index_lattice(
     ij -= ij.min(axis=0)
     span = ij.max(axis=0) + 1
     if tuple(span) != (cols, rows) or len(np.unique(ij, axis=0)) != len(ij):
-        return f"dots form a {span[0]}x{span[1]} lattice, expected {cols}x{rows} (all of the grid in view)"
+        return (
+            f"dots form a {span[0]}x{span[1]} lattice, expected {cols}x{rows} "
+            f"(all of the grid must be in view)"
+        )
     return (ij[:, 1] * cols + ij[:, 0]).astype(np.intp), centres
 
 
@@ -247,9 +250,9 @@ def _detect_charuco(gray: NDArray[np.float32], target: Target) -> Detection:
     corners, ids, _, _ = detector.detectBoard(_to_uint8(gray))
     if ids is None or len(ids) < 4:
         return Detection.none("no ChArUco corners found")
-    ids = ids.reshape(-1).astype(np.intp)
-    q = corners.reshape(-1, 2).astype(np.float64)
-    return Detection(True, ids, q, _homography_rms(target, ids, q), method="charuco")
+    found_ids = np.asarray(ids, dtype=np.intp).reshape(-1)
+    q = np.asarray(corners, dtype=np.float64).reshape(-1, 2)
+    return Detection(True, found_ids, q, _homography_rms(target, found_ids, q), method="charuco")
 
 
 def detect(
@@ -289,5 +292,7 @@ def detect(
     else:
         det = _detect_charuco(gray, target)
     if det.found and (x0 or y0):
-        det = Detection(True, det.ids, det.q_px + [x0, y0], det.quality_px, method=det.method)
+        det = Detection(
+            True, det.ids, np.add(det.q_px, (x0, y0)), det.quality_px, method=det.method
+        )
     return det
