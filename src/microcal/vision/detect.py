@@ -21,6 +21,7 @@ detected features: near the detection noise for a good detection.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
@@ -93,7 +94,7 @@ def _homography_rms(target: Target, ids: NDArray[np.intp], q: FloatArray) -> flo
     if len(ids) < 4:
         return float("nan")
     plane = target.points_um()[ids, :2]
-    H, _ = cv2.findHomography(plane, q, 0)
+    H: Any = cv2.findHomography(plane, q, 0)[0]  # None when degenerate (the stubs omit it)
     if H is None:
         return float("nan")
     proj = cv2.perspectiveTransform(plane.reshape(-1, 1, 2), H).reshape(-1, 2)
@@ -125,10 +126,10 @@ def _detect_chessboard(gray: NDArray[np.float32], target: Target) -> Detection:
     half = window_px(float(np.median(spacing)))
     if method == "classic":
         crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 1e-3)
-        q = cv2.cornerSubPix(
+        refined = cv2.cornerSubPix(
             gray, q.reshape(-1, 1, 2).astype(np.float32), (half, half), (-1, -1), crit
         )
-        q = q.reshape(-1, 2).astype(np.float64)
+        q = np.asarray(refined, dtype=np.float64).reshape(-1, 2)
     ids = np.arange(len(q), dtype=np.intp)
     return Detection(True, ids, q, _homography_rms(target, ids, q), method=method)
 
