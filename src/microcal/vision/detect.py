@@ -162,20 +162,29 @@ def _dot_centres(gray: NDArray[np.float32], bright: bool) -> FloatArray:
     peaks &= (smooth >= cv2.dilate(smooth, kernel)) & (prominence > 0.1 * (hi - lo))
     ys, xs = np.nonzero(peaks)
     h, w = gray.shape
-    centres = []
-    yy, xx = np.mgrid[-radius : radius + 1, -radius : radius + 1]
-    for x, y in zip(xs.tolist(), ys.tolist(), strict=True):
-        if x < radius or y < radius or x + radius >= w or y + radius >= h:
-            continue
-        win = signal[y - radius : y + radius + 1, x - radius : x + radius + 1].astype(np.float64)
-        weight = np.clip(win - win.min(), 0.0, None)
-        total = weight.sum()
-        if total <= 0:
-            continue
-        centres.append(
-            (x + float((xx * weight).sum() / total), y + float((yy * weight).sum() / total))
-        )
-    return np.array(centres).reshape(-1, 2)
+    half = max(2, round(0.5 * pitch))
+    inside = (xs >= half) & (ys >= half) & (xs < w - half) & (ys < h - half)
+    xs, ys = xs[inside], ys[inside]
+    if len(xs) == 0:
+        return np.zeros((0, 2))
+    # Gaussian-weighted centroid in a window that follows the estimate (no pixel locking),
+    # on the background-subtracted signal; all dots at once.
+    oy, ox = np.mgrid[-half : half + 1, -half : half + 1]
+    patches = signal[ys[:, None, None] + oy, xs[:, None, None] + ox].astype(np.float64)
+    background = np.percentile(patches.reshape(len(xs), -1), 10, axis=1)
+    patches = np.clip(patches - background[:, None, None], 0.0, None)
+    sigma_w = 0.25 * pitch
+    cx = np.zeros(len(xs))
+    cy = np.zeros(len(xs))
+    for _ in range(6):
+        wgt = patches * np.exp(-((ox - cx[:, None, None]) ** 2 + (oy - cy[:, None, None]) ** 2)
+                               / (2 * sigma_w**2))  # fmt: skip
+        total = wgt.sum(axis=(1, 2))
+        total[total <= 0] = np.nan
+        cx = (wgt * ox).sum(axis=(1, 2)) / total
+        cy = (wgt * oy).sum(axis=(1, 2)) / total
+    good = np.isfinite(cx) & np.isfinite(cy)
+    return np.column_stack([xs[good] + cx[good], ys[good] + cy[good]])
 
 
 def _index_lattice(
