@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
@@ -41,6 +42,9 @@ __all__ = [
 OUTLIER_FACTOR = 3.0
 #: ... and this many pixels.
 OUTLIER_FLOOR_PX = 0.15
+#: Method (b) estimates k1 only: with the narrow field of a microscope, k2, k3 and the
+#: tangential terms trade off against the principal point and are not observable.
+UNKNOWN_POSE_FLAGS = cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST
 
 
 @dataclass
@@ -69,8 +73,9 @@ class StereoCalibration:
         return {name: c.model for name, c in self.cameras.items()}
 
 
-def _camera_model(K: FloatArray, dist: FloatArray, rvec: FloatArray, tvec: FloatArray,
-                  size: tuple[int, int], name: str) -> CameraModel:  # fmt: skip
+def _camera_model(
+    K: Any, dist: Any, rvec: Any, tvec: Any, size: tuple[int, int], name: str
+) -> CameraModel:
     R, _ = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64))
     K = np.asarray(K, dtype=np.float64).copy()
     K[1, 0] = K[2, 0] = K[2, 1] = 0.0
@@ -93,7 +98,8 @@ def _outliers(rms: dict[str, float]) -> dict[str, str]:
     median = float(np.median(list(rms.values())))
     limit = max(OUTLIER_FACTOR * median, OUTLIER_FLOOR_PX)
     return {
-        view: f"reprojection RMS {value:.3f} px > {limit:.3f} px ({OUTLIER_FACTOR:g}x the median view)"
+        view: f"reprojection RMS {value:.3f} px > {limit:.3f} px "
+        f"({OUTLIER_FACTOR:g}x the median view)"
         for view, value in rms.items()
         if value > limit
     }
@@ -139,28 +145,39 @@ def _calibrate_one_known(
         if refine:
             rvec, _ = cv2.Rodrigues(R)
             flags = cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_FIX_K3
-            rms, K2, d2, rvecs, tvecs, sd_in, _, _ = cv2.calibrateCameraExtended(
-                [p.astype(np.float32)], [q.astype(np.float32)], size, model.K.copy(), np.zeros(5),
-                rvecs=[rvec.astype(np.float64)], tvecs=[t.reshape(3, 1).astype(np.float64).copy()],
+            _, K2, d2, rvecs, tvecs, sd_in, _, _ = cv2.calibrateCameraExtended(
+                [p.astype(np.float32)],
+                [q.astype(np.float32)],
+                size,
+                model.K.copy(),
+                np.zeros(5),
+                rvecs=[rvec.astype(np.float64)],
+                tvecs=[t.reshape(3, 1).astype(np.float64).copy()],
                 flags=flags | cv2.CALIB_USE_EXTRINSIC_GUESS,
-            )  # fmt: skip
+            )
             model = _camera_model(K2, d2, rvecs[0], tvecs[0], size, name)
             sd = np.asarray(sd_in).ravel()
             std = {"fx_fy_cx_cy_px": sd[:4].tolist(), "k1_k2_p1_p2_k3": sd[4:9].tolist()}
         rms_views = {
-            image_names[i]: _view_rms(model, target.points_um()[detections[i].ids] + displacements_um[i],
-                                      detections[i].q_px)
+            image_names[i]: _view_rms(
+                model,
+                target.points_um()[detections[i].ids] + displacements_um[i],
+                detections[i].q_px,
+            )
             for i in used
-        }  # fmt: skip
+        }
         bad = _outliers(rms_views)
         if not bad:
             break
         rejected += [{"image": v, "reason": r} for v, r in bad.items()]
         used = [i for i in used if image_names[i] not in bad]
-    all_err = np.concatenate([
-        model.project(target.points_um()[detections[i].ids] + displacements_um[i]) - detections[i].q_px
-        for i in used
-    ])  # fmt: skip
+    all_err = np.concatenate(
+        [
+            model.project(target.points_um()[detections[i].ids] + displacements_um[i])
+            - detections[i].q_px
+            for i in used
+        ]
+    )
     rms_all = float(np.sqrt(np.mean(np.sum(all_err**2, axis=1))))
     return CameraCalibration(model, rms_all, rms_views, len(used), rejected, std)
 
@@ -206,12 +223,17 @@ def calibrate_known_displacements(
             raise InputError(
                 f"camera {name}: {len(dets)} images but {len(disp)} displacements; one each"
             )
-        cams[name] = _calibrate_one_known(name, dets, image_names[name], target, disp,
-                                          image_size_px[name], refine)  # fmt: skip
+        cams[name] = _calibrate_one_known(
+            name, dets, image_names[name], target, disp, image_size_px[name], refine
+        )
     rms = float(np.sqrt(np.mean([c.rms_px**2 for c in cams.values()])))
     models = {n: c.model for n, c in cams.items()}
-    return StereoCalibration("known displacements (DLT" + (" + refinement)" if refine else ")"),
-                             cams, rms, _baseline(models))  # fmt: skip
+    return StereoCalibration(
+        "known displacements (DLT" + (" + refinement)" if refine else ")"),
+        cams,
+        rms,
+        _baseline(models),
+    )
 
 
 def calibrate_unknown_poses(
@@ -253,9 +275,13 @@ def calibrate_unknown_poses(
                     f"tilted views are needed"
                 )
             rms, K, dist, rvecs, tvecs, sd_in, _, per_view = cv2.calibrateCameraExtended(
-                [obj[dets[i].ids] for i in used], [dets[i].q_px.astype(np.float32) for i in used],
-                image_size_px[name], None, None, flags=cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST,
-            )  # fmt: skip
+                [obj[dets[i].ids] for i in used],
+                [dets[i].q_px.astype(np.float32) for i in used],
+                image_size_px[name],
+                None,
+                None,
+                flags=UNKNOWN_POSE_FLAGS,
+            )
             view_rms = {
                 image_names[name][i]: float(e)
                 for i, e in zip(used, np.ravel(per_view), strict=True)
@@ -270,13 +296,17 @@ def calibrate_unknown_poses(
         sd = np.asarray(sd_in).ravel()
         cams[name] = CameraCalibration(
             CameraModel(np.eye(3), np.zeros(5), np.eye(3), np.zeros(3), image_size_px[name], name),
-            float(rms), view_rms, len(used), rejected,
+            float(rms),
+            view_rms,
+            len(used),
+            rejected,
             {"fx_fy_cx_cy_px": sd[:4].tolist(), "k1_k2_p1_p2_k3": sd[4:9].tolist()},
-        )  # fmt: skip
+        )
     common = sorted(set(poses[names[0]]) & set(poses[names[1]]))
     if reference_view not in common:
         raise DegenerateDataError(
-            f"reference view {reference_view} is not usable in both cameras; usable in both: {common}"
+            f"reference view {reference_view} is not usable in both cameras; "
+            f"usable in both: {common}"
         )
     obj_pts, q1, q2 = [], [], []
     for i in common:
