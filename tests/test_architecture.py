@@ -36,7 +36,7 @@ ALLOWED_THIRD_PARTY = {
     2: {"numpy", "scipy", "cv2"},
     3: {"numpy", "scipy", "cv2"},
     4: {"numpy", "scipy", "cv2"},
-    5: {"numpy", "scipy", "cv2", "typer", "rich", "pydantic"},
+    5: {"numpy", "scipy", "cv2", "typer", "rich", "pydantic", "tifffile"},
 }
 STDLIB_OK = set(sys.stdlib_module_names)
 
