@@ -134,6 +134,31 @@ def _detect_chessboard(gray: NDArray[np.float32], target: Target) -> Detection:
     return Detection(True, ids, q, _homography_rms(target, ids, q), method=method)
 
 
+#: Images larger than this (pixels) are first searched at half resolution.
+COARSE_SEARCH_PX = 600_000
+
+
+def _detect_chessboard_coarse_to_fine(gray: NDArray[np.float32], target: Target) -> Detection:
+    """Search a large image at half resolution first, then refine in a full-resolution box."""
+    if gray.size <= COARSE_SEARCH_PX:
+        return _detect_chessboard(gray, target)
+    small = cv2.resize(gray, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+    coarse = _detect_chessboard(small, target)
+    if coarse.found:
+        q = coarse.q_px * 2.0 + 0.5
+        square = float(np.median(np.linalg.norm(np.diff(q, axis=0), axis=1)))
+        lo = np.floor(q.min(axis=0) - 3 * square).astype(int)
+        hi = np.ceil(q.max(axis=0) + 3 * square).astype(int)
+        h, w = gray.shape
+        x0, y0 = max(lo[0], 0), max(lo[1], 0)
+        x1, y1 = min(hi[0], w), min(hi[1], h)
+        fine = _detect_chessboard(gray[y0:y1, x0:x1], target)
+        if fine.found:
+            return Detection(True, fine.ids, fine.q_px + np.array([x0, y0]), fine.quality_px,
+                             method=fine.method + ", coarse-to-fine")  # fmt: skip
+    return _detect_chessboard(gray, target)
+
+
 def _dot_centres(gray: NDArray[np.float32], bright: bool) -> FloatArray:
     """Centres of the dots: local maxima of the smoothed image, refined by moments.
 
@@ -296,7 +321,7 @@ def detect(
             return Detection.none(f"region of interest {roi} is outside the {w}x{h} image")
         gray = gray[y0:y1, x0:x1]
     if target.kind == "chessboard":
-        det = _detect_chessboard(gray, target)
+        det = _detect_chessboard_coarse_to_fine(gray, target)
     elif target.kind == "dotgrid":
         det = _detect_dotgrid(gray, target)
     else:

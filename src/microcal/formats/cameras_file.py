@@ -1,0 +1,103 @@
+"""``cameras.json``: calibrated cameras in one {V}, versioned, validated on load."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from ..errors import FormatError, InputError
+from ..geometry.camera_model import CameraModel
+from ..vision.stereo_calibration import StereoCalibration
+from .atomic import write_text_atomic
+
+__all__ = ["CAMERAS_FORMAT", "cameras_to_dict", "load_cameras", "models_from_dict", "write_cameras"]
+
+CAMERAS_FORMAT = "microcal.cameras/1"
+
+
+class _Camera(BaseModel):
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+    image_size_px: tuple[int, int]
+    K: list[list[float]]
+    dist: list[float]
+    R: list[list[float]]
+    t_um: list[float]
+
+
+class _Cameras(BaseModel):
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+    format: str
+    cameras: dict[str, _Camera]
+
+
+def cameras_to_dict(cal: StereoCalibration, provenance: dict[str, Any]) -> dict[str, Any]:
+    """The JSON object of cameras.json."""
+    cameras = {}
+    for name, c in cal.cameras.items():
+        m = c.model
+        cameras[name] = {
+            "image_size_px": list(m.image_size_px),
+            "K": m.K.tolist(),
+            "dist": m.dist.tolist(),
+            "R": m.R.tolist(),
+            "t_um": m.t_um.tolist(),
+            "rms_px": c.rms_px,
+            "views_used": c.views_used,
+            "views_rejected": c.views_rejected,
+            "per_view_rms_px": c.per_view_rms_px,
+            "std": c.std,
+        }
+    return {
+        "format": CAMERAS_FORMAT,
+        "cameras": cameras,
+        "stereo": {"method": cal.method, "rms_px": cal.rms_px, "baseline_um": cal.baseline_um},
+        "provenance": provenance,
+    }
+
+
+def write_cameras(path: str | os.PathLike[str], data: dict[str, Any]) -> Path:
+    """Write cameras.json atomically."""
+    return write_text_atomic(path, json.dumps(data, indent=1, allow_nan=False) + "\n")
+
+
+def models_from_dict(data: dict[str, Any], where: str = "cameras") -> dict[str, CameraModel]:
+    """Camera models from a cameras.json object (or the ``cameras`` part of calibration.json)."""
+    try:
+        parsed = _Cameras.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = ".".join(str(p) for p in err["loc"])
+        raise FormatError(f"{where}: {loc}: {err['msg']}") from None
+    models = {}
+    for name, cam in parsed.cameras.items():
+        try:
+            models[name] = CameraModel(np.array(cam.K), np.array(cam.dist), np.array(cam.R),
+                                       np.array(cam.t_um), cam.image_size_px, name)  # fmt: skip
+        except InputError as exc:
+            raise FormatError(f"{where}: cameras.{name}: {exc}") from None
+    return models
+
+
+def load_cameras(path: str | os.PathLike[str]) -> dict[str, CameraModel]:
+    """Read cameras.json (or a calibration.json that holds cameras)."""
+    p = Path(path)
+    try:
+        raw = json.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise FormatError(f"{p}: no such file (run 'microcal stereo-calibrate' first)") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise FormatError(f"{p}: not a JSON file ({exc})") from None
+    if not isinstance(raw, dict) or raw.get("format") not in (
+        CAMERAS_FORMAT,
+        "microcal.calibration/1",
+    ):
+        found = raw.get("format") if isinstance(raw, dict) else type(raw).__name__
+        raise FormatError(f"{p}: expected format {CAMERAS_FORMAT!r}, got {found!r}")
+    if not raw.get("cameras"):
+        raise FormatError(f"{p}: holds no cameras")
+    return models_from_dict({"format": CAMERAS_FORMAT, "cameras": raw["cameras"]}, str(p))

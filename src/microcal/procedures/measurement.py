@@ -1,0 +1,213 @@
+"""3D measurement of the end-effector from image pairs (thesis 4.2, Eq 4.13, Eq 3.18).
+
+For each pose: find the board in every camera's frames (in a region predicted from the
+commanded joints once a few poses are known, else in the whole image), take the virtual
+point of each frame from the undistorted corners, average over the pose's frames, and
+triangulate the cameras' virtual points optimally into {G}, with the covariance of the
+result. A pose whose board is missing in a camera is marked failed with the reason.
+
+The pixel covariance of a virtual point comes from the corners' residuals (independent
+corner noise); when poses have several frames, the frame-to-frame scatter pooled over the
+run replaces it, which also counts what moves all corners together (vibration).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .._validation import FloatArray
+from ..errors import DetectionError
+from ..geometry import CameraModel, triangulate_optimal, triangulation_covariance
+from ..vision.detect import detect
+from ..vision.targets import Target
+from ..vision.virtual_point import virtual_point
+
+__all__ = ["PoseMeasurement", "RoiPredictor", "measure_poses"]
+
+Frames = Sequence[NDArray[np.generic]]
+
+
+@dataclass
+class PoseMeasurement:
+    """The measured end-effector of one pose."""
+
+    pose: int
+    status: str  # "ok" or "failed"
+    reason: str = ""
+    p_um: FloatArray = field(default_factory=lambda: np.full(3, np.nan))
+    cov_um2: FloatArray = field(default_factory=lambda: np.full((3, 3), np.nan))
+    vp_px: dict[str, FloatArray] = field(default_factory=dict)  # per camera, per frame (k, 2)
+    vp_cov_px2: dict[str, FloatArray] = field(default_factory=dict)
+
+    @property
+    def std_um(self) -> FloatArray:
+        """Standard deviation per axis, µm."""
+        out: FloatArray = np.sqrt(np.diagonal(self.cov_um2))
+        return out
+
+
+class RoiPredictor:
+    """Where the board will be in a camera's image, from the commanded joints.
+
+    After ``min_poses`` successful detections, an affine map joints -> virtual point (px) is
+    fitted by least squares and refitted as poses come; the region is the board's size in
+    pixels around the prediction, with a margin.
+    """
+
+    def __init__(self, margin_px: float = 40.0, min_poses: int = 4) -> None:
+        self.margin_px = margin_px
+        self.min_poses = min_poses
+        self._d: list[FloatArray] = []
+        self._q: list[FloatArray] = []
+        self._half: FloatArray | None = None
+        self._A: FloatArray | None = None
+
+    def add(self, d_um: FloatArray, corners_px: FloatArray) -> None:
+        self._d.append(np.append(d_um, 1.0))
+        self._q.append(corners_px.mean(axis=0))
+        half = (corners_px.max(axis=0) - corners_px.min(axis=0)) / 2
+        self._half = half if self._half is None else np.maximum(self._half, half)
+        if len(self._d) >= self.min_poses:
+            self._A = np.linalg.lstsq(np.array(self._d), np.array(self._q), rcond=None)[0]
+
+    def predict(self, d_um: FloatArray) -> tuple[int, int, int, int] | None:
+        if self._A is None or self._half is None:
+            return None
+        centre = np.append(d_um, 1.0) @ self._A
+        half = 1.6 * self._half + self.margin_px
+        lo, hi = np.floor(centre - half), np.ceil(centre + half)
+        return int(lo[0]), int(lo[1]), int(hi[0]) + 1, int(hi[1]) + 1
+
+
+def _vp_of_frames(
+    frames: Frames, target: Target, model: CameraModel, roi: tuple[int, int, int, int] | None
+) -> tuple[FloatArray, FloatArray, FloatArray] | str:
+    """Virtual points (k, 2), their mean residual covariance (2, 2), and corners of frame 0."""
+    vps, covs, corners0 = [], [], None
+    for image in frames:
+        if corners0 is not None:  # the board stays put during a pose: search around frame 0
+            half = (corners0.max(axis=0) - corners0.min(axis=0)) * 0.8 + 30.0
+            centre = corners0.mean(axis=0)
+            lo, hi = np.floor(centre - half).astype(int), np.ceil(centre + half).astype(int)
+            roi = (int(lo[0]), int(lo[1]), int(hi[0]), int(hi[1]))
+        det = detect(image, target, roi=roi) if roi is not None else None
+        if det is None or not det.found:
+            det = detect(image, target)
+        if not det.found:
+            return det.reason
+        try:
+            vp = virtual_point(det, target, model)
+        except DetectionError as exc:
+            return str(exc)
+        vps.append(vp.q_px)
+        covs.append(vp.cov_px2)
+        if corners0 is None:
+            corners0 = det.q_px
+    assert corners0 is not None
+    return np.array(vps), np.mean(covs, axis=0), corners0
+
+
+def measure_poses(
+    poses: Sequence[int],
+    commands_um: FloatArray,
+    load_frames: Callable[[int, str], Frames],
+    cameras: dict[str, CameraModel],
+    target: Target,
+    *,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[PoseMeasurement]:
+    """Measure every pose of a run.
+
+    Parameters
+    ----------
+    poses : sequence of int
+        Pose numbers.
+    commands_um : (N, k) float
+        The joint commands of those poses (for predicting where the board is).
+    load_frames : callable (pose, camera) -> list of images
+        The frames of one pose from one camera; raise ``FormatError`` for a broken file.
+    cameras : dict name -> CameraModel
+        Exactly two cameras, in {G}.
+    target : Target
+        The end-effector board.
+    progress : callable (done, total), optional
+    """
+    from ..errors import FormatError
+
+    names = list(cameras)
+    if len(names) != 2:
+        raise DetectionError(f"measurement: expected 2 calibrated cameras, got {names}")
+    predictors = {n: RoiPredictor() for n in names}
+    results: list[PoseMeasurement] = []
+    for k, pose in enumerate(poses):
+        m = PoseMeasurement(pose, "ok")
+        for name in names:
+            try:
+                frames = load_frames(pose, name)
+            except FormatError as exc:
+                m.status, m.reason = "failed", f"{name}: {exc}"
+                break
+            if not frames:
+                m.status, m.reason = "failed", f"{name}: no image"
+                break
+            w, h = cameras[name].image_size_px
+            if frames[0].shape[:2] != (h, w):
+                m.status = "failed"
+                got_h, got_w = frames[0].shape[:2]
+                m.reason = f"{name}: image is {got_w}x{got_h} px, the camera's calibration {w}x{h}"
+                break
+            got = _vp_of_frames(
+                frames, target, cameras[name], predictors[name].predict(commands_um[k])
+            )
+            if isinstance(got, str):
+                m.status, m.reason = "failed", f"{name}: {got}"
+                break
+            vps, cov, corners = got
+            predictors[name].add(commands_um[k], corners)
+            m.vp_px[name], m.vp_cov_px2[name] = vps, cov
+        results.append(m)
+        if progress:
+            progress(k + 1, len(poses))
+    _triangulate(results, cameras, names)
+    return results
+
+
+def _pooled_frame_covariance(results: list[PoseMeasurement], name: str) -> FloatArray | None:
+    """Frame-to-frame covariance of one camera's virtual point, pooled over the poses."""
+    scatter = np.zeros((2, 2))
+    dof = 0
+    for m in results:
+        vps = m.vp_px.get(name)
+        if m.status == "ok" and vps is not None and len(vps) > 1:
+            dev = vps - vps.mean(axis=0)
+            scatter += dev.T @ dev
+            dof += len(vps) - 1
+    return scatter / dof if dof >= 10 else None
+
+
+def _triangulate(
+    results: list[PoseMeasurement], cameras: dict[str, CameraModel], names: list[str]
+) -> None:
+    ok = [m for m in results if m.status == "ok"]
+    if not ok:
+        return
+    pooled = {n: _pooled_frame_covariance(results, n) for n in names}
+    q = {n: np.array([m.vp_px[n].mean(axis=0) for m in ok]) for n in names}
+    cov = {}
+    for n in names:
+        per_pose = []
+        for m in ok:
+            k = len(m.vp_px[n])
+            frame_cov = pooled[n]
+            base = frame_cov if frame_cov is not None else m.vp_cov_px2[n]
+            per_pose.append(base / k)
+        cov[n] = np.array(per_pose)
+    P1, P2 = cameras[names[0]].P, cameras[names[1]].P
+    p = triangulate_optimal(P1, P2, q[names[0]], q[names[1]], cov[names[0]], cov[names[1]])
+    c = triangulation_covariance(P1, P2, p, cov[names[0]], cov[names[1]])
+    for m, pi, ci in zip(ok, p, c, strict=True):
+        m.p_um, m.cov_um2 = pi, ci
