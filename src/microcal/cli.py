@@ -17,7 +17,7 @@ from rich.table import Table
 
 from ._validation import FloatArray
 from ._version import __version__
-from .errors import InputError, MicrocalError
+from .errors import FormatError, InputError, MicrocalError
 
 app = typer.Typer(
     name="microcal",
@@ -325,6 +325,190 @@ def solve(
         + " µm",
         file=sys.stderr,
     )
+
+
+def _parse_images(specs: list[str]) -> dict[str, list[Path]]:
+    import glob
+
+    out: dict[str, list[Path]] = {}
+    for spec in specs:
+        name, sep, pattern = spec.partition("=")
+        if not sep or not name or not pattern:
+            raise InputError(
+                f"--images: expected CAMERA=GLOB such as top='cal/top_*.tiff', got {spec!r}"
+            )
+        files = sorted(Path(p) for p in glob.glob(pattern))
+        if not files:
+            raise InputError(f"--images {name}: no file matches {pattern!r}")
+        out[name] = files
+    if len(out) != 2:
+        raise InputError(f"--images: expected two cameras, got {sorted(out)}")
+    counts = {n: len(f) for n, f in out.items()}
+    if len(set(counts.values())) != 1:
+        raise InputError(f"--images: every camera needs one image per view, got {counts}")
+    return out
+
+
+def _read_displacements(path: Path, n_views: int) -> FloatArray:
+    import csv
+
+    try:
+        rows = list(csv.DictReader(path.read_text(encoding="utf-8").splitlines()))
+    except FileNotFoundError:
+        raise InputError(f"--known-displacements: {path}: no such file") from None
+    try:
+        disp = np.array([[float(r["dx_um"]), float(r["dy_um"]), float(r["dz_um"])] for r in rows])
+    except (KeyError, TypeError, ValueError):
+        raise InputError(
+            f"--known-displacements: {path}: expected columns dx_um,dy_um,dz_um with numbers"
+        ) from None
+    if disp.shape != (n_views, 3):
+        raise InputError(
+            f"--known-displacements: {path} has {len(rows)} rows, expected one per view ({n_views})"
+        )
+    return disp
+
+
+@app.command("stereo-calibrate")
+def stereo_calibrate(
+    target: Annotated[
+        str, typer.Option(help="Target spec, e.g. dotgrid:40x30:250 or chessboard:9x6:25000.")
+    ],
+    images: Annotated[
+        list[str], typer.Option(help="CAMERA=GLOB, once per camera; views pair up in sorted order.")
+    ],
+    out: Annotated[Path, typer.Option("--out", "-o", help="cameras.json to write.")] = Path(
+        "cameras.json"
+    ),
+    known_displacements: Annotated[
+        Path | None,
+        typer.Option(
+            help="CSV dx_um,dy_um,dz_um per view: the target moved by known steps (method a)."
+        ),
+    ] = None,
+    reference_view: Annotated[int, typer.Option(help="Method b: the view that defines {V}.")] = 0,
+) -> None:
+    """Calibrate two cameras from images of a target.
+
+    With --known-displacements the thesis's method (target at known positions, DLT per
+    camera, refined with distortion); without, unknown target poses (per-camera then stereo
+    calibration). Multi-page TIFFs are averaged per view.
+
+    Example: microcal stereo-calibrate --target dotgrid:40x30:250 --images top='cal/top_*.tiff'
+    --images side='cal/side_*.tiff' --known-displacements cal/steps.csv --out cameras.json
+    """
+    from .formats.calibration_file import provenance
+    from .formats.cameras_file import cameras_to_dict, write_cameras
+    from .formats.images import read_frames
+    from .procedures.stereo import calibrate_views
+    from .vision.targets import parse_target
+
+    tgt = parse_target(target)
+    files = _parse_images(images)
+    n_views = len(next(iter(files.values())))
+    disp = _read_displacements(known_displacements, n_views) if known_displacements else None
+    names = {cam: [f.name for f in fs] for cam, fs in files.items()}
+    console = Console(stderr=True)
+    with console.status("detecting the target ..."):
+        cal = calibrate_views(
+            names,
+            lambda cam, i: read_frames(files[cam][i]),
+            tgt,
+            displacements_um=disp,
+            reference_view=reference_view,
+        )
+    inputs = {f"{cam}/{f.name}": f for cam, fs in files.items() for f in fs}
+    if known_displacements:
+        inputs["displacements"] = known_displacements
+    write_cameras(
+        out, cameras_to_dict(cal, provenance(inputs, command="stereo-calibrate", target=tgt.spec))
+    )
+    table = Table(title=f"Stereo calibration ({cal.method})")
+    for col in ("camera", "RMS px", "views used", "rejected", "fx px", "fy px"):
+        table.add_column(col, justify="right")
+    for name, c in cal.cameras.items():
+        table.add_row(
+            name,
+            f"{c.rms_px:.4f}",
+            str(c.views_used),
+            str(len(c.views_rejected)),
+            f"{c.model.K[0, 0]:.1f}",
+            f"{c.model.K[1, 1]:.1f}",
+        )
+    Console().print(table)
+    for name, c in cal.cameras.items():
+        for r in c.views_rejected:
+            print(f"rejected {name} {r['image']}: {r['reason']}")
+    print(f"baseline {cal.baseline_um:.0f} µm; stereo RMS {cal.rms_px:.4f} px; wrote {out}")
+
+
+@app.command()
+def measure(
+    run_dir: Annotated[Path, typer.Argument(help="Run directory (commands.csv and images/).")],
+    cameras: Annotated[
+        Path, typer.Option(help="cameras.json (or a calibration.json with cameras).")
+    ],
+    target: Annotated[
+        str | None,
+        typer.Option(help="End-effector board; default: run.json's, else chessboard:4x3:400."),
+    ] = None,
+) -> None:
+    """Measure the end-effector in 3D at every pose of a run; writes measurements.csv.
+
+    Example: microcal measure runs/a --cameras cameras.json
+    """
+    from .formats.cameras_file import load_cameras
+    from .formats.images import read_frames
+    from .formats.measurements import write_measurements
+    from .formats.run_directory import find_image, read_commands, read_manifest
+    from .procedures.measurement import measure_poses
+    from .vision.targets import parse_target
+
+    if not run_dir.is_dir():
+        raise InputError(f"{run_dir}: not a directory (expected a run directory)")
+    models = load_cameras(cameras)
+    poses, d = read_commands(run_dir)
+    manifest = read_manifest(run_dir)
+    spec = target or str(manifest.get("target", "chessboard:4x3:400"))
+    board = parse_target(spec)
+
+    def load(pose: int, cam: str) -> list[Any]:
+        path = find_image(run_dir, cam, pose)
+        if path is None:
+            raise FormatError(f"no image images/{cam}_{pose:04d}.tiff")
+        return read_frames(path)
+
+    from rich.progress import Progress
+
+    with Progress(console=Console(stderr=True), transient=True) as bar:
+        task = bar.add_task("measuring", total=len(poses))
+        results = measure_poses(
+            poses,
+            d,
+            load,
+            models,
+            board,
+            progress=lambda done, _t: bar.update(task, completed=done),
+        )
+    ok = [r.status == "ok" for r in results]
+    p = np.array([r.p_um for r in results])
+    std = np.array([r.std_um for r in results])
+    write_measurements(
+        run_dir / "measurements.csv",
+        d,
+        p,
+        std_um=std,
+        status=[r.status for r in results],
+        reason=[r.reason for r in results],
+    )
+    n_ok = sum(ok)
+    print(f"measured {n_ok} of {len(results)} poses; wrote {run_dir / 'measurements.csv'}")
+    if n_ok:
+        med = np.median(std[np.array(ok)], axis=0)
+        print("median standard deviation x/y/z: " + "/".join(f"{v:.2f}" for v in med) + " µm")
+    for r in results:
+        if r.status != "ok":
+            print(f"pose {r.pose} failed: {r.reason}")
 
 
 def _fail(message: str) -> NoReturn:

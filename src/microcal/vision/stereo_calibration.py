@@ -18,7 +18,7 @@ rejected and reported with the reason, and the cameras are calibrated again with
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -190,11 +190,11 @@ def _baseline(models: dict[str, CameraModel]) -> float:
 
 
 def calibrate_known_displacements(
-    detections: dict[str, Sequence[Detection]],
-    image_names: dict[str, Sequence[str]],
+    detections: Mapping[str, Sequence[Detection]],
+    image_names: Mapping[str, Sequence[str]],
     target: Target,
     displacements_um: FloatArray,
-    image_size_px: dict[str, tuple[int, int]],
+    image_size_px: Mapping[str, tuple[int, int]],
     *,
     refine: bool = True,
 ) -> StereoCalibration:
@@ -237,10 +237,10 @@ def calibrate_known_displacements(
 
 
 def calibrate_unknown_poses(
-    detections: dict[str, Sequence[Detection]],
-    image_names: dict[str, Sequence[str]],
+    detections: Mapping[str, Sequence[Detection]],
+    image_names: Mapping[str, Sequence[str]],
     target: Target,
-    image_size_px: dict[str, tuple[int, int]],
+    image_size_px: Mapping[str, tuple[int, int]],
     *,
     reference_view: int = 0,
 ) -> StereoCalibration:

@@ -1,0 +1,79 @@
+"""Stereo calibration from a set of images per camera (the procedure behind the command).
+
+Frames of one view (the pages of a multi-page file) are averaged before detection: with a
+still target this lowers the noise as the square root of their number.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .._validation import FloatArray
+from ..errors import FormatError
+from ..vision.detect import Detection, detect, to_gray
+from ..vision.stereo_calibration import (
+    StereoCalibration,
+    calibrate_known_displacements,
+    calibrate_unknown_poses,
+)
+from ..vision.targets import Target
+
+__all__ = ["calibrate_views"]
+
+Loader = Callable[[str, int], Sequence[NDArray[np.generic]]]
+
+
+def calibrate_views(
+    names: Mapping[str, Sequence[str]],
+    load: Loader,
+    target: Target,
+    *,
+    displacements_um: FloatArray | None = None,
+    reference_view: int = 0,
+    progress: Callable[[int, int], None] | None = None,
+) -> StereoCalibration:
+    """Detect the target in every view of every camera and calibrate.
+
+    Parameters
+    ----------
+    names : dict camera -> list of view names (file names), one per view, same count each.
+    load : callable (camera, view index) -> frames of that view
+        Raise FormatError for a file that cannot be read: the view is rejected, not fatal.
+    target : Target
+    displacements_um : (V, 3) float, optional
+        Known displacements: method (a). Without them: method (b).
+    reference_view : int
+        For method (b): the view whose target frame becomes {V}.
+    """
+    detections: dict[str, list[Detection]] = {}
+    sizes: dict[str, tuple[int, int]] = {}
+    total = sum(len(v) for v in names.values())
+    done = 0
+    for cam, views in names.items():
+        detections[cam] = []
+        for i in range(len(views)):
+            try:
+                frames = load(cam, i)
+                image = np.mean([to_gray(f) for f in frames], axis=0)
+                sizes.setdefault(cam, (image.shape[1], image.shape[0]))
+                if (image.shape[1], image.shape[0]) != sizes[cam]:
+                    w, h = sizes[cam]
+                    det = Detection.none(
+                        f"image is {image.shape[1]}x{image.shape[0]} px, the others {w}x{h}"
+                    )
+                else:
+                    det = detect(image, target)
+            except FormatError as exc:
+                det = Detection.none(str(exc))
+            detections[cam].append(det)
+            done += 1
+            if progress:
+                progress(done, total)
+        if cam not in sizes:
+            raise FormatError(f"camera {cam}: none of its images could be read")
+    if displacements_um is not None:
+        return calibrate_known_displacements(detections, names, target, displacements_um, sizes)
+    return calibrate_unknown_poses(detections, names, target, sizes, reference_view=reference_view)
