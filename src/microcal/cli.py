@@ -47,76 +47,97 @@ def _root(
 @app.command()
 def demo(
     seed: Annotated[int, typer.Option(help="Seed of all random draws.")] = 0,
-    poses: Annotated[int, typer.Option(min=1, help="End-effector positions to measure.")] = 170,
+    poses: Annotated[
+        int, typer.Option(min=20, help="Poses to acquire (the thesis used 170).")
+    ] = 170,
+    quick: Annotated[bool, typer.Option(help="A short run: 60 poses, 3 frames each.")] = False,
 ) -> None:
-    """Run what microcal can do today on synthetic data from the thesis's cameras.
+    """Run the calibration on the simulated thesis platform and compare with the thesis.
 
-    Example: microcal demo --seed 3 --poses 170
+    Example: microcal demo --seed 3
     """
-    from .procedures.geometry_check import (
-        THESIS_VALIDATION_UM,
-        run_geometry_check,
-        run_identification_check,
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from .procedures.demo import CALIBRATION_TARGET, run_demo
+    from .thesis_figures import (
+        CLAIMED_ACCURACY_UM,
+        REPROJECTION_ERROR_SIDE_PX,
+        REPROJECTION_ERROR_TOP_PX,
+        VALIDATION_UM,
     )
 
     console = Console()
+    n_poses, frames = (60, 3) if quick else (poses, 5)
     console.print(
-        "[bold]microcal demo[/bold]: this version runs the [bold]camera-geometry core[/bold] "
-        "(stereo calibration by DLT and 3D measurement) and the "
-        "[bold]kinematic identification[/bold] "
-        "on synthetic pixel coordinates from the thesis's two cameras and the simulator's true "
-        "kinematics. Rendered images, acquisition runs, compensation, ISO 9283 tests and the "
-        "report are not built yet."
+        "[bold]microcal demo[/bold] on the simulated thesis platform: stereo calibration from "
+        "rendered images, acquisition and 3D measurement, kinematic identification. "
+        "Compensation runs, ISO 9283 tests and the report are not built yet."
     )
-    result = run_geometry_check(seed=seed, n_points=poses)
-    table = Table(title="Stereo calibration (dot grid at 4 known heights, DLT)")
-    for col in ("camera", "reprojection RMS px", "thesis px", "fx px", "fy px", "centre error µm"):
+    with Progress(
+        TextColumn("{task.description:<20}"),
+        BarColumn(),
+        TextColumn("{task.completed}/{task.total}"),
+        TimeRemainingColumn(),
+        console=console,
+        transient=True,
+    ) as bar:
+        tasks: dict[str, Any] = {}
+
+        def progress(stage: str, done: int, total: int) -> None:
+            if stage not in tasks:
+                tasks[stage] = bar.add_task(stage, total=total)
+            bar.update(tasks[stage], completed=done)
+
+        result = run_demo(seed=seed, poses=n_poses, frames_per_pose=frames, progress=progress)
+
+    cal = result.calibration
+    table = Table(
+        title=f"1. Stereo calibration: {CALIBRATION_TARGET} at 5 known heights ({cal.method})"
+    )
+    for col in ("camera", "RMS px", "thesis px", "vs true camera px", "fx px", "fy px"):
         table.add_column(col, justify="right")
-    for c in result.cameras:
+    thesis_rms = {"top": REPROJECTION_ERROR_TOP_PX, "side": REPROJECTION_ERROR_SIDE_PX}
+    for name, c in cal.cameras.items():
         table.add_row(
-            c.name,
-            f"{c.rms_px:.4f}",
-            f"{c.thesis_rms_px:.4f}",
-            f"{c.fx_px:.1f}",
-            f"{c.fy_px:.1f}",
-            f"{c.centre_error_um:.1f}",
+            name,
+            f"{c.rms_px:.3f}",
+            f"{thesis_rms.get(name, float('nan')):.3f}",
+            f"{result.calibration_truth_px[name]:.3f}",
+            f"{c.model.K[0, 0]:.1f}",
+            f"{c.model.K[1, 1]:.1f}",
         )
     console.print(table)
-    sx, sy, sz = result.mean_predicted_std_um
+    ok = result.measured_ok
+    stds = np.array([m.std_um for m, good in zip(result.measurements, ok, strict=True) if good])
     console.print(
-        f"3D measurement of {result.n_points} end-effector positions (virtual-point noise of "
-        f"thesis Table 4-1, optimal triangulation): RMS error {result.rms_error_um:.2f} µm, "
-        f"max {result.max_error_um:.2f} µm; predicted std x/y/z {sx:.2f}/{sy:.2f}/{sz:.2f} µm; "
-        f"Mahalanobis mean square {result.mahalanobis_mean_square:.2f} (3 = honest covariance)."
+        f"2. Measured {int(ok.sum())} of {len(ok)} poses ({frames} frames each, "
+        f"{result.sim_time_s / 60:.0f} min of simulated time): 3D error vs ground truth "
+        f"{result.measurement_rms_um:.2f} µm RMS "
+        f"(the thesis claimed ±{CLAIMED_ACCURACY_UM:g} µm without measuring); reported std x/y/z "
+        + "/".join(f"{v:.2f}" for v in np.median(stds, axis=0))
+        + " µm."
     )
-    ident = run_identification_check(seed=seed, n_poses=max(poses, 20))
+    n_fit = int(result.models["matrix"].validation["n_fit"])  # type: ignore[call-overload]
     table = Table(
-        title=f"Kinematic identification: {ident.n_poses} poses, first {ident.n_fit} fit, "
-        f"the rest validate (prediction error Eq 5.1, µm; oracle = the true kinematics)"
+        title=f"3. Identification: first {n_fit} poses fit, the rest validate (Eq 5.1, µm)"
     )
     for col in ("model", "mean", "std", "max", "thesis mean", "thesis std", "thesis max"):
         table.add_column(col, justify="right")
     for kind in ("matrix", "polynomial"):
-        ours, theirs = getattr(ident, kind), THESIS_VALIDATION_UM[kind]
-        table.add_row(
-            kind,
-            *(f"{ours[k]:.2f}" for k in ("mean", "std", "max")),
-            *(f"{theirs[k]:.2f}" for k in ("mean", "std", "max")),
-        )
-    o = ident.oracle
-    table.add_row(
-        "oracle",
-        f"{o['mean']:.2f}",
-        f"{o['std']:.2f}",
-        f"{o['max']:.2f}",
-        "-",
-        "-",
-        "-",
-    )
+        v = result.models[kind].validation
+        ours = [float(v[f"{k}_um"]) for k in ("mean", "std", "max")]  # type: ignore[arg-type]
+        theirs = [VALIDATION_UM[kind][k] for k in ("mean", "std", "max")]
+        table.add_row(kind, *(f"{x:.2f}" for x in ours), *(f"{x:.2f}" for x in theirs))
+    o = result.oracle
+    table.add_row("oracle", f"{o['mean']:.2f}", f"{o['std']:.2f}", f"{o['max']:.2f}", "-", "-", "-")
     console.print(table)
+    model = result.models["polynomial"].model
     console.print(
         "polynomial terms selected stepwise: "
-        + "; ".join(f"{axis}: {', '.join(t)}" for axis, t in ident.polynomial_terms.items())
+        + "; ".join(
+            f"{axis}: {', '.join(name for name, _, _ in model.axis_terms(i))}"
+            for i, axis in enumerate("xyz")
+        )
     )
 
 

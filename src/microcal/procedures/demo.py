@@ -1,0 +1,140 @@
+"""The whole procedure on the simulated thesis platform (what ``microcal demo`` runs).
+
+1. Stereo calibration from rendered images: the dot grid at five known heights (method (a),
+   the thesis's), frames averaged per view.
+2. Acquisition: random joint commands over the travel (the thesis's design), a fixed settle
+   wait, several frames per pose; measurement of every pose in 3D with its covariance.
+3. Identification: matrix and polynomial (stepwise) models, fitted on the first poses and
+   validated on the rest (the thesis's split), next to the oracle (the simulator's true
+   kinematics predicting the same measurements).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .._validation import FloatArray
+from ..error_summary import summarize_errors
+from ..sim import platform
+from ..sim.render import Placement
+from ..vision.detect import Detection, detect
+from ..vision.stereo_calibration import StereoCalibration, calibrate_known_displacements
+from ..vision.targets import parse_target
+from .identification import Identification, default_train, identify
+from .measurement import PoseMeasurement, measure_poses
+
+__all__ = ["DemoResult", "run_demo"]
+
+CALIBRATION_TARGET = "dotgrid:40x30:250"
+CALIBRATION_STEPS_UM = (0.0, 1000.0, 2000.0, 3000.0, 4000.0)
+
+
+@dataclass
+class DemoResult:
+    """Everything the demo measured; ``truth_*`` from the simulator's ground truth."""
+
+    seed: int
+    calibration: StereoCalibration
+    calibration_truth_px: dict[str, float]  # per camera: RMS reprojection vs the true camera
+    d_um: FloatArray
+    measurements: list[PoseMeasurement]
+    truth_um: FloatArray
+    models: dict[str, Identification] = field(default_factory=dict)
+    oracle: dict[str, float] = field(default_factory=dict)
+    sim_time_s: float = 0.0
+
+    @property
+    def measured_ok(self) -> np.ndarray:
+        """Poses measured successfully (bool per pose)."""
+        return np.array([m.status == "ok" for m in self.measurements])
+
+    @property
+    def measurement_rms_um(self) -> float:
+        """RMS 3D error of the measured positions against ground truth."""
+        ok = self.measured_ok
+        p = np.array([m.p_um for m in self.measurements])[ok]
+        return float(np.sqrt(np.mean(np.sum((p - self.truth_um[ok]) ** 2, axis=1))))
+
+
+def run_demo(
+    seed: int = 0,
+    poses: int = 170,
+    frames_per_pose: int = 5,
+    frames_per_view: int = 8,
+    settle_s: float = 5.0,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> DemoResult:
+    """Run the calibration on the simulated thesis platform (see the module docstring)."""
+
+    def tick(stage: str, done: int, total: int) -> None:
+        if progress:
+            progress(stage, done, total)
+
+    plat = platform("thesis", seed=seed)
+    grid = parse_target(CALIBRATION_TARGET)
+    steps = np.array([[0.0, 0.0, z] for z in CALIBRATION_STEPS_UM])
+    plat.scene.show_board = False
+    dets: dict[str, list[Detection]] = {n: [] for n in plat.cameras}
+    names: dict[str, list[str]] = {n: [] for n in plat.cameras}
+    for k, step in enumerate(steps):
+        plat.scene.fixed = Placement(grid, np.eye(3), step)
+        for n, cam in plat.cameras.items():
+            image = np.mean([cam.grab().astype(np.float32) for _ in range(frames_per_view)], axis=0)
+            dets[n].append(detect(image, grid))
+            names[n].append(f"{n}_{k + 1:02d}")
+        tick("stereo calibration", k + 1, len(steps))
+    sizes = {n: c.model.image_size_px for n, c in plat.cameras.items()}
+    cal = calibrate_known_displacements(dets, names, grid, steps, sizes)
+    pts = np.random.default_rng(seed).uniform([0, 0, 0], [9000, 9000, 5000], (500, 3))
+    truth_px = {
+        n: float(
+            np.sqrt(
+                np.mean(
+                    np.sum((c.model.project(pts) - plat.cameras[n].model.project(pts)) ** 2, axis=1)
+                )
+            )
+        )
+        for n, c in cal.cameras.items()
+    }
+    plat.scene.fixed = None
+    plat.scene.show_board = True
+    rng = np.random.default_rng(seed + 1)
+    lim = plat.manipulator.limits_um
+    d = rng.uniform(lim[:, 0], lim[:, 1], (poses, 3))
+    frames: dict[tuple[int, str], list[NDArray[np.generic]]] = {}
+    truth = []
+    for i, di in enumerate(d):
+        plat.manipulator.move_to_um(di)
+        plat.manipulator.wait_until_stopped(plat.clock)
+        plat.clock.sleep(settle_s)
+        truth.append(plat.truth_position_um())
+        for n, cam in plat.cameras.items():
+            frames[(i, n)] = [cam.grab() for _ in range(frames_per_pose)]
+        tick("acquisition", i + 1, poses)
+    board = plat.scene.board
+    measurements = measure_poses(
+        list(range(1, poses + 1)),
+        d,
+        lambda pose, n: frames[(pose - 1, n)],
+        cal.models(),
+        board,
+        progress=lambda done, total: tick("measurement", done, total),
+    )
+    result = DemoResult(
+        seed, cal, truth_px, d, measurements, np.array(truth), sim_time_s=plat.clock.now_s()
+    )
+    ok = result.measured_ok
+    p = np.array([m.p_um for m in measurements])[ok]
+    d_ok = d[ok]
+    n_fit = default_train(len(d_ok))
+    kinds: tuple[Literal["matrix"], Literal["polynomial"]] = ("matrix", "polynomial")
+    for kind in kinds:
+        result.models[kind] = identify(d_ok, p, kind, train=n_fit)
+    oracle = summarize_errors(np.linalg.norm(p[n_fit:] - result.truth_um[ok][n_fit:], axis=1))
+    result.oracle = {"mean": oracle.mean, "std": oracle.std, "max": oracle.max}
+    return result
