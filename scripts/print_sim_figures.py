@@ -98,3 +98,55 @@ for seed in range(100):
     ins = rr.in_model & (stepwise_tests.TRUTH != 0)
     w3 += (np.abs(rr.coef[ins] - stepwise_tests.TRUTH[ins]) <= 3 * rr.se[ins]).tolist()
 print("stepwise exact selections", exact, "/100; within 3 se", round(np.mean(w3) * 100, 1), "%")
+
+# Issue 4: calibration (method a) then 100 poses x 5 frames measured, against ground truth.
+import test_vision_measurement as vision_tests  # noqa: E402
+from microcal.procedures.measurement import measure_poses  # noqa: E402
+from microcal.vision.detect import detect  # noqa: E402
+from microcal.vision.virtual_point import virtual_point  # noqa: E402
+
+plat_cal, cal = vision_tests.known_calibration.__wrapped__()
+pts = vision_tests.workspace_points()
+for name, c in cal.cameras.items():
+    err = vision_tests.truth_reprojection_px(c.model, plat_cal.cameras[name].model, pts, pts)
+    print(f"method (a) {name}: RMS {c.rms_px:.4f} px, vs true camera {err:.4f} px")
+plat = sim.platform("thesis", seed=23)
+d = np.random.default_rng(4).uniform([0, 0, 0], [8000, 8000, 4800], (100, 3))
+frames, truth = {}, []
+for i, di in enumerate(d):
+    plat.manipulator.move_to_um(di)
+    plat.manipulator.wait_until_stopped(plat.clock)
+    plat.clock.sleep(5.0)
+    truth.append(plat.truth_position_um())
+    for n, cam in plat.cameras.items():
+        frames[(i, n)] = [cam.grab() for _ in range(5)]
+res = measure_poses(
+    list(range(100)), d, lambda i, n: frames[(i, n)], cal.models(), vision_tests.BOARD
+)
+e = np.array([r.p_um for r in res]) - np.array(truth)
+cov = np.array([r.cov_um2 for r in res])
+m2 = np.einsum("ni,nij,nj->n", e, np.linalg.inv(cov), e)
+print(
+    "3D RMS um",
+    np.sqrt(np.mean(np.sum(e**2, 1))).round(3),
+    "per axis",
+    np.sqrt((e**2).mean(0)).round(3),
+    "Mahalanobis mean square",
+    m2.mean().round(3),
+)
+plat = sim.platform("thesis", seed=24)
+plat.manipulator.move_to_um([4000, 4000, 2400])
+plat.manipulator.wait_until_stopped(plat.clock)
+plat.clock.sleep(10.0)
+cam = plat.cameras["top"]
+corners, vps = [], []
+for _ in range(100):
+    det = detect(cam.grab(), vision_tests.BOARD)
+    corners.append(det.q_px)
+    vps.append(virtual_point(det, vision_tests.BOARD).q_px)
+print(
+    "Table 4-1 one corner",
+    np.array(corners)[:, 5].std(0, ddof=1).round(3),
+    "virtual point",
+    np.array(vps).std(0, ddof=1).round(3),
+)
