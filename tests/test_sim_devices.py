@@ -82,9 +82,9 @@ def test_limits_refuse_and_move_nothing():
     before = m.joints_um(plat.clock.now_s())
     with pytest.raises(
         LimitError,
-        match=r"axis z = 5000.000 µm is outside the soft limits \[0, 4800\] µm; nothing was moved",
+        match=r"axis z = 5400.000 µm is outside the soft limits \[-500, 5300\] µm; nothing was moved",
     ):
-        m.move_to_um([100, 200, 5000])
+        m.move_to_um([100, 200, 5400])
     with pytest.raises(InputError, match=r"d_um: expected shape \(3,\), got \(2,\)"):
         m.move_to_um([1, 2])
     assert not m.is_moving()

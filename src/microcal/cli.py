@@ -188,6 +188,9 @@ def fit(
     manipulator: Annotated[
         str, typer.Option(help="Name of the manipulator in the calibration file.")
     ] = "m1",
+    cameras: Annotated[
+        Path | None, typer.Option(help="cameras.json to include (needed by 'microcal evaluate').")
+    ] = None,
     mat: Annotated[
         Path | None, typer.Option(help="Also export the calibration as a MATLAB .mat file.")
     ] = None,
@@ -226,14 +229,21 @@ def fit(
         temperature_c=meas.temperature_c if temperature else None,
     )
     joint_range = np.column_stack([meas.d_um.min(axis=0), meas.d_um.max(axis=0)])
-    entry = ManipulatorCalibration(
-        manipulator, result.model, result.validation, {"joint_range_um": joint_range.tolist()}
-    )
+    extra: dict[str, Any] = {"joint_range_um": joint_range.tolist()}
+    if model == ModelChoice.polynomial:
+        # The matrix model on the same poses, for the matrix compensator (Eq 4.16).
+        matrix = identify(meas.d_um, meas.p_um, "matrix", train=train)
+        extra["matrix_model"] = matrix.model.to_dict()
+        extra["matrix_validation"] = matrix.validation
+    entry = ManipulatorCalibration(manipulator, result.model, result.validation, extra)
+    camera_data = existing.cameras if existing else {}
+    if cameras is not None:
+        camera_data = _camera_section(cameras)
     manipulators = dict(existing.manipulators) if existing else {}
     manipulators[manipulator] = entry
     calibration = Calibration(
         manipulators,
-        cameras=existing.cameras if existing else {},
+        cameras=camera_data,
         provenance=provenance({"measurements": path}, command="fit", model=model.value),
     )
     write_calibration(out, calibration)
@@ -281,6 +291,17 @@ def fit(
         if unstable:
             console.print("terms not selected in every fold: " + ", ".join(unstable))
     console.print(f"wrote {out}" + (f" and {mat}" if mat else ""))
+
+
+def _camera_section(path: Path) -> dict[str, Any]:
+    """The ``cameras`` object of a cameras.json, validated."""
+    import json
+
+    from .formats.cameras_file import load_cameras
+
+    load_cameras(path)  # validates, with a clear message
+    data: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))["cameras"]
+    return data
 
 
 def _parse_limits(text: str) -> FloatArray:
@@ -530,6 +551,139 @@ def measure(
     for r in results:
         if r.status != "ok":
             print(f"pose {r.pose} failed: {r.reason}")
+
+
+class TestChoice(StrEnum):
+    pose_accuracy = "pose-accuracy"
+    decoupling = "decoupling"
+    all = "all"
+
+
+@app.command()
+def evaluate(
+    calibration: Annotated[
+        Path, typer.Option(help="calibration.json (with cameras, see 'fit --cameras').")
+    ],
+    rig: Annotated[
+        str, typer.Option(help="The rig: 'sim' (the simulated thesis platform).")
+    ] = "sim",
+    test: Annotated[TestChoice, typer.Option(help="Which test to run.")] = TestChoice.all,
+    manipulator: Annotated[
+        str | None, typer.Option(help="Manipulator name (optional if only one).")
+    ] = None,
+    cycles: Annotated[
+        int, typer.Option(min=1, help="ISO 9283 cycles per pose (the standard asks 30).")
+    ] = 3,
+    frames: Annotated[int, typer.Option(min=1, help="Frames measured per pose.")] = 5,
+    settle_s: Annotated[
+        float, typer.Option(min=0.0, help="Wait after the device reports it stopped, s.")
+    ] = 5.0,
+    seed: Annotated[int, typer.Option(help="Seed of the simulated rig.")] = 0,
+    out: Annotated[
+        Path, typer.Option("--out", "-o", help="results.json to write or update.")
+    ] = Path("results.json"),
+) -> None:
+    """Pose accuracy (ISO 9283) and decoupling tests without and with compensation.
+
+    Each test runs uncalibrated, with the matrix compensator and with the optimal one, measured
+    by the cameras (and on the simulator also by ground truth).
+
+    Example: microcal evaluate --rig sim --calibration calibration.json --test pose-accuracy
+    """
+    from .devices.feedforward import FeedForward
+    from .formats.calibration_file import load_calibration
+    from .formats.cameras_file import models_from_dict
+    from .formats.results_file import update_results
+    from .procedures.evaluation import VisionProbe, run_decoupling, run_pose_accuracy
+    from .sim import platform
+
+    if rig != "sim":
+        raise InputError(
+            f"--rig: {rig!r} is not available; this version drives the simulated rig 'sim' only"
+        )
+    cal = load_calibration(calibration)
+    m = cal.manipulator(manipulator)
+    if not cal.cameras:
+        raise InputError(
+            f"{calibration}: holds no cameras; run 'microcal fit ... --cameras cameras.json'"
+        )
+    models = models_from_dict(
+        {"format": "microcal.cameras/1", "cameras": cal.cameras}, str(calibration)
+    )
+    plat = platform("thesis", seed=seed)
+    missing = sorted(set(plat.cameras) - set(models))
+    if missing:
+        raise InputError(f"{calibration}: no calibration for the rig's camera(s) {missing}")
+    if m.model.extra_inputs:
+        raise InputError(
+            "evaluate: models with extra inputs (temperature) need a rig with a sensor"
+        )
+    conditions: dict[str, FeedForward | None] = {"uncalibrated": None}
+    matrix = m.matrix_model
+    conditions["matrix"] = FeedForward(plat.manipulator, matrix or m.model, "matrix")
+    if m.model.kind == "polynomial":
+        conditions["optimal"] = FeedForward(plat.manipulator, m.model, "optimal")
+    probe = VisionProbe(
+        {n: plat.cameras[n] for n in models}, models, plat.scene.board, frames=frames
+    )
+    console = Console()
+    parts: dict[str, Any] = {}
+    from rich.progress import Progress
+
+    with Progress(console=Console(stderr=True), transient=True) as bar:
+        tasks: dict[str, Any] = {}
+
+        def progress(stage: str, done: int, total: int) -> None:
+            if stage not in tasks:
+                tasks[stage] = bar.add_task(stage, total=total)
+            bar.update(tasks[stage], completed=done)
+
+        kwargs = {"settle_s": settle_s, "truth": plat.truth_position_um, "progress": progress}
+        if test in (TestChoice.pose_accuracy, TestChoice.all):
+            parts["pose_accuracy"] = run_pose_accuracy(
+                plat.manipulator,
+                plat.clock,
+                probe,
+                conditions,
+                cycles=cycles,
+                **kwargs,  # type: ignore[arg-type]
+            )
+        if test in (TestChoice.decoupling, TestChoice.all):
+            parts["decoupling"] = run_decoupling(
+                plat.manipulator,
+                plat.clock,
+                probe,
+                conditions,
+                **kwargs,  # type: ignore[arg-type]
+            )
+    update_results(out, parts)
+    if "pose_accuracy" in parts:
+        table = Table(title="Pose accuracy AP_P (µm): mean / worst over the Table 5-2 poses")
+        for col in ("condition", "vision", "ground truth", "thesis"):
+            table.add_column(col, justify="right")
+        thesis = {"uncalibrated": "7.83 / 23.52", "matrix": "4.65 / 10.0", "optimal": "4.41 / 9.14"}
+        pa = parts["pose_accuracy"]
+        for name in conditions:
+            cells = [f"{pa[src][name]['mean_ap_p_um']:.2f} / {pa[src][name]['max_ap_p_um']:.2f}"
+                     for src in ("vision", "truth")]  # fmt: skip
+            table.add_row(name, *cells, thesis[name])
+        console.print(table)
+    if "decoupling" in parts:
+        table = Table(title="Decoupling: undesired displacement [min, max] (µm), vision | truth")
+        for col in ("condition", "x", "y", "z"):
+            table.add_column(col, justify="right")
+        dc = parts["decoupling"]
+        for name in conditions:
+            cells = []
+            for axis in "xyz":
+                v, t = (
+                    dc["vision"][name]["undesired_um"][axis],
+                    dc["truth"][name]["undesired_um"][axis],
+                )
+                cells.append(f"[{v[0]:.1f}, {v[1]:.1f}] | [{t[0]:.1f}, {t[1]:.1f}]")
+            table.add_row(name, *cells)
+        console.print(table)
+    print(f"wrote {out}")
 
 
 def _fail(message: str) -> NoReturn:

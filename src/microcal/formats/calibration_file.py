@@ -89,6 +89,14 @@ class ManipulatorCalibration:
         """Position in {G} (µm) for joint values (and further inputs), (N, 3)."""
         return self.model.predict_um(u)
 
+    @property
+    def matrix_model(self) -> KinematicModel | None:
+        """The matrix model stored beside a polynomial one (for the matrix compensator)."""
+        data = self.extra.get("matrix_model")
+        if data is None:
+            return self.model if self.model.kind == "matrix" else None
+        return KinematicModel.from_dict(data)
+
     @cached_property
     def compensator(self) -> Compensator:
         """The model prepared for inversion (built on first use)."""

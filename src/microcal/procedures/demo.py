@@ -22,6 +22,7 @@ from .._validation import FloatArray
 from ..error_summary import summarize_errors
 from ..sim import platform
 from ..sim.render import Placement
+from ..synthetic import THESIS_WORKSPACE_MAX_UM, THESIS_WORKSPACE_MIN_UM
 from ..vision.detect import Detection, detect
 from ..vision.stereo_calibration import StereoCalibration, calibrate_known_displacements
 from ..vision.targets import parse_target
@@ -104,8 +105,7 @@ def run_demo(
     plat.scene.fixed = None
     plat.scene.show_board = True
     rng = np.random.default_rng(seed + 1)
-    lim = plat.manipulator.limits_um
-    d = rng.uniform(lim[:, 0], lim[:, 1], (poses, 3))
+    d = rng.uniform(THESIS_WORKSPACE_MIN_UM, THESIS_WORKSPACE_MAX_UM, (poses, 3))
     frames: dict[tuple[int, str], list[NDArray[np.generic]]] = {}
     truth = []
     for i, di in enumerate(d):

@@ -13,7 +13,7 @@ run replaces it, which also counts what moves all corners together (vibration).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,7 +26,7 @@ from ..vision.detect import detect
 from ..vision.targets import Target
 from ..vision.virtual_point import virtual_point
 
-__all__ = ["PoseMeasurement", "RoiPredictor", "measure_poses"]
+__all__ = ["PoseMeasurement", "RoiPredictor", "measure_one", "measure_poses"]
 
 Frames = Sequence[NDArray[np.generic]]
 
@@ -42,6 +42,7 @@ class PoseMeasurement:
     cov_um2: FloatArray = field(default_factory=lambda: np.full((3, 3), np.nan))
     vp_px: dict[str, FloatArray] = field(default_factory=dict)  # per camera, per frame (k, 2)
     vp_cov_px2: dict[str, FloatArray] = field(default_factory=dict)
+    corners_px: dict[str, FloatArray] = field(default_factory=dict)  # per camera, frame 0
 
     @property
     def std_um(self) -> FloatArray:
@@ -168,7 +169,7 @@ def measure_poses(
                 break
             vps, cov, corners = got
             predictors[name].add(commands_um[k], corners)
-            m.vp_px[name], m.vp_cov_px2[name] = vps, cov
+            m.vp_px[name], m.vp_cov_px2[name], m.corners_px[name] = vps, cov, corners
         results.append(m)
         if progress:
             progress(k + 1, len(poses))
@@ -211,3 +212,36 @@ def _triangulate(
     c = triangulation_covariance(P1, P2, p, cov[names[0]], cov[names[1]])
     for m, pi, ci in zip(ok, p, c, strict=True):
         m.p_um, m.cov_um2 = pi, ci
+
+
+def measure_one(
+    frames: Mapping[str, Frames],
+    cameras: dict[str, CameraModel],
+    target: Target,
+    rois: dict[str, tuple[int, int, int, int] | None] | None = None,
+    frame_cov_px2: dict[str, FloatArray] | None = None,
+) -> PoseMeasurement:
+    """Measure one pose from its frames (per camera), triangulated on the spot.
+
+    ``frame_cov_px2`` gives the per-frame pixel covariance of each camera's virtual point
+    when it is known (from a run's pooled scatter); otherwise the corners' residuals are used.
+    """
+    names = list(cameras)
+    m = PoseMeasurement(0, "ok")
+    for name in names:
+        got = _vp_of_frames(frames[name], target, cameras[name], (rois or {}).get(name))
+        if isinstance(got, str):
+            m.status, m.reason = "failed", f"{name}: {got}"
+            return m
+        m.vp_px[name], m.vp_cov_px2[name], m.corners_px[name] = got
+    q = [m.vp_px[n].mean(axis=0) for n in names]
+    cov = [
+        (frame_cov_px2[n] if frame_cov_px2 and n in frame_cov_px2 else m.vp_cov_px2[n])
+        / len(m.vp_px[n])
+        for n in names
+    ]
+    P1, P2 = cameras[names[0]].P, cameras[names[1]].P
+    p = triangulate_optimal(P1, P2, q[0], q[1], cov[0], cov[1])
+    m.p_um = p[0]
+    m.cov_um2 = triangulation_covariance(P1, P2, p, cov[0], cov[1])[0]
+    return m

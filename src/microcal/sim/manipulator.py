@@ -64,7 +64,7 @@ class SimManipulator(Manipulator):
         rng: np.random.Generator,
         *,
         name: str = "m1",
-        limits_um: ArrayLike = ((0.0, 8000.0), (0.0, 8000.0), (0.0, 4800.0)),
+        limits_um: ArrayLike = ((-500.0, 8500.0), (-500.0, 8500.0), (-500.0, 5300.0)),
         speed_um_s: float = 2000.0,
         loop_settle_s: float = 0.4,
         sensor_noise_um: float = 0.05,
@@ -84,7 +84,7 @@ class SimManipulator(Manipulator):
         )
         self.temperature_drift_c_per_h = float(temperature_drift_c_per_h)
         self.faults = faults or ManipulatorFaults()
-        self._start = self.limits_um[:, 0].copy()
+        self._start = np.clip(np.zeros(3), self.limits_um[:, 0], self.limits_um[:, 1])
         self._target = self._start.copy()
         self._t0 = clock.now_s()
         self._t_arrive = self._t0

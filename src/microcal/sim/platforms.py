@@ -49,7 +49,13 @@ class CameraConfig:
 class ManipulatorConfig:
     """The simulated manipulator (see :class:`SimManipulator`)."""
 
-    limits_um: tuple[tuple[float, float], ...] = ((0.0, 8000.0), (0.0, 8000.0), (0.0, 4800.0))
+    # The positioner's travel: the thesis's test range (x, y 0-8000, z 0-4800 µm) with 0.5 mm
+    # to spare on every side, so a compensated move at the edge of that range stays inside.
+    limits_um: tuple[tuple[float, float], ...] = (
+        (-500.0, 8500.0),
+        (-500.0, 8500.0),
+        (-500.0, 5300.0),
+    )
     speed_um_s: float = 2000.0
     loop_settle_s: float = 0.4
     sensor_noise_um: float = 0.05

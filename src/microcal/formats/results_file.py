@@ -1,0 +1,66 @@
+"""``results.json``: the figures of evaluation runs (and of the demo), merged as they come."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import FormatError
+from .atomic import write_text_atomic
+
+__all__ = ["RESULTS_FORMAT", "load_results", "update_results"]
+
+RESULTS_FORMAT = "microcal.results/1"
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _plain(value.tolist())
+    if isinstance(value, np.floating | float):
+        f = float(value)
+        return f if np.isfinite(f) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def load_results(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Read results.json; FormatError if it is not one."""
+    p = Path(path)
+    try:
+        data = json.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise FormatError(f"{p}: no such file") from None
+    except (OSError, json.JSONDecodeError) as exc:
+        raise FormatError(f"{p}: not a JSON file ({exc})") from None
+    if not isinstance(data, dict) or data.get("format") != RESULTS_FORMAT:
+        raise FormatError(f"{p}: expected format {RESULTS_FORMAT!r}")
+    return data
+
+
+def update_results(path: str | os.PathLike[str], parts: dict[str, Any]) -> Path:
+    """Merge ``parts`` into results.json (one level deep per source), atomically.
+
+    NaN becomes null: JSON has no NaN.
+    """
+    p = Path(path)
+    data: dict[str, Any] = load_results(p) if p.exists() else {"format": RESULTS_FORMAT}
+    for key, value in _plain(parts).items():
+        current = data.get(key)
+        if isinstance(value, dict) and isinstance(current, dict):
+            for source, sub in value.items():
+                if isinstance(sub, dict) and isinstance(current.get(source), dict):
+                    current[source].update(sub)
+                else:
+                    current[source] = sub
+        else:
+            data[key] = value
+    return write_text_atomic(p, json.dumps(data, indent=1, allow_nan=False) + "\n")

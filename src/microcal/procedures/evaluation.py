@@ -1,0 +1,237 @@
+"""Evaluation runs (thesis 5.3, ISO 9283): pose accuracy and repeatability, decoupling.
+
+Each run drives a manipulator without compensation, with the matrix compensator and with the
+optimal compensator, and measures where the end-effector went with the vision system (and,
+on the simulator, with ground truth, so the measurement's own error shows separately).
+
+Positions are taken relative to a home pose measured first in each condition, as the thesis
+did: a desired pose such as [2000, 0, 0] is a displacement from home, the command is the
+displacement itself without compensation, and the compensator's joints for
+``home + displacement`` with it (home being the model's position at zero joints).
+ISO 9283 cycles visit the poses in the same order every cycle, so each pose is approached
+from the same side.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .._validation import FloatArray
+from ..devices.base import Camera, Clock, Manipulator
+from ..devices.feedforward import FeedForward
+from ..errors import InputError
+from ..geometry import CameraModel
+from ..metrics import decoupling_metrics, pose_statistics
+from ..vision.targets import Target
+from .measurement import RoiPredictor, measure_one
+
+__all__ = [
+    "DECOUPLING_PATH_UM",
+    "TABLE_5_2_POSES_UM",
+    "VisionProbe",
+    "decoupling_path",
+    "run_decoupling",
+    "run_pose_accuracy",
+]
+
+#: Thesis Table 5-2: the desired poses of the pose-accuracy test, µm from home.
+TABLE_5_2_POSES_UM = np.array(
+    [[2000, 0, 0], [8000, 0, 0], [0, 2000, 0], [0, 8000, 0], [0, 0, 1500], [0, 0, 3000],
+     [1000, 1000, 600], [2000, 2000, 300]], dtype=float,
+)  # fmt: skip
+#: Thesis Fig 5.5: 8000 µm along x, then 8000 along y, then 4800 along z.
+DECOUPLING_PATH_UM = (8000.0, 8000.0, 4800.0)
+
+
+def decoupling_path(
+    samples_per_axis: int = 17, lengths_um: Sequence[float] = DECOUPLING_PATH_UM
+) -> tuple[FloatArray, np.ndarray]:
+    """The path of Fig 5.5 as displacements (N, 3) and the moving axis of each sample (N,)."""
+    points, segment = [], []
+    current = np.zeros(3)
+    for axis, length in enumerate(lengths_um):
+        for k in range(samples_per_axis):
+            current[axis] = length * k / (samples_per_axis - 1)
+            points.append(current.copy())
+            segment.append(axis)
+    return np.array(points), np.array(segment)
+
+
+@dataclass
+class VisionProbe:
+    """Measures the end-effector now: grabs frames from every camera, triangulates."""
+
+    cameras: dict[str, Camera]
+    models: dict[str, CameraModel]
+    target: Target
+    frames: int = 5
+    frame_cov_px2: dict[str, FloatArray] | None = None
+    _predictors: dict[str, RoiPredictor] = field(default_factory=dict)
+
+    def measure(self, d_um: FloatArray) -> FloatArray:
+        """Position in {G} (3,) µm; NaN when the board is not found."""
+        frames = {n: [cam.grab() for _ in range(self.frames)] for n, cam in self.cameras.items()}
+        rois = {
+            n: self._predictors.setdefault(n, RoiPredictor()).predict(d_um) for n in self.cameras
+        }
+        m = measure_one(frames, self.models, self.target, rois, self.frame_cov_px2)
+        if m.status != "ok":
+            return np.full(3, np.nan)
+        for n in self.cameras:
+            self._predictors[n].add(d_um, m.corners_px[n])
+        return m.p_um
+
+
+Command = Callable[[FloatArray], FloatArray]  # displacement from home -> joints commanded
+
+
+def _uncompensated(manipulator: Manipulator) -> Command:
+    def command(rel: FloatArray) -> FloatArray:
+        manipulator.move_to_um(rel)
+        return rel
+
+    return command
+
+
+def _compensated(ff: FeedForward) -> Command:
+    def command(rel: FloatArray) -> FloatArray:
+        return ff.move_to_position_um(ff.model.p_base_um + rel)
+
+    return command
+
+
+def _commanders(
+    manipulator: Manipulator, conditions: dict[str, FeedForward | None]
+) -> dict[str, Command]:
+    return {
+        name: _uncompensated(manipulator) if ff is None else _compensated(ff)
+        for name, ff in conditions.items()
+    }
+
+
+def _sources(
+    probe: VisionProbe | None, truth: Callable[[], FloatArray] | None
+) -> dict[str, dict[str, Any]]:
+    if probe is None and truth is None:
+        raise InputError(
+            "evaluation: nothing measures the end-effector (no cameras, no ground truth)"
+        )
+    out: dict[str, dict[str, Any]] = {}
+    if probe is not None:
+        out["vision"] = {}
+    if truth is not None:
+        out["truth"] = {}
+    return out
+
+
+def _measure(
+    probe: VisionProbe | None, truth: Callable[[], FloatArray] | None, d_um: FloatArray
+) -> dict[str, FloatArray]:
+    got = {}
+    if probe is not None:
+        got["vision"] = probe.measure(d_um)
+    if truth is not None:
+        got["truth"] = truth()
+    return got
+
+
+def _settle(manipulator: Manipulator, clock: Clock, settle_s: float) -> None:
+    manipulator.wait_until_stopped(clock)
+    clock.sleep(settle_s)
+
+
+def run_pose_accuracy(
+    manipulator: Manipulator,
+    clock: Clock,
+    probe: VisionProbe | None,
+    conditions: dict[str, FeedForward | None],
+    *,
+    poses_um: FloatArray = TABLE_5_2_POSES_UM,
+    cycles: int = 3,
+    settle_s: float = 5.0,
+    truth: Callable[[], FloatArray] | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> dict[str, dict[str, Any]]:
+    """ISO 9283 pose accuracy (AP, clause 7.2.1) and repeatability (RP, 7.2.2) per condition.
+
+    Returns
+    -------
+    dict
+        ``{"vision" | "truth": {condition: {"mean_ap_p_um", "max_ap_p_um", "poses": [...]}}}``
+        (the ``pose_accuracy`` object of results.json).
+    """
+    out = _sources(probe, truth)
+    for name, command in _commanders(manipulator, conditions).items():
+        home_d = command(np.zeros(3))
+        _settle(manipulator, clock, settle_s)
+        home = _measure(probe, truth, home_d)
+        arrivals: dict[str, list[list[FloatArray]]] = {k: [[] for _ in poses_um] for k in home}
+        total = cycles * len(poses_um)
+        for c in range(cycles):
+            for i, pose in enumerate(poses_um):
+                d = command(pose)
+                _settle(manipulator, clock, settle_s)
+                for source, p in _measure(probe, truth, d).items():
+                    arrivals[source][i].append(p - home[source])
+                if progress:
+                    progress(f"pose accuracy, {name}", c * len(poses_um) + i + 1, total)
+        for source, per_pose in arrivals.items():
+            stats = []
+            for pose, arr in zip(poses_um, per_pose, strict=True):
+                a = np.array(arr)
+                a = a[np.all(np.isfinite(a), axis=1)]
+                if len(a):
+                    stats.append(pose_statistics(pose, a))
+            ap = [s.ap_p_um for s in stats]
+            out[source][name] = {
+                "mean_ap_p_um": float(np.mean(ap)) if ap else float("nan"),
+                "max_ap_p_um": float(np.max(ap)) if ap else float("nan"),
+                "poses": [s.as_dict() for s in stats],
+            }
+    return out
+
+
+def run_decoupling(
+    manipulator: Manipulator,
+    clock: Clock,
+    probe: VisionProbe | None,
+    conditions: dict[str, FeedForward | None],
+    *,
+    samples_per_axis: int = 17,
+    settle_s: float = 5.0,
+    truth: Callable[[], FloatArray] | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> dict[str, dict[str, Any]]:
+    """The decoupling test of Fig 5.5: undesired displacement ranges (Table 5-5) and Ω (5-6).
+
+    Returns
+    -------
+    dict
+        ``{"vision" | "truth": {condition: {"undesired_um": {...}, "omega": {...},
+        "samples_um": [...]}}}`` (the ``decoupling`` object of results.json, with the samples).
+    """
+    path, segment = decoupling_path(samples_per_axis)
+    out = _sources(probe, truth)
+    for name, command in _commanders(manipulator, conditions).items():
+        samples: dict[str, list[FloatArray]] = {k: [] for k in out}
+        for k, rel in enumerate(path):
+            d = command(rel)
+            _settle(manipulator, clock, settle_s)
+            for source, p in _measure(probe, truth, d).items():
+                samples[source].append(p)
+            if progress:
+                progress(f"decoupling, {name}", k + 1, len(path))
+        for source, pts in samples.items():
+            p = np.array(pts)
+            good = np.all(np.isfinite(p), axis=1)
+            r = decoupling_metrics(p[good], segment[good])
+            out[source][name] = {
+                **r.as_dict(),
+                "samples_um": p.tolist(),
+                "segment": segment.tolist(),
+            }
+    return out
