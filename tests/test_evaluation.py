@@ -138,3 +138,18 @@ def test_evaluate_command(demo, tmp_path):
         assert len(res.stderr.strip().splitlines()) == 1
         assert message in res.stderr
     assert not (tmp_path / "r2.json").exists()
+
+
+def test_iso_cube_poses():
+    from microcal.procedures.evaluation import iso_cube_poses
+
+    p = iso_cube_poses([0, 0, 0], [8000, 8000, 4800])
+    assert p.shape == (5, 3)
+    # The cube of side 4800 centred in the box; P1 its centre.
+    np.testing.assert_allclose(p[0], [4000, 4000, 2400])
+    # P2-P5 at 10 % of the diagonal from the corners of the plane C1-C2-C7-C8.
+    diag = np.linalg.norm([4800, 4800, 4800]) * np.sqrt(2 / 3)
+    corners = np.array([[1600, 1600, 0], [6400, 1600, 0], [6400, 6400, 4800], [1600, 6400, 4800]])
+    dist = np.linalg.norm(p[1:] - corners, axis=1)
+    np.testing.assert_allclose(dist, 0.1 * np.linalg.norm(corners[2] - corners[0]))
+    assert diag > 0

@@ -553,6 +553,11 @@ def measure(
             print(f"pose {r.pose} failed: {r.reason}")
 
 
+class PoseChoice(StrEnum):
+    table = "table-5-2"
+    cube = "iso-cube"
+
+
 class TestChoice(StrEnum):
     pose_accuracy = "pose-accuracy"
     decoupling = "decoupling"
@@ -574,6 +579,10 @@ def evaluate(
     cycles: Annotated[
         int, typer.Option(min=1, help="ISO 9283 cycles per pose (the standard asks 30).")
     ] = 3,
+    poses: Annotated[
+        PoseChoice,
+        typer.Option(help="Test poses: the thesis's Table 5-2, or ISO 9283's cube P1-P5."),
+    ] = PoseChoice.table,
     frames: Annotated[int, typer.Option(min=1, help="Frames measured per pose.")] = 5,
     settle_s: Annotated[
         float, typer.Option(min=0.0, help="Wait after the device reports it stopped, s.")
@@ -594,8 +603,15 @@ def evaluate(
     from .formats.calibration_file import load_calibration
     from .formats.cameras_file import models_from_dict
     from .formats.results_file import update_results
-    from .procedures.evaluation import VisionProbe, run_decoupling, run_pose_accuracy
+    from .procedures.evaluation import (
+        TABLE_5_2_POSES_UM,
+        VisionProbe,
+        iso_cube_poses,
+        run_decoupling,
+        run_pose_accuracy,
+    )
     from .sim import platform
+    from .synthetic import THESIS_WORKSPACE_MAX_UM, THESIS_WORKSPACE_MIN_UM
 
     if rig != "sim":
         raise InputError(
@@ -640,11 +656,17 @@ def evaluate(
 
         kwargs = {"settle_s": settle_s, "truth": plat.truth_position_um, "progress": progress}
         if test in (TestChoice.pose_accuracy, TestChoice.all):
+            test_poses = (
+                TABLE_5_2_POSES_UM
+                if poses == PoseChoice.table
+                else iso_cube_poses(THESIS_WORKSPACE_MIN_UM, THESIS_WORKSPACE_MAX_UM)
+            )
             parts["pose_accuracy"] = run_pose_accuracy(
                 plat.manipulator,
                 plat.clock,
                 probe,
                 conditions,
+                poses_um=test_poses,
                 cycles=cycles,
                 **kwargs,  # type: ignore[arg-type]
             )
@@ -658,10 +680,12 @@ def evaluate(
             )
     update_results(out, parts)
     if "pose_accuracy" in parts:
-        table = Table(title="Pose accuracy AP_P (µm): mean / worst over the Table 5-2 poses")
+        table = Table(title=f"Pose accuracy AP_P (µm): mean / worst over the {poses.value} poses")
         for col in ("condition", "vision", "ground truth", "thesis"):
             table.add_column(col, justify="right")
         thesis = {"uncalibrated": "7.83 / 23.52", "matrix": "4.65 / 10.0", "optimal": "4.41 / 9.14"}
+        if poses != PoseChoice.table:
+            thesis = dict.fromkeys(thesis, "-")
         pa = parts["pose_accuracy"]
         for name in conditions:
             cells = [f"{pa[src][name]['mean_ap_p_um']:.2f} / {pa[src][name]['max_ap_p_um']:.2f}"

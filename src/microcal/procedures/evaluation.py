@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .._validation import FloatArray
 from ..devices.base import Camera, Clock, Manipulator
@@ -34,6 +35,7 @@ __all__ = [
     "TABLE_5_2_POSES_UM",
     "VisionProbe",
     "decoupling_path",
+    "iso_cube_poses",
     "run_decoupling",
     "run_pose_accuracy",
 ]
@@ -45,6 +47,25 @@ TABLE_5_2_POSES_UM = np.array(
 )  # fmt: skip
 #: Thesis Fig 5.5: 8000 µm along x, then 8000 along y, then 4800 along z.
 DECOUPLING_PATH_UM = (8000.0, 8000.0, 4800.0)
+
+
+def iso_cube_poses(low_um: ArrayLike, high_um: ArrayLike) -> FloatArray:
+    """The five test poses of ISO 9283's cube, as displacements from ``low_um`` (5, 3) µm.
+
+    The cube is the largest one with edges along the axes, centred in the box [low, high].
+    P1 is its centre; P2 to P5 lie on the diagonals of the plane through two opposite edges
+    (C1-C2-C7-C8 in the standard), 10 % of the diagonal's length from the corners.
+    """
+    low = np.asarray(low_um, dtype=np.float64)
+    high = np.asarray(high_um, dtype=np.float64)
+    side = float(np.min(high - low))
+    c0 = (low + high) / 2 - side / 2
+    x0, y0, z0 = c0
+    x1, y1, z1 = c0 + side
+    corners = np.array([[x0, y0, z0], [x1, y0, z0], [x1, y1, z1], [x0, y1, z1]])
+    centre = corners.mean(axis=0)
+    pts = [centre] + [c + 0.1 * (centre - c) * 2 for c in corners]
+    return np.array(pts) - low
 
 
 def decoupling_path(
