@@ -502,7 +502,7 @@ def measure(
     from .formats.cameras_file import load_cameras
     from .formats.images import read_frames
     from .formats.measurements import write_measurements
-    from .formats.run_directory import find_image, read_commands, read_manifest
+    from .formats.run_directory import find_image, read_commands, read_journal, read_manifest
     from .procedures.measurement import measure_poses
     from .vision.targets import parse_target
 
@@ -514,11 +514,28 @@ def measure(
     spec = target or str(manifest.get("target", "chessboard:4x3:400"))
     board = parse_target(spec)
 
+    journal = {int(r["pose"]): r for r in read_journal(run_dir)}
+
     def load(pose: int, cam: str) -> list[Any]:
+        record = journal.get(pose, {})
+        if record.get("status") == "failed":
+            raise FormatError(f"acquisition failed: {record.get('reason', '')}")
         path = find_image(run_dir, cam, pose)
         if path is None:
             raise FormatError(f"no image images/{cam}_{pose:04d}.tiff")
-        return read_frames(path)
+        frames = read_frames(path)
+        image = (record.get("images") or {}).get(cam, {})
+        if "offset_px" in image:  # stored as a region: put it back in a frame of full size
+            (x0, y0), (w, h) = image["offset_px"], image["full_size_px"]
+            full = []
+            for f in frames:
+                canvas = np.full(
+                    (h, w), float(np.median(np.asarray(f, dtype=np.float64))), dtype=f.dtype
+                )
+                canvas[y0 : y0 + f.shape[0], x0 : x0 + f.shape[1]] = f
+                full.append(canvas)
+            frames = full
+        return frames
 
     from rich.progress import Progress
 
@@ -708,6 +725,170 @@ def evaluate(
             table.add_row(name, *cells)
         console.print(table)
     print(f"wrote {out}")
+
+
+def _read_command_file(path: Path) -> FloatArray:
+    import csv
+
+    try:
+        rows = list(csv.DictReader(path.read_text(encoding="utf-8").splitlines()))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"--design {path}: cannot be read ({exc})") from None
+    try:
+        d = np.array([[float(r["dx_um"]), float(r["dy_um"]), float(r["dz_um"])] for r in rows])
+    except (KeyError, TypeError, ValueError):
+        raise InputError(
+            f"--design {path}: expected a CSV with columns dx_um,dy_um,dz_um of numbers"
+        ) from None
+    if d.ndim != 2 or len(d) < 2 or not np.all(np.isfinite(d)):
+        raise InputError(f"--design {path}: expected at least 2 rows of finite numbers")
+    return d
+
+
+def _parse_settle(text: str) -> tuple[str, float]:
+    if text == "vision":
+        return "vision", 0.0
+    kind, _, value = text.partition(":")
+    try:
+        seconds = float(value)
+    except ValueError:
+        seconds = -1.0
+    if kind != "fixed" or seconds < 0:
+        raise InputError(
+            f"--settle: expected 'vision' or 'fixed:SECONDS' such as fixed:30, got {text!r}"
+        )
+    return "fixed", seconds
+
+
+@app.command()
+def acquire(
+    out: Annotated[Path, typer.Option("--out", "-o", help="Run directory to create (or resume).")],
+    rig: Annotated[str, typer.Option(help="'sim' or a rig TOML file.")] = "sim",
+    design: Annotated[
+        str, typer.Option(help="random, sobol, lhs, grid, or a CSV of dx_um,dy_um,dz_um.")
+    ] = "random",
+    poses: Annotated[
+        int, typer.Option(min=2, help="Poses of a generated design (the thesis: 170).")
+    ] = 170,
+    seed: Annotated[int, typer.Option(help="Seed of the design.")] = 0,
+    resume: Annotated[bool, typer.Option(help="Continue a run that stopped.")] = False,
+    settle: Annotated[
+        str, typer.Option(help="'vision' or 'fixed:SECONDS' (the thesis: fixed:30).")
+    ] = "vision",
+    frames: Annotated[int, typer.Option(min=1, help="Frames stored per camera and pose.")] = 5,
+    store: Annotated[
+        str, typer.Option(help="'full' frames, or 'roi': only the region around the board.")
+    ] = "full",
+) -> None:
+    """Drive the manipulator through a design and store images of every pose.
+
+    Example: microcal acquire --rig sim --design random --poses 170 --out runs/a
+    """
+    import signal
+    import sys as _sys
+
+    from .designs import DESIGNS, check_design, make_design
+    from .formats.calibration_file import provenance
+    from .formats.rig_file import load_rig
+    from .formats.run_directory import RunWriter, read_commands
+    from .procedures.acquisition import AcquisitionConfig, RunStoppedError
+    from .procedures.acquisition import acquire as run_acquisition
+    from .sim import platform
+    from .synthetic import THESIS_WORKSPACE_MAX_UM, THESIS_WORKSPACE_MIN_UM
+
+    rig_spec = load_rig(rig)
+    settle_mode, fixed_s = _parse_settle(settle)
+    if store not in ("full", "roi"):
+        raise InputError(f"--store: expected 'full' or 'roi', got {store!r}")
+    plat = platform(rig_spec["preset"], seed=rig_spec["seed"], overrides=rig_spec["overrides"])
+    board = plat.scene.board
+    if resume:
+        writer = RunWriter.resume(out, rig_spec)
+        pose_ids, d = read_commands(out)
+    else:
+        if design in DESIGNS:
+            d = make_design(design, poses, THESIS_WORKSPACE_MIN_UM, THESIS_WORKSPACE_MAX_UM, seed)
+        else:
+            d = _read_command_file(Path(design))
+        check_design(d, plat.manipulator.limits_um)
+        manifest = {
+            "rig": rig_spec,
+            "target": board.spec,
+            "cameras": list(plat.cameras),
+            "design": {
+                "kind": design if design in DESIGNS else "file",
+                "poses": len(d),
+                "seed": seed,
+            },
+            "settle": settle,
+            "frames_per_pose": frames,
+            "provenance": provenance(command="acquire"),
+        }
+        writer = RunWriter.create(out, manifest, d)
+        pose_ids = list(range(1, len(d) + 1))
+    todo = writer.remaining(pose_ids)
+    config = AcquisitionConfig(
+        settle=settle_mode, fixed_s=fixed_s, frames_per_pose=frames, store_roi=store == "roi"
+    )
+    stop = {"requested": False}
+
+    def request_stop(signum: int, _frame: object) -> None:
+        stop["requested"] = True
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, request_stop)
+    failed: list[tuple[int, str]] = []
+    settle_times: list[float] = []
+    tty = _sys.stdout.isatty()
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    bar = Progress(
+        TextColumn("acquiring"),
+        BarColumn(),
+        TextColumn("{task.completed}/{task.total}"),
+        TimeRemainingColumn(),
+        disable=not tty,
+    )
+    task = bar.add_task("acquire", total=len(todo))
+
+    def progress(done: int, total: int, record: dict[str, Any]) -> None:
+        settle_times.append(float(record["settle_s"]))
+        if record["status"] != "ok":
+            failed.append((int(record["pose"]), str(record.get("reason", ""))))
+        bar.update(task, completed=done)
+        if not tty and (done % 10 == 0 or done == total):
+            print(f"acquired {done}/{total} poses", flush=True)
+
+    print(
+        f"{'resuming' if resume else 'starting'} {out}: {len(todo)} of {len(pose_ids)} poses to do"
+    )
+    try:
+        with bar:
+            run_acquisition(
+                plat.manipulator,
+                plat.cameras,
+                plat.clock,
+                d,
+                todo,
+                board,
+                writer.store,
+                config=config,
+                should_stop=lambda: stop["requested"],
+                progress=progress,
+            )
+    except RunStoppedError as exc:
+        raise InputError(
+            f"run stopped ({exc}); {len(writer.done)} of {len(pose_ids)} poses stored; "
+            f"resume with: microcal acquire --rig {rig} --out {out} --resume"
+        ) from None
+    size_mb = writer.size_bytes() / 1e6
+    mean_settle = float(np.mean(settle_times)) if settle_times else 0.0
+    print(
+        f"stored {len(writer.done)} of {len(pose_ids)} poses in {out} ({size_mb:.1f} MB); "
+        f"mean settle {mean_settle:.2f} s ({settle})"
+    )
+    for pose, reason in failed:
+        print(f"pose {pose} failed: {reason}")
 
 
 def _fail(message: str) -> NoReturn:

@@ -15,6 +15,7 @@ import io
 import json
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -22,7 +23,14 @@ from .._validation import FloatArray
 from ..errors import FormatError
 from .atomic import write_text_atomic
 
-__all__ = ["find_image", "read_commands", "read_manifest", "write_commands"]
+__all__ = [
+    "RunWriter",
+    "find_image",
+    "read_commands",
+    "read_journal",
+    "read_manifest",
+    "write_commands",
+]
 
 IMAGE_SUFFIXES = (".tiff", ".tif", ".png", ".jpg", ".jpeg")
 
@@ -90,3 +98,143 @@ def read_manifest(run_dir: str | os.PathLike[str]) -> dict[str, object]:
     if not isinstance(data, dict):
         raise FormatError(f"{path}: expected a JSON object")
     return data
+
+
+JOURNAL = "journal.jsonl"
+MANIFEST = "run.json"
+RUN_FORMAT = "microcal.run/1"
+
+
+def _sha256(path: Path) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+class RunWriter:
+    """Writes a run directory so that a crash at any instant loses at most the pose in progress.
+
+    Images are written to a temporary name and renamed; the journal line of a pose is
+    appended, flushed and synced only after its images. On resume, a journal line cut by a
+    crash is dropped, images without a journal line are overwritten, and every recorded image
+    is checked against its SHA-256.
+    """
+
+    def __init__(self, run_dir: Path, manifest: dict[str, object]) -> None:
+        self.run_dir = Path(run_dir)
+        self.manifest = manifest
+        self.done: dict[int, dict[str, object]] = {}
+
+    # --- creating and resuming ---------------------------------------------------------
+    @classmethod
+    def create(
+        cls, run_dir: str | os.PathLike[str], manifest: dict[str, object], d_um: FloatArray
+    ) -> RunWriter:
+        """A new run: refuses a directory that already holds one."""
+        path = Path(run_dir)
+        if (path / MANIFEST).exists() or (path / JOURNAL).exists():
+            raise FormatError(
+                f"{path}: already holds a run; use --resume to continue it or choose another --out"
+            )
+        (path / "images").mkdir(parents=True, exist_ok=True)
+        write_commands(path, d_um)
+        full = {"format": RUN_FORMAT, **manifest, "commands_sha256": _sha256(path / "commands.csv")}
+        write_text_atomic(path / MANIFEST, json.dumps(full, indent=1) + "\n")
+        return cls(path, full)
+
+    @classmethod
+    def resume(cls, run_dir: str | os.PathLike[str], rig: dict[str, object]) -> RunWriter:
+        """Continue a run: it must come from the same rig and be unedited."""
+        path = Path(run_dir)
+        manifest = read_manifest(path)
+        if manifest.get("format") != RUN_FORMAT:
+            raise FormatError(f"{path}: not a run directory of microcal (no {MANIFEST})")
+        if manifest.get("rig") != rig:
+            raise FormatError(
+                f"{path}: this run was made with another rig ({manifest.get('rig')}); "
+                f"resume it with that rig"
+            )
+        if _sha256(path / "commands.csv") != manifest.get("commands_sha256"):
+            raise FormatError(
+                f"{path}/commands.csv was edited since the run began; refusing to resume"
+            )
+        writer = cls(path, manifest)
+        writer._read_journal()
+        return writer
+
+    def _read_journal(self) -> None:
+        path = self.run_dir / JOURNAL
+        if not path.exists():
+            return
+        lines = path.read_bytes().split(b"\n")
+        good: list[bytes] = []
+        for line in lines:
+            if not line.strip():
+                continue
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError:
+                break  # cut by a crash: everything after it is lost anyway
+            pose = int(record["pose"])
+            if pose in self.done:
+                raise FormatError(f"{path}: pose {pose} appears twice; the journal was edited")
+            for cam, image in (record.get("images") or {}).items():
+                file = self.run_dir / image["file"]
+                if not file.is_file() or _sha256(file) != image["sha256"]:
+                    raise FormatError(
+                        f"{file}: missing or changed since it was recorded "
+                        f"(camera {cam}, pose {pose})"
+                    )
+            self.done[pose] = record
+            good.append(line)
+        # Rewrite the journal without a cut last line, so appends stay well-formed.
+        write_text_atomic(path, "".join(g.decode() + "\n" for g in good))
+
+    # --- writing -------------------------------------------------------------------------
+    def store(self, pose: int, frames: dict[str, list[Any]], record: dict[str, Any]) -> None:
+        """Write a pose's images, then append its journal line (synced)."""
+        from .images import write_tiff
+
+        images = {}
+        for cam, cam_frames in frames.items():
+            rel = f"images/{cam}_{pose:04d}.tiff"
+            write_tiff(self.run_dir / rel, cam_frames)
+            images[cam] = {
+                "file": rel,
+                "sha256": _sha256(self.run_dir / rel),
+                "frames": len(cam_frames),
+            }
+        line = json.dumps({**record, "images": images}, allow_nan=False)
+        with open(self.run_dir / JOURNAL, "a", encoding="utf-8") as fh:
+            fh.write(line + "\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+        self.done[pose] = record
+
+    def remaining(self, poses: list[int]) -> list[int]:
+        """The poses not yet in the journal, in order."""
+        return [p for p in poses if p not in self.done]
+
+    def size_bytes(self) -> int:
+        """Bytes the run's files take."""
+        return sum(f.stat().st_size for f in self.run_dir.rglob("*") if f.is_file())
+
+
+def read_journal(run_dir: str | os.PathLike[str]) -> list[dict[str, Any]]:
+    """The journal's records (a line cut by a crash is ignored)."""
+    path = Path(run_dir) / JOURNAL
+    if not path.exists():
+        return []
+    out = []
+    for line in path.read_text(encoding="utf-8").splitlines():
+        if not line.strip():
+            continue
+        try:
+            out.append(json.loads(line))
+        except json.JSONDecodeError:
+            break
+    return out

@@ -17,7 +17,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -62,6 +62,9 @@ class AcquisitionConfig:
         The device must report "stopped" within this.
     retries : int
         Grabs and queries tried this many times more after a transient fault.
+    store_roi : bool
+        Store only the region around the board (``roi_margin_squares`` squares around it);
+        the offset goes to the record. A camera whose board is not found keeps full frames.
     """
 
     settle: str = "vision"
@@ -72,6 +75,8 @@ class AcquisitionConfig:
     settle_timeout_s: float = 10.0
     move_timeout_s: float = 60.0
     retries: int = 3
+    store_roi: bool = False
+    roi_margin_squares: float = 3.0
 
 
 def _retry(what: Callable[[], Any], retries: int) -> Any:
@@ -89,7 +94,7 @@ def _grab(camera: Camera, retries: int) -> Frame:
     return frame
 
 
-def _board_vp(
+def _board_corners(
     frame: Frame, target: Target, roi: tuple[int, int, int, int] | None
 ) -> FloatArray | None:
     det = detect(frame, target, roi=roi) if roi else None
@@ -97,37 +102,121 @@ def _board_vp(
         det = detect(frame, target)
     if not det.found or len(det.ids) != target.pattern_size[0] * target.pattern_size[1]:
         return None
-    out: FloatArray = det.q_px.mean(axis=0)
-    return out
+    return det.q_px
+
+
+def _box_around(corners: FloatArray, margin_px: float = 30.0) -> tuple[int, int, int, int]:
+    half = (corners.max(axis=0) - corners.min(axis=0)) * 0.8 + margin_px
+    centre = corners.mean(axis=0)
+    lo, hi = np.floor(centre - half).astype(int), np.ceil(centre + half).astype(int)
+    return int(lo[0]), int(lo[1]), int(hi[0]), int(hi[1])
+
+
+class CreepEstimator:
+    """Learns how the end-effector creeps after a move, from the first poses' images.
+
+    After each of the first ``learn_poses`` moves the virtual point is watched for
+    ``window_s``; its track is fitted with ``a + b exp(-t / tau)`` (t from the moment the
+    device reports "stopped"), ``tau`` pooled over the poses and ``|b|`` proportional to the
+    size of the move. Afterwards the wait for a move is the time the fitted creep needs to
+    fall below ``target_um``.
+    """
+
+    def __init__(self, learn_poses: int = 5, window_s: float = 4.0, target_um: float = 0.2) -> None:
+        self.learn_poses = learn_poses
+        self.window_s = window_s
+        self.target_um = target_um
+        self._tracks: list[tuple[FloatArray, FloatArray, float]] = []  # (t, vp (k, 2), |step|)
+        self._px_per_um: list[float] = []
+        self.tau_s: float | None = None
+        self.amplitude_px_per_um: float | None = None
+
+    @property
+    def learning(self) -> bool:
+        return self.tau_s is None
+
+    def add_scale(self, step_um: float, moved_px: float) -> None:
+        """Image motion per µm of move (from successive poses), to turn µm into px."""
+        if step_um > 500:
+            self._px_per_um.append(moved_px / step_um)
+
+    def add_track(self, t_s: FloatArray, vp_px: FloatArray, step_um: float) -> None:
+        if len(t_s) >= 10:
+            self._tracks.append((t_s, vp_px, step_um))
+        if len(self._tracks) >= self.learn_poses:
+            self._fit()
+
+    def _fit(self) -> None:
+        best = (np.inf, 1.0, 0.0)
+        for tau in np.geomspace(0.05, 5.0, 60):
+            rss, amps = 0.0, []
+            for t, vp, step in self._tracks:
+                A = np.column_stack([np.ones_like(t), np.exp(-t / tau)])
+                coef, *_ = np.linalg.lstsq(A, vp, rcond=None)
+                rss += float(np.sum((A @ coef - vp) ** 2))
+                amps.append(float(np.linalg.norm(coef[1])) / max(step, 1.0))
+            if rss < best[0]:
+                best = (rss, float(tau), float(np.median(amps)))
+        self.tau_s, self.amplitude_px_per_um = best[1], best[2]
+
+    def wait_s(self, step_um: float) -> float:
+        """Time after "stopped" until the fitted creep of this move is below the target."""
+        if self.tau_s is None or self.amplitude_px_per_um is None:
+            raise RuntimeError("wait_s: the creep is not learned yet")
+        scale = float(np.median(self._px_per_um)) if self._px_per_um else 0.05
+        start_px = self.amplitude_px_per_um * step_um
+        target_px = self.target_um * scale
+        if start_px <= target_px:
+            return 0.0
+        return float(self.tau_s * np.log(start_px / target_px))
 
 
 def _settle_vision(
-    cameras: dict[str, Camera],
+    cameras: Mapping[str, Camera],
     target: Target,
     clock: Clock,
     config: AcquisitionConfig,
     roi: tuple[int, int, int, int] | None,
+    creep: CreepEstimator,
+    step_um: float,
 ) -> tuple[float, float, dict[str, list[Frame]]]:
-    """Grab until the virtual point stops moving; returns (time, last block change px, frames)."""
+    """Wait until the board has settled; returns (time, last block change px, frames)."""
     first = next(iter(cameras))
     start = clock.now_s()
+    frame_dt = 0.0
+    if not creep.learning:
+        # wait out the learned creep, less the time the block check itself will take
+        t_grab = clock.now_s()
+        probe = _grab(cameras[first], config.retries)
+        frame_dt = clock.now_s() - t_grab
+        clock.sleep(max(0.0, creep.wait_s(step_um) - 2 * config.block * frame_dt))
+        del probe
+    times: list[float] = []
     vps: list[FloatArray] = []
     frames: list[Frame] = []
     change = float("nan")
     while True:
         frame = _grab(cameras[first], config.retries)
         frames.append(frame)
-        vp = _board_vp(frame, target, roi)
-        if vp is not None:
-            vps.append(vp)
-        b = config.block
-        if len(vps) >= 2 * b:
-            change = float(
-                np.linalg.norm(np.mean(vps[-b:], axis=0) - np.mean(vps[-2 * b : -b], axis=0))
-            )
-            if change < config.threshold_px:
+        corners = _board_corners(frame, target, roi)
+        if corners is not None:
+            vps.append(corners.mean(axis=0))
+            times.append(clock.now_s() - start)
+            roi = _box_around(corners)  # the board barely moves while it settles
+        elapsed = clock.now_s() - start
+        if creep.learning:
+            if elapsed >= creep.window_s:
+                creep.add_track(np.array(times), np.array(vps).reshape(-1, 2), step_um)
                 break
-        if clock.now_s() - start > config.settle_timeout_s:
+        else:
+            b = config.block
+            if len(vps) >= 2 * b:
+                change = float(
+                    np.linalg.norm(np.mean(vps[-b:], axis=0) - np.mean(vps[-2 * b : -b], axis=0))
+                )
+                if change < config.threshold_px:
+                    break
+        if elapsed > config.settle_timeout_s:
             break
     n = config.frames_per_pose
     got = {first: frames[-n:]}
@@ -141,7 +230,7 @@ def _settle_vision(
 
 def acquire(
     manipulator: Manipulator,
-    cameras: dict[str, Camera],
+    cameras: Mapping[str, Camera],
     clock: Clock,
     commands_um: FloatArray,
     poses: Sequence[int],
@@ -172,6 +261,9 @@ def acquire(
     cfg = config or AcquisitionConfig()
     predictors = {n: RoiPredictor() for n in cameras}
     first = next(iter(cameras))
+    creep = CreepEstimator()
+    last: tuple[FloatArray, FloatArray] | None = None  # (joints, virtual point px) of the last pose
+    previous_d = np.asarray(manipulator.position_um(), dtype=np.float64)
     done = 0
     for k, pose in enumerate(poses):
         if should_stop():
@@ -198,8 +290,9 @@ def acquire(
                     for n, cam in cameras.items()
                 }
             else:
+                step = float(np.abs(d - previous_d).max())
                 settle_s, change, frames = _settle_vision(
-                    cameras, target, clock, cfg, predictors[first].predict(d)
+                    cameras, target, clock, cfg, predictors[first].predict(d), creep, step
                 )
             reported = _retry(manipulator.position_um, cfg.retries)
             record |= {"status": "ok", "reported_um": np.asarray(reported).tolist()}
@@ -207,17 +300,33 @@ def acquire(
             frames = {}
             settle_s, change = clock.now_s() - t0 - moved_s, float("nan")
             record |= {"status": "failed", "reason": str(exc)}
-        if (record["status"] == "ok" and np.isfinite(change)) or cfg.settle == "fixed":
-            vp = (
-                _board_vp(frames[first][-1], target, predictors[first].predict(d))
-                if frames
-                else None
-            )
-            if vp is not None:
-                # teach the region predictor where the board is (its size from a detection)
-                det = detect(frames[first][-1], target)
-                if det.found:
-                    predictors[first].add(d, det.q_px)
+        if frames:
+            rois: dict[str, list[int]] = {}
+            for name, cam_frames in frames.items():
+                det = detect(cam_frames[-1], target, roi=predictors[name].predict(d))
+                if not det.found:
+                    continue
+                predictors[name].add(d, det.q_px)  # where the board is, for the next pose
+                if name == first:
+                    vp = det.q_px.mean(axis=0)
+                    if last is not None:
+                        creep.add_scale(
+                            float(np.linalg.norm(d - last[0])), float(np.linalg.norm(vp - last[1]))
+                        )
+                    last = (d, vp)
+                if cfg.store_roi:
+                    h, w = cam_frames[0].shape[:2]
+                    square = float(np.median(np.linalg.norm(np.diff(det.q_px, axis=0), axis=1)))
+                    lo = np.floor(det.q_px.min(axis=0) - cfg.roi_margin_squares * square).astype(
+                        int
+                    )
+                    hi = np.ceil(det.q_px.max(axis=0) + cfg.roi_margin_squares * square).astype(int)
+                    x0, y0 = max(int(lo[0]), 0), max(int(lo[1]), 0)
+                    x1, y1 = min(int(hi[0]), w), min(int(hi[1]), h)
+                    frames[name] = [f[y0:y1, x0:x1] for f in cam_frames]
+                    rois[name] = [x0, y0, w, h]
+            if rois:
+                record["roi_px"] = rois
         record |= {
             "time": wall0,
             "sim_time_s": round(t0, 6),
@@ -227,7 +336,13 @@ def acquire(
         }
         if temperature is not None:
             record["temperature_c"] = float(temperature())
+        if creep.tau_s is not None:
+            record["creep_model"] = {
+                "tau_s": round(creep.tau_s, 4),
+                "px_per_um_step": creep.amplitude_px_per_um,
+            }
         store(pose, frames, record)
+        previous_d = d
         done += 1
         if progress:
             progress(k + 1, len(poses), record)
