@@ -19,6 +19,7 @@ LAYERS = {
     "thesis_figures": 0,
     "geometry": 1,
     "kinematics": 1,
+    "designs": 1,
     "metrics": 1,
     "synthetic": 1,
     "vision": 2,

@@ -796,6 +796,10 @@ def acquire(
     from .sim import platform
     from .synthetic import THESIS_WORKSPACE_MAX_UM, THESIS_WORKSPACE_MIN_UM
 
+    if not resume and ((out / "run.json").exists() or (out / "journal.jsonl").exists()):
+        raise InputError(
+            f"{out}: already holds a run; use --resume to continue it or choose another --out"
+        )
     rig_spec = load_rig(rig)
     settle_mode, fixed_s = _parse_settle(settle)
     if store not in ("full", "roi"):

@@ -13,6 +13,8 @@ the axes not moved together).
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import scipy.stats.qmc as qmc
 from numpy.typing import ArrayLike
@@ -59,7 +61,9 @@ def make_design(
     if kind == "random":
         unit = np.random.default_rng(seed).uniform(size=(n, k))
     elif kind == "sobol":
-        unit = qmc.Sobol(k, scramble=True, seed=seed).random(n)
+        with warnings.catch_warnings():  # balance is best at powers of 2; any n is still fine
+            warnings.simplefilter("ignore", UserWarning)
+            unit = qmc.Sobol(k, scramble=True, seed=seed).random(n)
     elif kind == "lhs":
         unit = qmc.LatinHypercube(k, seed=seed).random(n)
     elif kind == "grid":

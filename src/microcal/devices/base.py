@@ -90,21 +90,33 @@ class Manipulator(abc.ABC):
         self._move(self.check_limits(d_um))
 
     def wait_until_stopped(
-        self, clock: Clock, timeout_s: float = 30.0, poll_s: float = 0.02
+        self, clock: Clock, timeout_s: float = 30.0, poll_s: float = 0.02, retries: int = 5
     ) -> float:
         """Poll :meth:`is_moving` until false; returns the time waited.
+
+        A status query that times out is asked again (up to ``retries`` times in a row).
 
         Raises
         ------
         DeviceTimeoutError
-            Still moving after ``timeout_s``.
+            Still moving after ``timeout_s``, or the device stopped answering.
         """
         start = clock.now_s()
-        while self.is_moving():
+        failures = 0
+        while True:
+            try:
+                moving = self.is_moving()
+                failures = 0
+            except DeviceTimeoutError:
+                failures += 1
+                if failures > retries:
+                    raise
+                moving = True
+            if not moving:
+                return clock.now_s() - start
             if clock.now_s() - start > timeout_s:
                 raise DeviceTimeoutError(f"{self.name}: still moving after {timeout_s:g} s")
             clock.sleep(poll_s)
-        return clock.now_s() - start
 
     @abc.abstractmethod
     def _move(self, d_um: FloatArray) -> None:

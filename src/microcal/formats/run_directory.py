@@ -200,6 +200,7 @@ class RunWriter:
         from .images import write_tiff
 
         images = {}
+        rois = record.pop("roi_px", {})
         for cam, cam_frames in frames.items():
             rel = f"images/{cam}_{pose:04d}.tiff"
             write_tiff(self.run_dir / rel, cam_frames)
@@ -208,6 +209,9 @@ class RunWriter:
                 "sha256": _sha256(self.run_dir / rel),
                 "frames": len(cam_frames),
             }
+            if cam in rois:
+                x0, y0, w, h = rois[cam]
+                images[cam] |= {"offset_px": [x0, y0], "full_size_px": [w, h]}
         line = json.dumps({**record, "images": images}, allow_nan=False)
         with open(self.run_dir / JOURNAL, "a", encoding="utf-8") as fh:
             fh.write(line + "\n")

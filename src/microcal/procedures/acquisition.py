@@ -97,9 +97,8 @@ def _grab(camera: Camera, retries: int) -> Frame:
 def _board_corners(
     frame: Frame, target: Target, roi: tuple[int, int, int, int] | None
 ) -> FloatArray | None:
-    det = detect(frame, target, roi=roi) if roi else None
-    if det is None or not det.found:
-        det = detect(frame, target)
+    """The board's corners; with a region, only there (a hidden board has not jumped away)."""
+    det = detect(frame, target, roi=roi) if roi else detect(frame, target)
     if not det.found or len(det.ids) != target.pattern_size[0] * target.pattern_size[1]:
         return None
     return det.q_px
