@@ -204,3 +204,46 @@ def test_acquire_then_measure(tmp_path):
     out = run_microcal("measure", run, "--cameras", tmp_path / "cameras.json")
     assert out.returncode == 0, out.stderr
     assert "measured 6 of 6 poses" in out.stdout
+
+
+def test_sigterm_stops_cleanly_and_resume_finishes(tmp_path):
+    run = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "microcal", "acquire", "--rig", "sim", "--poses", "40",
+                             "--store", "roi", "--frames", "1", "--out", str(run)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True)  # fmt: skip
+    deadline = time.time() + 60
+    while (
+        time.time() < deadline and len(journal(run) if (run / "journal.jsonl").exists() else []) < 3
+    ):
+        time.sleep(0.1)
+    os.kill(proc.pid, signal.SIGTERM)  # only the process this test started
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2
+    assert "run stopped (stopped on request before pose" in err
+    assert "resume with: microcal acquire --rig sim --out" in err
+    stored = len(journal(run))
+    assert 3 <= stored < 40
+    check_run_complete(run, stored)  # what was stored is whole
+    out = run_microcal(
+        "acquire", "--rig", "sim", "--out", run, "--resume", "--store", "roi", "--frames", "1"
+    )
+    assert out.returncode == 0, out.stderr
+    check_run_complete(run, 40)
+
+
+def test_manipulator_error_stops_the_run_with_how_to_resume(tmp_path):
+    rig = fake_rig(tmp_path, "[overrides.manipulator.faults]\nmove_failure_rate = 1.0\n")
+    out = run_microcal("acquire", "--rig", rig, "--poses", "10", "--out", tmp_path / "run")
+    assert out.returncode == 2
+    assert "refused the move" in out.stderr
+    assert "0 of 10 poses stored; resume with" in out.stderr
+
+
+def test_evaluation_trajectories_as_designs(tmp_path):
+    out = run_microcal("acquire", "--rig", "sim", "--design", "table-5-2", "--frames", "1", "--store", "roi",
+                       "--settle", "fixed:1", "--out", tmp_path / "run")  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    records = check_run_complete(tmp_path / "run", 8)
+    assert records[0]["commanded_um"] == [2000.0, 0.0, 0.0]
+    assert records[0]["settle_s"] == 1.0
+    assert records[0]["temperature_c"] == 22.0

@@ -745,6 +745,17 @@ def _read_command_file(path: Path) -> FloatArray:
     return d
 
 
+def _evaluation_trajectories() -> dict[str, FloatArray]:
+    from .procedures.evaluation import TABLE_5_2_POSES_UM, decoupling_path, iso_cube_poses
+    from .synthetic import THESIS_WORKSPACE_MAX_UM, THESIS_WORKSPACE_MIN_UM
+
+    return {
+        "table-5-2": TABLE_5_2_POSES_UM,
+        "decoupling": decoupling_path()[0],
+        "iso-cube": iso_cube_poses(THESIS_WORKSPACE_MIN_UM, THESIS_WORKSPACE_MAX_UM),
+    }
+
+
 def _parse_settle(text: str) -> tuple[str, float]:
     if text == "vision":
         return "vision", 0.0
@@ -765,7 +776,11 @@ def acquire(
     out: Annotated[Path, typer.Option("--out", "-o", help="Run directory to create (or resume).")],
     rig: Annotated[str, typer.Option(help="'sim' or a rig TOML file.")] = "sim",
     design: Annotated[
-        str, typer.Option(help="random, sobol, lhs, grid, or a CSV of dx_um,dy_um,dz_um.")
+        str,
+        typer.Option(
+            help="random, sobol, lhs, grid; table-5-2, decoupling, iso-cube (evaluation "
+            "trajectories); or a CSV of dx_um,dy_um,dz_um."
+        ),
     ] = "random",
     poses: Annotated[
         int, typer.Option(min=2, help="Poses of a generated design (the thesis: 170).")
@@ -791,6 +806,7 @@ def acquire(
     from .formats.calibration_file import provenance
     from .formats.rig_file import load_rig
     from .formats.run_directory import RunWriter, read_commands
+    from .kinematics.compensators import check_limits
     from .procedures.acquisition import AcquisitionConfig, RunStoppedError
     from .procedures.acquisition import acquire as run_acquisition
     from .sim import platform
@@ -810,17 +826,23 @@ def acquire(
         writer = RunWriter.resume(out, rig_spec)
         pose_ids, d = read_commands(out)
     else:
+        trajectories = _evaluation_trajectories()
         if design in DESIGNS:
             d = make_design(design, poses, THESIS_WORKSPACE_MIN_UM, THESIS_WORKSPACE_MAX_UM, seed)
+        elif design in trajectories:
+            d = trajectories[design]
         else:
             d = _read_command_file(Path(design))
-        check_design(d, plat.manipulator.limits_um)
+        if design in trajectories:  # for evaluation: only the limits matter
+            check_limits(d, plat.manipulator.limits_um)
+        else:
+            check_design(d, plat.manipulator.limits_um)
         manifest = {
             "rig": rig_spec,
             "target": board.spec,
             "cameras": list(plat.cameras),
             "design": {
-                "kind": design if design in DESIGNS else "file",
+                "kind": design if design in DESIGNS or design in trajectories else "file",
                 "poses": len(d),
                 "seed": seed,
             },
@@ -878,6 +900,7 @@ def acquire(
                 writer.store,
                 config=config,
                 should_stop=lambda: stop["requested"],
+                temperature=lambda: plat.manipulator.temperature_at(plat.clock.now_s()),
                 progress=progress,
             )
     except RunStoppedError as exc:
