@@ -44,6 +44,18 @@ def _root(
     """Vision-based automatic calibration of microrobotic systems."""
 
 
+def _staged(bar: Any) -> Any:
+    """A progress callback (stage, done, total) with one bar per stage."""
+    tasks: dict[str, Any] = {}
+
+    def progress(stage: str, done: int, total: int) -> None:
+        if stage not in tasks:
+            tasks[stage] = bar.add_task(stage, total=total)
+        bar.update(tasks[stage], completed=done)
+
+    return progress
+
+
 @app.command()
 def demo(
     seed: Annotated[int, typer.Option(help="Seed of all random draws.")] = 0,
@@ -81,12 +93,7 @@ def demo(
         console=console,
         transient=True,
     ) as bar:
-        tasks: dict[str, Any] = {}
-
-        def progress(stage: str, done: int, total: int) -> None:
-            if stage not in tasks:
-                tasks[stage] = bar.add_task(stage, total=total)
-            bar.update(tasks[stage], completed=done)
+        progress = _staged(bar)
 
         result = run_demo(seed=seed, poses=n_poses, frames_per_pose=frames, progress=progress)
 
@@ -664,12 +671,7 @@ def evaluate(
     from rich.progress import Progress
 
     with Progress(console=Console(stderr=True), transient=True) as bar:
-        tasks: dict[str, Any] = {}
-
-        def progress(stage: str, done: int, total: int) -> None:
-            if stage not in tasks:
-                tasks[stage] = bar.add_task(stage, total=total)
-            bar.update(tasks[stage], completed=done)
+        progress = _staged(bar)
 
         kwargs = {"settle_s": settle_s, "truth": plat.truth_position_um, "progress": progress}
         if test in (TestChoice.pose_accuracy, TestChoice.all):

@@ -26,6 +26,7 @@ from ..errors import DegenerateDataError, FormatError, InputError
 from ..kinematics.compensators import Compensator
 from ..kinematics.models import KinematicModel
 from .atomic import write_atomic, write_text_atomic
+from .json_file import read_versioned_json
 
 __all__ = [
     "CALIBRATION_FORMAT",
@@ -243,15 +244,7 @@ def load_calibration(path: str | os.PathLike[str]) -> Calibration:
         shape; the message names the key.
     """
     p = Path(path)
-    try:
-        raw = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise FormatError(f"{p}: no such file") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise FormatError(f"{p}: not a JSON file ({exc})") from None
-    if not isinstance(raw, dict) or raw.get("format") != CALIBRATION_FORMAT:
-        found = raw.get("format") if isinstance(raw, dict) else type(raw).__name__
-        raise FormatError(f"{p}: expected format {CALIBRATION_FORMAT!r}, got {found!r}")
+    raw = read_versioned_json(p, (CALIBRATION_FORMAT,))
     try:
         schema = _CalibrationSchema.model_validate(raw)
     except ValidationError as exc:

@@ -14,6 +14,7 @@ from ..errors import FormatError, InputError
 from ..geometry.camera_model import CameraModel
 from ..vision.stereo_calibration import StereoCalibration
 from .atomic import write_text_atomic
+from .json_file import read_versioned_json
 
 __all__ = ["CAMERAS_FORMAT", "cameras_to_dict", "load_cameras", "models_from_dict", "write_cameras"]
 
@@ -86,18 +87,9 @@ def models_from_dict(data: dict[str, Any], where: str = "cameras") -> dict[str, 
 def load_cameras(path: str | os.PathLike[str]) -> dict[str, CameraModel]:
     """Read cameras.json (or a calibration.json that holds cameras)."""
     p = Path(path)
-    try:
-        raw = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise FormatError(f"{p}: no such file (run 'microcal stereo-calibrate' first)") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise FormatError(f"{p}: not a JSON file ({exc})") from None
-    if not isinstance(raw, dict) or raw.get("format") not in (
-        CAMERAS_FORMAT,
-        "microcal.calibration/1",
-    ):
-        found = raw.get("format") if isinstance(raw, dict) else type(raw).__name__
-        raise FormatError(f"{p}: expected format {CAMERAS_FORMAT!r}, got {found!r}")
+    raw = read_versioned_json(
+        p, (CAMERAS_FORMAT, "microcal.calibration/1"), " (run 'microcal stereo-calibrate' first)"
+    )
     if not raw.get("cameras"):
         raise FormatError(f"{p}: holds no cameras")
     return models_from_dict({"format": CAMERAS_FORMAT, "cameras": raw["cameras"]}, str(p))

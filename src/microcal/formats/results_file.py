@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import FormatError
 from .atomic import write_text_atomic
+from .json_file import read_versioned_json
 
 __all__ = ["RESULTS_FORMAT", "load_results", "update_results"]
 
@@ -34,15 +34,7 @@ def _plain(value: Any) -> Any:
 
 def load_results(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Read results.json; FormatError if it is not one."""
-    p = Path(path)
-    try:
-        data = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise FormatError(f"{p}: no such file") from None
-    except (OSError, json.JSONDecodeError) as exc:
-        raise FormatError(f"{p}: not a JSON file ({exc})") from None
-    if not isinstance(data, dict) or data.get("format") != RESULTS_FORMAT:
-        raise FormatError(f"{p}: expected format {RESULTS_FORMAT!r}")
+    data = read_versioned_json(path, (RESULTS_FORMAT,))
     return data
 
 
