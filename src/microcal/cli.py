@@ -687,7 +687,7 @@ def evaluate(
                 conditions,
                 poses_um=test_poses,
                 cycles=cycles,
-                **kwargs,  # type: ignore[arg-type]
+                **kwargs,
             )
         if test in (TestChoice.decoupling, TestChoice.all):
             parts["decoupling"] = run_decoupling(
@@ -695,7 +695,7 @@ def evaluate(
                 plat.clock,
                 probe,
                 conditions,
-                **kwargs,  # type: ignore[arg-type]
+                **kwargs,
             )
     update_results(out, parts)
     if "pose_accuracy" in parts:
