@@ -83,7 +83,8 @@ def demo(
     console.print(
         "[bold]microcal demo[/bold] on the simulated thesis platform: stereo calibration from "
         "rendered images, acquisition and 3D measurement, kinematic identification. "
-        "Compensation runs, ISO 9283 tests and the report are not built yet."
+        "It does not yet run the compensation tests (see 'microcal evaluate') nor write the "
+        "report."
     )
     with Progress(
         TextColumn("{task.description:<20}"),
