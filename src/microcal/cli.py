@@ -63,6 +63,9 @@ def demo(
         int, typer.Option(min=20, help="Poses to acquire (the thesis used 170).")
     ] = 170,
     quick: Annotated[bool, typer.Option(help="A short run: 60 poses, 3 frames each.")] = False,
+    out: Annotated[
+        Path, typer.Option("--out", "-o", help="Where to write the result files.")
+    ] = Path("demo-out"),
 ) -> None:
     """Run the calibration on the simulated thesis platform and compare with the thesis.
 
@@ -82,9 +85,9 @@ def demo(
     n_poses, frames = (60, 3) if quick else (poses, 5)
     console.print(
         "[bold]microcal demo[/bold] on the simulated thesis platform: stereo calibration from "
-        "rendered images, acquisition and 3D measurement, kinematic identification. "
-        "It does not yet run the compensation tests (see 'microcal evaluate') nor write the "
-        "report."
+        "rendered images, acquisition and 3D measurement, kinematic identification, "
+        "compensation and the ISO 9283 and decoupling tests. It does not yet write the run "
+        "directory nor the HTML report."
     )
     with Progress(
         TextColumn("{task.description:<20}"),
@@ -96,7 +99,14 @@ def demo(
     ) as bar:
         progress = _staged(bar)
 
-        result = run_demo(seed=seed, poses=n_poses, frames_per_pose=frames, progress=progress)
+        result = run_demo(
+            seed=seed,
+            poses=n_poses,
+            frames_per_pose=frames,
+            progress=progress,
+            cycles=1 if quick else 3,
+            decoupling_samples=9 if quick else 17,
+        )
 
     cal = result.calibration
     table = Table(
@@ -139,6 +149,9 @@ def demo(
     o = result.oracle
     table.add_row("oracle", f"{o['mean']:.2f}", f"{o['std']:.2f}", f"{o['max']:.2f}", "-", "-", "-")
     console.print(table)
+    _print_evaluation(console, result.evaluation)
+    _write_demo_files(out, result)
+    console.print(f"wrote {out}/cameras.json, calibration.json and results.json")
     model = result.models["polynomial"].model
     console.print(
         "polynomial terms selected stepwise: "
@@ -147,6 +160,70 @@ def demo(
             for i, axis in enumerate("xyz")
         )
     )
+
+
+THESIS_AP_UM = {"uncalibrated": (7.83, 23.52), "matrix": (4.65, 10.0), "optimal": (4.41, 9.14)}
+THESIS_DECOUPLING_UM = {
+    "uncalibrated": {"x": (-6.14, -0.104), "y": (-25.13, 3.21), "z": (-4.68, 10.55)},
+    "matrix": {"x": (-5.29, 0.04), "y": (-5.53, 5.63), "z": (-0.88, 6.07)},
+    "optimal": {"x": (-4.33, 0.21), "y": (-5.11, 3.64), "z": (-0.71, 5.99)},
+}
+
+
+def _print_evaluation(console: Console, evaluation: dict[str, Any]) -> None:
+    if not evaluation:
+        return
+    pa = evaluation["pose_accuracy"]
+    table = Table(title="4. Pose accuracy at the Table 5-2 poses: mean / worst AP_P (µm)")
+    for col in ("condition", "vision", "ground truth", "thesis"):
+        table.add_column(col, justify="right")
+    for name, (mean, worst) in THESIS_AP_UM.items():
+        cells = [f"{pa[src][name]['mean_ap_p_um']:.2f} / {pa[src][name]['max_ap_p_um']:.2f}"
+                 for src in ("vision", "truth")]  # fmt: skip
+        table.add_row(name, *cells, f"{mean:.2f} / {worst:.2f}")
+    console.print(table)
+    dc = evaluation["decoupling"]
+    table = Table(title="5. Decoupling: undesired displacement \\[min, max] (µm), truth (thesis)")
+    for col in ("condition", "x", "y", "z"):
+        table.add_column(col, justify="right")
+    for name, thesis in THESIS_DECOUPLING_UM.items():
+        cells = []
+        for axis in "xyz":
+            lo, hi = dc["truth"][name]["undesired_um"][axis]
+            cells.append(f"[{lo:.1f}, {hi:.1f}] ({thesis[axis][0]:.1f}, {thesis[axis][1]:.1f})")
+        table.add_row(name, *cells)
+    console.print(table)
+
+
+def _write_demo_files(out: Path, result: Any) -> None:
+    from .formats.calibration_file import (
+        Calibration,
+        ManipulatorCalibration,
+        provenance,
+        write_calibration,
+    )
+    from .formats.cameras_file import cameras_to_dict, write_cameras
+    from .formats.results_file import update_results
+
+    out.mkdir(parents=True, exist_ok=True)
+    prov = provenance(command="demo", seed=result.seed)
+    cameras = cameras_to_dict(result.calibration, prov)
+    write_cameras(out / "cameras.json", cameras)
+    poly, matrix = result.models["polynomial"], result.models["matrix"]
+    extra = {"matrix_model": matrix.model.to_dict(), "matrix_validation": matrix.validation}
+    entry = ManipulatorCalibration("m1", poly.model, poly.validation, extra)
+    write_calibration(
+        out / "calibration.json", Calibration({"m1": entry}, cameras["cameras"], prov)
+    )
+    results_path = out / "results.json"
+    results_path.unlink(missing_ok=True)
+    update_results(results_path, {
+        "stereo": {n: {"rms_px": c.rms_px} for n, c in result.calibration.cameras.items()},
+        "measurement": {"rms_error_um": result.measurement_rms_um},
+        "models": {k: {"validation": v.validation} for k, v in result.models.items()},
+        **result.evaluation,
+        "timing": {"simulated_s": result.sim_time_s},
+    })  # fmt: skip
 
 
 class ModelChoice(StrEnum):
@@ -713,7 +790,7 @@ def evaluate(
             table.add_row(name, *cells, thesis[name])
         console.print(table)
     if "decoupling" in parts:
-        table = Table(title="Decoupling: undesired displacement [min, max] (µm), vision | truth")
+        table = Table(title="Decoupling: undesired displacement \\[min, max] (µm), vision | truth")
         for col in ("condition", "x", "y", "z"):
             table.add_column(col, justify="right")
         dc = parts["decoupling"]

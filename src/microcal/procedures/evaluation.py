@@ -14,7 +14,7 @@ from the same side.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -86,7 +86,7 @@ def decoupling_path(
 class VisionProbe:
     """Measures the end-effector now: grabs frames from every camera, triangulates."""
 
-    cameras: dict[str, Camera]
+    cameras: Mapping[str, Camera]
     models: dict[str, CameraModel]
     target: Target
     frames: int = 5
