@@ -162,22 +162,16 @@ def demo(
     )
 
 
-THESIS_AP_UM = {"uncalibrated": (7.83, 23.52), "matrix": (4.65, 10.0), "optimal": (4.41, 9.14)}
-THESIS_DECOUPLING_UM = {
-    "uncalibrated": {"x": (-6.14, -0.104), "y": (-25.13, 3.21), "z": (-4.68, 10.55)},
-    "matrix": {"x": (-5.29, 0.04), "y": (-5.53, 5.63), "z": (-0.88, 6.07)},
-    "optimal": {"x": (-4.33, 0.21), "y": (-5.11, 3.64), "z": (-0.71, 5.99)},
-}
-
-
 def _print_evaluation(console: Console, evaluation: dict[str, Any]) -> None:
+    from .thesis_figures import DECOUPLING_UM, POSE_ACCURACY_UM
+
     if not evaluation:
         return
     pa = evaluation["pose_accuracy"]
     table = Table(title="4. Pose accuracy at the Table 5-2 poses: mean / worst AP_P (µm)")
     for col in ("condition", "vision", "ground truth", "thesis"):
         table.add_column(col, justify="right")
-    for name, (mean, worst) in THESIS_AP_UM.items():
+    for name, (mean, worst) in POSE_ACCURACY_UM.items():
         cells = [f"{pa[src][name]['mean_ap_p_um']:.2f} / {pa[src][name]['max_ap_p_um']:.2f}"
                  for src in ("vision", "truth")]  # fmt: skip
         table.add_row(name, *cells, f"{mean:.2f} / {worst:.2f}")
@@ -186,7 +180,7 @@ def _print_evaluation(console: Console, evaluation: dict[str, Any]) -> None:
     table = Table(title="5. Decoupling: undesired displacement \\[min, max] (µm), truth (thesis)")
     for col in ("condition", "x", "y", "z"):
         table.add_column(col, justify="right")
-    for name, thesis in THESIS_DECOUPLING_UM.items():
+    for name, thesis in DECOUPLING_UM.items():
         cells = []
         for axis in "xyz":
             lo, hi = dc["truth"][name]["undesired_um"][axis]
@@ -714,6 +708,7 @@ def evaluate(
     )
     from .sim import platform
     from .synthetic import THESIS_WORKSPACE_MAX_UM, THESIS_WORKSPACE_MIN_UM
+    from .thesis_figures import POSE_ACCURACY_UM
 
     if rig != "sim":
         raise InputError(
@@ -780,9 +775,10 @@ def evaluate(
         table = Table(title=f"Pose accuracy AP_P (µm): mean / worst over the {poses.value} poses")
         for col in ("condition", "vision", "ground truth", "thesis"):
             table.add_column(col, justify="right")
-        thesis = {"uncalibrated": "7.83 / 23.52", "matrix": "4.65 / 10.0", "optimal": "4.41 / 9.14"}
-        if poses != PoseChoice.table:
-            thesis = dict.fromkeys(thesis, "-")
+        thesis = {
+            name: f"{mean:.2f} / {worst:.2f}" if poses == PoseChoice.table else "-"
+            for name, (mean, worst) in POSE_ACCURACY_UM.items()
+        }
         pa = parts["pose_accuracy"]
         for name in conditions:
             cells = [f"{pa[src][name]['mean_ap_p_um']:.2f} / {pa[src][name]['max_ap_p_um']:.2f}"

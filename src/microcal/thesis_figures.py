@@ -12,7 +12,9 @@ from ._validation import FloatArray
 
 __all__ = [
     "CLAIMED_ACCURACY_UM",
+    "DECOUPLING_UM",
     "ONE_CORNER_STD_PX",
+    "POSE_ACCURACY_UM",
     "P_SIDE_MM",
     "P_TOP_MM",
     "REPROJECTION_ERROR_SIDE_PX",
@@ -72,5 +74,13 @@ VALIDATION_UM = {
 #: Table 4-1: standard deviation of one corner and of the virtual point, px (x, y).
 ONE_CORNER_STD_PX = (0.207, 0.172)
 VIRTUAL_POINT_STD_PX = (0.087, 0.045)
+#: Tables 5-2, 5-3, 5-4: mean and worst pose accuracy AP_P, µm.
+POSE_ACCURACY_UM = {"uncalibrated": (7.83, 23.52), "matrix": (4.65, 10.0), "optimal": (4.41, 9.14)}
+#: Table 5-5: undesired displacement [min, max] per axis during the decoupling test, µm.
+DECOUPLING_UM = {
+    "uncalibrated": {"x": (-6.14, -0.104), "y": (-25.13, 3.21), "z": (-4.68, 10.55)},
+    "matrix": {"x": (-5.29, 0.04), "y": (-5.53, 5.63), "z": (-0.88, 6.07)},
+    "optimal": {"x": (-4.33, 0.21), "y": (-5.11, 3.64), "z": (-0.71, 5.99)},
+}
 #: Section 3.3: the claimed (not measured) accuracy of the stereo measurement, µm.
 CLAIMED_ACCURACY_UM = 3.0

@@ -16,12 +16,10 @@ import numpy as np
 from .._validation import FloatArray
 from ..geometry import CameraModel, triangulate_optimal, triangulation_covariance
 from ..synthetic import THESIS_WORKSPACE_MAX_UM, THESIS_WORKSPACE_MIN_UM, thesis_cameras
+from ..thesis_figures import VIRTUAL_POINT_STD_PX
 from .kinematics import TrueKinematics, approach_signs, thesis_kinematics
 
 __all__ = ["VIRTUAL_POINT_STD_PX", "SyntheticRun", "measure_positions", "synthetic_run"]
-
-#: Thesis Table 4-1: standard deviation of the virtual point, px (x, y).
-VIRTUAL_POINT_STD_PX = (0.087, 0.045)
 
 
 @dataclass(frozen=True)
