@@ -29,7 +29,7 @@ from ..devices.base import Camera, Clock, Manipulator
 from ..errors import DeviceError, DeviceTimeoutError, FrameError, MicrocalError
 from ..vision.detect import detect
 from ..vision.targets import Target
-from .measurement import RoiPredictor
+from .measurement import RoiPredictor, box_around
 
 __all__ = ["AcquisitionConfig", "RunStoppedError", "acquire"]
 
@@ -102,13 +102,6 @@ def _board_corners(
     if not det.found or len(det.ids) != target.pattern_size[0] * target.pattern_size[1]:
         return None
     return det.q_px
-
-
-def _box_around(corners: FloatArray, margin_px: float = 30.0) -> tuple[int, int, int, int]:
-    half = (corners.max(axis=0) - corners.min(axis=0)) * 0.8 + margin_px
-    centre = corners.mean(axis=0)
-    lo, hi = np.floor(centre - half).astype(int), np.ceil(centre + half).astype(int)
-    return int(lo[0]), int(lo[1]), int(hi[0]), int(hi[1])
 
 
 class CreepEstimator:
@@ -201,7 +194,7 @@ def _settle_vision(
         if corners is not None:
             vps.append(corners.mean(axis=0))
             times.append(clock.now_s() - start)
-            roi = _box_around(corners)  # the board barely moves while it settles
+            roi = box_around(corners)  # the board barely moves while it settles
         elapsed = clock.now_s() - start
         if creep.learning:
             if elapsed >= creep.window_s:

@@ -26,7 +26,7 @@ from ..vision.detect import detect
 from ..vision.targets import Target
 from ..vision.virtual_point import virtual_point
 
-__all__ = ["PoseMeasurement", "RoiPredictor", "measure_one", "measure_poses"]
+__all__ = ["PoseMeasurement", "RoiPredictor", "box_around", "measure_one", "measure_poses"]
 
 Frames = Sequence[NDArray[np.generic]]
 
@@ -84,6 +84,18 @@ class RoiPredictor:
         return int(lo[0]), int(lo[1]), int(hi[0]) + 1, int(hi[1]) + 1
 
 
+def box_around(corners_px: FloatArray, margin_px: float = 30.0) -> tuple[int, int, int, int]:
+    """A search box (x0, y0, x1, y1) around a board's corners, for the next frames of a pose.
+
+    While the manipulator stands still the board stays put: the box is 1.6x the board's
+    extent plus ``margin_px``.
+    """
+    half = (corners_px.max(axis=0) - corners_px.min(axis=0)) * 0.8 + margin_px
+    centre = corners_px.mean(axis=0)
+    lo, hi = np.floor(centre - half).astype(int), np.ceil(centre + half).astype(int)
+    return int(lo[0]), int(lo[1]), int(hi[0]), int(hi[1])
+
+
 def _vp_of_frames(
     frames: Frames, target: Target, model: CameraModel, roi: tuple[int, int, int, int] | None
 ) -> tuple[FloatArray, FloatArray, FloatArray] | str:
@@ -91,10 +103,7 @@ def _vp_of_frames(
     vps, covs, corners0 = [], [], None
     for image in frames:
         if corners0 is not None:  # the board stays put during a pose: search around frame 0
-            half = (corners0.max(axis=0) - corners0.min(axis=0)) * 0.8 + 30.0
-            centre = corners0.mean(axis=0)
-            lo, hi = np.floor(centre - half).astype(int), np.ceil(centre + half).astype(int)
-            roi = (int(lo[0]), int(lo[1]), int(hi[0]), int(hi[1]))
+            roi = box_around(corners0)
         det = detect(image, target, roi=roi) if roi is not None else None
         if det is None or not det.found:
             det = detect(image, target)
