@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from microcal import sim
+from microcal.procedures.demo import calibrate_on_platform
 from microcal.procedures.measurement import measure_poses
 from microcal.sim.render import Placement
 from microcal.vision.detect import detect
 from microcal.vision.stereo_calibration import (
-    calibrate_known_displacements,
     calibrate_unknown_poses,
 )
 from microcal.vision.targets import parse_target
@@ -42,16 +42,7 @@ def workspace_points(n=500):
 def known_calibration():
     """Method (a): the dot grid at five known heights (stage steps), {V} = {G}."""
     plat = sim.platform("thesis", seed=21)
-    plat.scene.show_board = False
-    dets = {n: [] for n in plat.cameras}
-    names = {n: [] for n in plat.cameras}
-    for k, step in enumerate(STEPS_UM):
-        plat.scene.fixed = Placement(GRID, np.eye(3), step)
-        for n, cam in plat.cameras.items():
-            image = np.mean([cam.grab().astype(np.float32) for _ in range(FRAMES_PER_VIEW)], axis=0)
-            dets[n].append(detect(image, GRID))
-            names[n].append(f"{n}_{k}")
-    return plat, calibrate_known_displacements(dets, names, GRID, STEPS_UM, sizes(plat))
+    return plat, calibrate_on_platform(plat, GRID, STEPS_UM, FRAMES_PER_VIEW)
 
 
 def test_known_displacements_calibration(known_calibration):

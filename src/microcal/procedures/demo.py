@@ -23,17 +23,17 @@ from numpy.typing import NDArray
 from .._validation import FloatArray
 from ..devices.feedforward import FeedForward
 from ..error_summary import summarize_errors
-from ..sim import platform
+from ..sim import SimPlatform, platform
 from ..sim.render import Placement
 from ..synthetic import THESIS_WORKSPACE_MAX_UM, THESIS_WORKSPACE_MIN_UM
 from ..vision.detect import Detection, detect
 from ..vision.stereo_calibration import StereoCalibration, calibrate_known_displacements
-from ..vision.targets import parse_target
+from ..vision.targets import Target, parse_target
 from .evaluation import VisionProbe, run_decoupling, run_pose_accuracy
 from .identification import Identification, default_train, identify
 from .measurement import PoseMeasurement, measure_poses
 
-__all__ = ["DemoResult", "run_demo"]
+__all__ = ["DemoResult", "calibrate_on_platform", "run_demo"]
 
 CALIBRATION_TARGET = "dotgrid:40x30:250"
 CALIBRATION_STEPS_UM = (0.0, 1000.0, 2000.0, 3000.0, 4000.0)
@@ -67,6 +67,35 @@ class DemoResult:
         return float(np.sqrt(np.mean(np.sum((p - self.truth_um[ok]) ** 2, axis=1))))
 
 
+def calibrate_on_platform(
+    plat: SimPlatform,
+    target: Target,
+    steps_um: FloatArray,
+    frames_per_view: int = 8,
+    progress: Callable[[int, int], None] | None = None,
+) -> StereoCalibration:
+    """Method (a) on a simulated platform: the target at known steps, frames averaged per view.
+
+    The target's frame at zero displacement is {G}; the board on the gripper is hidden while
+    the target is shown, and shown again afterwards.
+    """
+    plat.scene.show_board = False
+    dets: dict[str, list[Detection]] = {n: [] for n in plat.cameras}
+    names: dict[str, list[str]] = {n: [] for n in plat.cameras}
+    for k, step in enumerate(steps_um):
+        plat.scene.fixed = Placement(target, np.eye(3), step)
+        for n, cam in plat.cameras.items():
+            image = np.mean([cam.grab().astype(np.float32) for _ in range(frames_per_view)], axis=0)
+            dets[n].append(detect(image, target))
+            names[n].append(f"{n}_{k + 1:02d}")
+        if progress:
+            progress(k + 1, len(steps_um))
+    plat.scene.fixed = None
+    plat.scene.show_board = True
+    sizes = {n: c.model.image_size_px for n, c in plat.cameras.items()}
+    return calibrate_known_displacements(dets, names, target, steps_um, sizes)
+
+
 def run_demo(
     seed: int = 0,
     poses: int = 170,
@@ -92,18 +121,13 @@ def run_demo(
     plat = platform("thesis", seed=seed)
     grid = parse_target(CALIBRATION_TARGET)
     steps = np.array([[0.0, 0.0, z] for z in CALIBRATION_STEPS_UM])
-    plat.scene.show_board = False
-    dets: dict[str, list[Detection]] = {n: [] for n in plat.cameras}
-    names: dict[str, list[str]] = {n: [] for n in plat.cameras}
-    for k, step in enumerate(steps):
-        plat.scene.fixed = Placement(grid, np.eye(3), step)
-        for n, cam in plat.cameras.items():
-            image = np.mean([cam.grab().astype(np.float32) for _ in range(frames_per_view)], axis=0)
-            dets[n].append(detect(image, grid))
-            names[n].append(f"{n}_{k + 1:02d}")
-        tick("stereo calibration", k + 1, len(steps))
-    sizes = {n: c.model.image_size_px for n, c in plat.cameras.items()}
-    cal = calibrate_known_displacements(dets, names, grid, steps, sizes)
+    cal = calibrate_on_platform(
+        plat,
+        grid,
+        steps,
+        frames_per_view,
+        lambda done, total: tick("stereo calibration", done, total),
+    )
     pts = np.random.default_rng(seed).uniform([0, 0, 0], [9000, 9000, 5000], (500, 3))
     truth_px = {
         n: float(
@@ -115,8 +139,6 @@ def run_demo(
         )
         for n, c in cal.cameras.items()
     }
-    plat.scene.fixed = None
-    plat.scene.show_board = True
     rng = np.random.default_rng(seed + 1)
     d = rng.uniform(THESIS_WORKSPACE_MIN_UM, THESIS_WORKSPACE_MAX_UM, (poses, 3))
     frames: dict[tuple[int, str], list[NDArray[np.generic]]] = {}
