@@ -103,3 +103,26 @@ def test_user_errors_exit_2_with_one_line(run_dir, tmp_path, setup, args, messag
     if setup == "badcal":
         assert (tmp_path / "bad.json").read_text() == "{oops"  # nothing overwritten
     assert not (tmp_path / "calibration.json").exists()
+
+
+def test_fit_embeds_the_cameras(run_dir, tmp_path):
+    from microcal.formats.cameras_file import write_cameras
+
+    plat_models = __import__("microcal").sim.platform("thesis", seed=0).camera_models
+    cams = {"format": "microcal.cameras/1", "cameras": {
+        n: {"image_size_px": list(m.image_size_px), "K": m.K.tolist(), "dist": m.dist.tolist(),
+            "R": m.R.tolist(), "t_um": m.t_um.tolist()} for n, m in plat_models.items()}}  # fmt: skip
+    write_cameras(tmp_path / "cameras.json", cams)
+    out = tmp_path / "c.json"
+    result = runner.invoke(
+        app, ["fit", str(run_dir), "-o", str(out), "--cameras", str(tmp_path / "cameras.json")]
+    )
+    assert result.exit_code == 0, result.output
+    assert sorted(load_calibration(out).cameras) == ["side", "top"]
+    assert load_calibration(out).manipulator().extra["matrix_model"]["kind"] == "matrix"
+    bad = run_microcal(
+        "fit", run_dir, "-o", tmp_path / "d.json", "--cameras", run_dir / "measurements.csv"
+    )
+    assert bad.returncode == 2
+    assert "not a JSON file" in bad.stderr
+    assert not (tmp_path / "d.json").exists()

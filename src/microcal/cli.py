@@ -374,13 +374,9 @@ def fit(
 
 def _camera_section(path: Path) -> dict[str, Any]:
     """The ``cameras`` object of a cameras.json, validated."""
-    import json
+    from .formats.cameras_file import read_cameras
 
-    from .formats.cameras_file import load_cameras
-
-    load_cameras(path)  # validates, with a clear message
-    data: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))["cameras"]
-    return data
+    return read_cameras(path)[0]
 
 
 def _parse_limits(text: str) -> FloatArray:

@@ -16,7 +16,14 @@ from ..vision.stereo_calibration import StereoCalibration
 from .atomic import write_text_atomic
 from .json_file import read_versioned_json
 
-__all__ = ["CAMERAS_FORMAT", "cameras_to_dict", "load_cameras", "models_from_dict", "write_cameras"]
+__all__ = [
+    "CAMERAS_FORMAT",
+    "cameras_to_dict",
+    "load_cameras",
+    "models_from_dict",
+    "read_cameras",
+    "write_cameras",
+]
 
 CAMERAS_FORMAT = "microcal.cameras/1"
 
@@ -84,12 +91,24 @@ def models_from_dict(data: dict[str, Any], where: str = "cameras") -> dict[str, 
     return models
 
 
-def load_cameras(path: str | os.PathLike[str]) -> dict[str, CameraModel]:
-    """Read cameras.json (or a calibration.json that holds cameras)."""
+def read_cameras(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, CameraModel]]:
+    """The ``cameras`` object of cameras.json (or of a calibration.json) and its models.
+
+    Raises
+    ------
+    FormatError
+        Missing, not JSON, another format, no cameras, or a camera that does not validate.
+    """
     p = Path(path)
     raw = read_versioned_json(
         p, (CAMERAS_FORMAT, "microcal.calibration/1"), " (run 'microcal stereo-calibrate' first)"
     )
     if not raw.get("cameras"):
         raise FormatError(f"{p}: holds no cameras")
-    return models_from_dict({"format": CAMERAS_FORMAT, "cameras": raw["cameras"]}, str(p))
+    section: dict[str, Any] = raw["cameras"]
+    return section, models_from_dict({"format": CAMERAS_FORMAT, "cameras": section}, str(p))
+
+
+def load_cameras(path: str | os.PathLike[str]) -> dict[str, CameraModel]:
+    """Read cameras.json (or a calibration.json that holds cameras)."""
+    return read_cameras(path)[1]
