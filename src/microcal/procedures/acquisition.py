@@ -127,6 +127,12 @@ class CreepEstimator:
     def learning(self) -> bool:
         return self.tau_s is None
 
+    @property
+    def frame_interval_s(self) -> float:
+        """Time between successive frames, from the learning tracks (0 before any)."""
+        gaps = [np.diff(t) for t, _, _ in self._tracks if len(t) > 1]
+        return float(np.median(np.concatenate(gaps))) if gaps else 0.0
+
     def add_scale(self, step_um: float, moved_px: float) -> None:
         """Image motion per µm of move (from successive poses), to turn µm into px."""
         if step_um > 500:
@@ -175,14 +181,10 @@ def _settle_vision(
     """Wait until the board has settled; returns (time, last block change px, frames)."""
     first = next(iter(cameras))
     start = clock.now_s()
-    frame_dt = 0.0
     if not creep.learning:
         # wait out the learned creep, less the time the block check itself will take
-        t_grab = clock.now_s()
-        probe = _grab(cameras[first], config.retries)
-        frame_dt = clock.now_s() - t_grab
-        clock.sleep(max(0.0, creep.wait_s(step_um) - 2 * config.block * frame_dt))
-        del probe
+        check_s = 2 * config.block * creep.frame_interval_s
+        clock.sleep(max(0.0, creep.wait_s(step_um) - check_s))
     times: list[float] = []
     vps: list[FloatArray] = []
     frames: list[Frame] = []
