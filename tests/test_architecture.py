@@ -28,6 +28,7 @@ LAYERS = {
     "procedures": 4,
     "formats": 5,
     "cli": 5,
+    "report": 5,
     "__main__": 5,
 }
 # third-party packages each layer may use
@@ -37,7 +38,7 @@ ALLOWED_THIRD_PARTY = {
     2: {"numpy", "scipy", "cv2"},
     3: {"numpy", "scipy", "cv2"},
     4: {"numpy", "scipy", "cv2"},
-    5: {"numpy", "scipy", "cv2", "typer", "rich", "pydantic", "tifffile"},
+    5: {"numpy", "scipy", "cv2", "typer", "rich", "pydantic", "tifffile", "matplotlib", "jinja2"},
 }
 STDLIB_OK = set(sys.stdlib_module_names)
 

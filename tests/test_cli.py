@@ -2,49 +2,121 @@
 
 from __future__ import annotations
 
-import json
-
 import pytest
 from typer.testing import CliRunner
 
 from conftest import run_microcal
-from microcal import __version__, load_calibration
+from microcal import __version__
 from microcal.cli import app
 
 runner = CliRunner()
 
 
-def test_help_lists_commands():
-    result = runner.invoke(app, ["--help"])
+COMMANDS = ["demo", "stereo-calibrate", "acquire", "measure", "fit", "solve", "evaluate", "report"]
+
+
+def test_help_lists_every_command_on_one_line_in_workflow_order():
+    result = runner.invoke(app, ["--help"], env={"COLUMNS": "100"})
     assert result.exit_code == 0
-    assert "demo" in result.output
+    listed = result.output.split("Commands:")[1].strip().splitlines()
+    assert [line.split()[0] for line in listed] == COMMANDS
+    assert not any(line.endswith("...") for line in listed)
+
+
+@pytest.mark.parametrize("command", COMMANDS)
+def test_every_command_help_has_an_example(command):
+    result = runner.invoke(app, [command, "--help"], env={"COLUMNS": "100"})
+    assert result.exit_code == 0
+    assert f"Example: microcal {command}" in result.output
+
+
+# One row per user error: (arguments, what the one line must say). Files named here do not
+# exist unless the test creates them: "{tmp}" is a fresh directory, "{bad}" a file of junk.
+BAD_INVOCATIONS = [
+    (["nope"], "No such command 'nope'"),
+    (["demo", "--poses", "5"], "Invalid value for '--poses'"),
+    (["demo", "--seed", "abc"], "Invalid value for '--seed'"),
+    (["demo", "--bogus"], "No such option: --bogus"),
+    (["demo", "--out", "{bad}"], "is a file"),
+    (["stereo-calibrate", "--target", "chessboard:9x6:25000"], "Missing option '--images'"),
+    (
+        [
+            "stereo-calibrate",
+            "--target",
+            "pizza:3x3:1",
+            "--images",
+            "top={tmp}/*.tif",
+            "--images",
+            "side={tmp}/*.tif",
+        ],
+        "pizza",
+    ),
+    (
+        [
+            "stereo-calibrate",
+            "--target",
+            "chessboard:9x6:25000",
+            "--images",
+            "top={tmp}/*.tif",
+            "--images",
+            "side={tmp}/*.tif",
+        ],
+        "no file",
+    ),
+    (
+        ["stereo-calibrate", "--target", "chessboard:9x6:25000", "--images", "nocamera"],
+        "CAMERA=GLOB",
+    ),
+    (["acquire"], "Missing option '--out'"),
+    (["acquire", "--out", "{tmp}/r", "--rig", "{tmp}/rig.toml"], "no such file"),
+    (["acquire", "--out", "{tmp}/r", "--rig", "{bad}"], "not valid TOML"),
+    (["acquire", "--out", "{tmp}/r", "--design", "{tmp}/none.csv"], "none.csv"),
+    (["acquire", "--out", "{tmp}/r", "--settle", "soon"], "--settle"),
+    (["acquire", "--out", "{tmp}/r", "--store", "some"], "--store"),
+    (["acquire", "--out", "{tmp}/r", "--poses", "1"], "Invalid value for '--poses'"),
+    (["measure", "{tmp}/none", "--cameras", "{tmp}/c.json"], "not a directory"),
+    (["measure", "{tmp}", "--cameras", "{tmp}/c.json"], "c.json"),
+    (["measure", "{tmp}"], "Missing option '--cameras'"),
+    (["fit", "{tmp}/none.csv"], "none.csv"),
+    (["fit", "{bad}"], "missing column"),
+    (["fit", "{bad}", "--model", "cubic"], "Invalid value for '--model'"),
+    (["fit", "{bad}", "--penter", "x"], "Invalid value for '--penter'"),
+    (["solve", "{tmp}/cal.json", "1", "2", "3"], "cal.json"),
+    (["solve", "{bad}", "1", "2", "3"], "not a JSON file"),
+    (["solve", "{bad}", "1", "two", "3"], "Invalid value"),
+    (["evaluate", "--rig", "{tmp}/rig.toml"], "Missing option '--calibration'"),
+    (["evaluate", "--calibration", "{tmp}/cal.json"], "cal.json"),
+    (["evaluate", "--calibration", "{bad}"], "not a JSON file"),
+    (["evaluate", "--poses", "everywhere"], "Invalid value for '--poses'"),
+    (["evaluate", "--test", "speed"], "Invalid value for '--test'"),
+    (["report", "{tmp}/none"], "not a directory"),
+    (["report", "{tmp}"], "holds none of"),
+    (["report"], "Missing argument"),
+]
+
+
+@pytest.mark.parametrize(
+    ("args", "message"), BAD_INVOCATIONS, ids=lambda v: " ".join(v) if isinstance(v, list) else ""
+)
+def test_every_user_error_is_one_line_and_exit_2(tmp_path, args, message):
+    bad = tmp_path / "junk.txt"
+    bad.write_text("not [ a valid { anything\n")
+    argv = [a.format(tmp=tmp_path, bad=bad) for a in args]
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    result = runner.invoke(app, argv, env={"COLUMNS": "200"})
+    assert result.exit_code == 2, result.output
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert lines[0].startswith("microcal: error: ")
+    assert message in lines[0]
+    assert "Traceback" not in result.output
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before  # nothing half-written
 
 
 def test_version():
     result = runner.invoke(app, ["--version"])
     assert result.exit_code == 0
     assert __version__ in result.output
-
-
-def test_demo_says_what_it_ran_and_reports_figures(tmp_path):
-    out = tmp_path / "demo"
-    result = runner.invoke(
-        app, ["demo", "--quick", "--seed", "1", "--out", str(out)], env={"COLUMNS": "200"}
-    )
-    assert result.exit_code == 0, result.output
-    results = json.loads((out / "results.json").read_text())
-    assert results["format"] == "microcal.results/1"
-    for key in ("stereo", "measurement", "models", "pose_accuracy", "decoupling", "timing"):
-        assert key in results
-    for src in ("vision", "truth"):
-        assert set(results["pose_accuracy"][src]) == {"uncalibrated", "matrix", "optimal"}
-    assert load_calibration(out / "calibration.json").manipulator("m1").model.kind == "polynomial"
-    assert "Pose accuracy" in result.output
-    assert "Decoupling" in result.output
-    assert "does not yet write the run directory nor the HTML report" in result.output
-    for text in ("Stereo calibration", "Measured 60 of 60 poses", "3D error vs ground truth",
-                 "Identification", "oracle", "thesis mean"):  # fmt: skip
-        assert text in result.output
 
 
 def test_demo_help_has_an_example():

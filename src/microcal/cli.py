@@ -14,13 +14,53 @@ import numpy as np
 import typer
 from rich.console import Console
 from rich.table import Table
+from typer.core import TyperGroup
 
 from ._validation import FloatArray
 from ._version import __version__
 from .errors import FormatError, InputError, MicrocalError
 
+
+class _Commands(TyperGroup):
+    """The command group: user errors end in one line on stderr and exit code 2.
+
+    Handled here rather than around the entry point, so that ``microcal`` from a shell and
+    typer's ``CliRunner`` in the tests go through the same path.
+    """
+
+    def main(  # type: ignore[override]
+        self, args: list[str] | None = None, prog_name: str | None = None, **extra: Any
+    ) -> Any:
+        argv = sys.argv[1:] if args is None else list(args)
+        extra.pop("standalone_mode", None)
+        try:
+            code = super().main(
+                args=argv or ["--help"],
+                prog_name=prog_name or "microcal",
+                standalone_mode=False,
+                **extra,
+            )
+        except typer.TyperException as exc:  # usage errors: bad option, value or command
+            ctx = getattr(exc, "ctx", None)
+            hint = f" (see: {ctx.command_path} --help)" if ctx is not None else ""
+            _fail(f"{exc.format_message()}{hint}")
+        except (typer.Abort, KeyboardInterrupt):
+            _fail("interrupted")
+        except MicrocalError as exc:
+            _fail(str(exc))
+        sys.exit(code if isinstance(code, int) else 0)
+
+    def list_commands(self, ctx: Any) -> list[str]:
+        """In the order of a calibration, not alphabetically."""
+        names = super().list_commands(ctx)
+        return [n for n in WORKFLOW if n in names] + [n for n in names if n not in WORKFLOW]
+
+
+WORKFLOW = ("demo", "stereo-calibrate", "acquire", "measure", "fit", "solve", "evaluate", "report")
+
 app = typer.Typer(
     name="microcal",
+    cls=_Commands,
     help="Vision-based automatic calibration of microrobotic systems.",
     no_args_is_help=True,
     add_completion=False,
@@ -56,24 +96,80 @@ def _staged(bar: Any) -> Any:
     return progress
 
 
-@app.command()
+QUICK_POSES, QUICK_FRAMES = 40, 2
+DEMO_FILES = frozenset(
+    {
+        "run.json",
+        "commands.csv",
+        "journal.jsonl",
+        "images",
+        "measurements.csv",
+        "cameras.json",
+        "calibration.json",
+        "results.json",
+        "report.html",
+    }
+)
+
+
+def _clear_demo_dir(out: Path) -> None:
+    """Make ``out`` ready for a demo: new, empty, or holding only an earlier demo's files."""
+    import json
+    import shutil
+
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out}: is a file; choose a directory")
+    if not out.exists() or not any(out.iterdir()):
+        return
+    entries = {p.name for p in out.iterdir()}
+    try:
+        manifest = json.loads((out / "run.json").read_text(encoding="utf-8"))
+        is_demo = manifest.get("provenance", {}).get("command") == "demo"
+    except (OSError, ValueError, AttributeError):
+        is_demo = False
+    if not is_demo or not entries <= DEMO_FILES:
+        raise InputError(
+            f"--out {out}: holds files that an earlier demo did not write; "
+            f"choose a new or empty directory"
+        )
+    for name in entries:
+        path = out / name
+        if path.is_dir():
+            shutil.rmtree(path)
+        else:
+            path.unlink()
+
+
+@app.command(short_help="Run the whole calibration on the simulated platform.")
 def demo(
     seed: Annotated[int, typer.Option(help="Seed of all random draws.")] = 0,
     poses: Annotated[
         int, typer.Option(min=20, help="Poses to acquire (the thesis used 170).")
     ] = 170,
-    quick: Annotated[bool, typer.Option(help="A short run: 60 poses, 3 frames each.")] = False,
+    quick: Annotated[
+        bool, typer.Option(help="A short run: 40 poses, 2 frames each, 1 ISO cycle.")
+    ] = False,
     out: Annotated[
-        Path, typer.Option("--out", "-o", help="Where to write the result files.")
+        Path, typer.Option("--out", "-o", help="Run directory to write (replaces an earlier demo).")
     ] = Path("demo-out"),
 ) -> None:
-    """Run the calibration on the simulated thesis platform and compare with the thesis.
+    """Run the whole calibration on the simulated thesis platform and write its report.
 
-    Example: microcal demo --seed 3
+    Stereo calibration from rendered images, acquisition with vision settling, 3D
+    measurement, matrix and polynomial identification, compensation, ISO 9283 and decoupling
+    tests; writes the run directory, cameras.json, calibration.json, results.json and
+    report.html, and compares the figures with the thesis's.
+
+    Example: microcal demo --seed 3 --out demo-3
     """
+    import time
+
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-    from .procedures.demo import CALIBRATION_TARGET, run_demo
+    from .formats.calibration_file import provenance
+    from .formats.run_directory import RunWriter
+    from .procedures.demo import CALIBRATION_TARGET, demo_design, run_demo
+    from .sim import platform
     from .thesis_figures import (
         CLAIMED_ACCURACY_UM,
         REPROJECTION_ERROR_SIDE_PX,
@@ -81,16 +177,30 @@ def demo(
         VALIDATION_UM,
     )
 
+    wall0 = time.monotonic()
     console = Console()
-    n_poses, frames = (60, 3) if quick else (poses, 5)
+    n_poses, frames = (QUICK_POSES, QUICK_FRAMES) if quick else (poses, 5)
+    _clear_demo_dir(out)
+    plat = platform("thesis", seed=seed)
+    manifest = {
+        "rig": {"driver": "sim", "preset": "thesis", "seed": seed, "overrides": {}},
+        "target": plat.scene.board.spec,
+        "cameras": list(plat.cameras),
+        "design": {"kind": "random", "poses": n_poses, "seed": seed},
+        "settle": "vision",
+        "frames_per_pose": frames,
+        "store": "roi",
+        "provenance": provenance(command="demo", seed=seed),
+    }
+    writer = RunWriter.create(out, manifest, demo_design(seed, n_poses))
     console.print(
-        "[bold]microcal demo[/bold] on the simulated thesis platform: stereo calibration from "
-        "rendered images, acquisition and 3D measurement, kinematic identification, "
-        "compensation and the ISO 9283 and decoupling tests. It does not yet write the run "
-        "directory nor the HTML report."
+        f"[bold]microcal demo[/bold] on the simulated thesis platform, writing {out}/: stereo "
+        f"calibration from rendered images, {n_poses} poses acquired with vision settling and "
+        "measured in 3D, kinematic identification, compensation, and the ISO 9283 and "
+        "decoupling tests."
     )
     with Progress(
-        TextColumn("{task.description:<20}"),
+        TextColumn("{task.description:<28}"),
         BarColumn(),
         TextColumn("{task.completed}/{task.total}"),
         TimeRemainingColumn(),
@@ -104,8 +214,10 @@ def demo(
             poses=n_poses,
             frames_per_pose=frames,
             progress=progress,
+            frames_per_view=4 if quick else 8,
             cycles=1 if quick else 3,
-            decoupling_samples=9 if quick else 17,
+            decoupling_samples=5 if quick else 17,
+            store=writer.store,
         )
 
     cal = result.calibration
@@ -150,8 +262,12 @@ def demo(
     table.add_row("oracle", f"{o['mean']:.2f}", f"{o['std']:.2f}", f"{o['max']:.2f}", "-", "-", "-")
     console.print(table)
     _print_evaluation(console, result.evaluation)
-    _write_demo_files(out, result)
-    console.print(f"wrote {out}/cameras.json, calibration.json and results.json")
+    _write_demo_files(out, result, wall_s=time.monotonic() - wall0)
+    console.print(
+        f"wrote {out}/: the run (run.json, commands.csv, journal.jsonl, images/), "
+        f"measurements.csv, cameras.json, calibration.json, results.json and report.html "
+        f"({time.monotonic() - wall0:.0f} s); open {out / 'report.html'} in a browser"
+    )
     model = result.models["polynomial"].model
     console.print(
         "polynomial terms selected stepwise: "
@@ -189,7 +305,7 @@ def _print_evaluation(console: Console, evaluation: dict[str, Any]) -> None:
     console.print(table)
 
 
-def _write_demo_files(out: Path, result: Any) -> None:
+def _write_demo_files(out: Path, result: Any, wall_s: float) -> None:
     from .formats.calibration_file import (
         Calibration,
         ManipulatorCalibration,
@@ -197,9 +313,20 @@ def _write_demo_files(out: Path, result: Any) -> None:
         write_calibration,
     )
     from .formats.cameras_file import cameras_to_dict, write_cameras
+    from .formats.measurements import write_measurements
     from .formats.results_file import update_results
+    from .report import write_report
 
     out.mkdir(parents=True, exist_ok=True)
+    ms = result.measurements
+    write_measurements(
+        out / "measurements.csv",
+        result.d_um,
+        np.array([m.p_um for m in ms]),
+        std_um=np.array([m.std_um for m in ms]),
+        status=[m.status for m in ms],
+        reason=[m.reason for m in ms],
+    )
     prov = provenance(command="demo", seed=result.seed)
     cameras = cameras_to_dict(result.calibration, prov)
     write_cameras(out / "cameras.json", cameras)
@@ -215,9 +342,19 @@ def _write_demo_files(out: Path, result: Any) -> None:
         "stereo": {n: {"rms_px": c.rms_px} for n, c in result.calibration.cameras.items()},
         "measurement": {"rms_error_um": result.measurement_rms_um},
         "models": {k: {"validation": v.validation} for k, v in result.models.items()},
+        "oracle": {f"{k}_um": v for k, v in result.oracle.items()},
+        "acquisition": {
+            "poses": len(result.records),
+            "stored": sum(r["status"] == "ok" for r in result.records),
+            "mean_settle_s": float(np.mean([r["settle_s"] for r in result.records])),
+            "failed": [{"pose": r["pose"], "reason": r.get("reason", "")}
+                       for r in result.records if r["status"] != "ok"],
+        },
         **result.evaluation,
-        "timing": {"simulated_s": result.sim_time_s},
+        "timing": {"simulated_s": result.sim_time_s, "wall_s": wall_s},
+        "provenance": prov,
     })  # fmt: skip
+    write_report(out)
 
 
 class ModelChoice(StrEnum):
@@ -234,7 +371,7 @@ def _measurements_path(source: Path) -> Path:
     return source / "measurements.csv" if source.is_dir() else source
 
 
-@app.command()
+@app.command(short_help="Identify a kinematic model from measurements.")
 def fit(
     source: Annotated[
         Path,
@@ -392,7 +529,7 @@ def _parse_limits(text: str) -> FloatArray:
     return arr
 
 
-@app.command()
+@app.command(short_help="Print joint commands that reach given positions.")
 def solve(
     calibration: Annotated[Path, typer.Argument(help="calibration.json")],
     position_um: Annotated[
@@ -486,7 +623,7 @@ def _read_displacements(path: Path, n_views: int) -> FloatArray:
     return disp
 
 
-@app.command("stereo-calibrate")
+@app.command("stereo-calibrate", short_help="Calibrate two cameras from images of a target.")
 def stereo_calibrate(
     target: Annotated[
         str, typer.Option(help="Target spec, e.g. dotgrid:40x30:250 or chessboard:9x6:25000.")
@@ -559,7 +696,7 @@ def stereo_calibrate(
     print(f"baseline {cal.baseline_um:.0f} µm; stereo RMS {cal.rms_px:.4f} px; wrote {out}")
 
 
-@app.command()
+@app.command(short_help="Measure the end-effector in 3D at every pose.")
 def measure(
     run_dir: Annotated[Path, typer.Argument(help="Run directory (commands.csv and images/).")],
     cameras: Annotated[
@@ -578,7 +715,7 @@ def measure(
     from .formats.images import read_frames
     from .formats.measurements import write_measurements
     from .formats.run_directory import find_image, read_commands, read_journal, read_manifest
-    from .procedures.measurement import measure_poses
+    from .procedures.measurement import frames_from_region, measure_poses
     from .vision.targets import parse_target
 
     if not run_dir.is_dir():
@@ -601,15 +738,7 @@ def measure(
         frames = read_frames(path)
         image = (record.get("images") or {}).get(cam, {})
         if "offset_px" in image:  # stored as a region: put it back in a frame of full size
-            (x0, y0), (w, h) = image["offset_px"], image["full_size_px"]
-            full = []
-            for f in frames:
-                canvas = np.full(
-                    (h, w), float(np.median(np.asarray(f, dtype=np.float64))), dtype=f.dtype
-                )
-                canvas[y0 : y0 + f.shape[0], x0 : x0 + f.shape[1]] = f
-                full.append(canvas)
-            frames = full
+            frames = frames_from_region(frames, image["offset_px"], image["full_size_px"])
         return frames
 
     from rich.progress import Progress
@@ -645,6 +774,33 @@ def measure(
             print(f"pose {r.pose} failed: {r.reason}")
 
 
+@app.command(short_help="Write a run's calibration report (one HTML file).")
+def report(
+    run_dir: Annotated[
+        Path,
+        typer.Argument(help="Run directory (any of run.json, measurements.csv, results.json...)."),
+    ],
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", "-o", help="Where to write; default RUN_DIR/report.html."),
+    ] = None,
+) -> None:
+    """Write the calibration report of a run: one self-contained HTML file with its figures.
+
+    It shows what the run directory holds: the stereo calibration, the command design, the
+    measurement uncertainty, the models and their validation errors, the pose-accuracy and
+    decoupling tests, failed poses and provenance.
+
+    Example: microcal report demo-out
+    """
+    from .report import write_report
+
+    if out is not None and out.is_dir():
+        raise InputError(f"--out {out}: is a directory; give a file name such as report.html")
+    path = write_report(run_dir, out)
+    print(f"wrote {path}")
+
+
 class PoseChoice(StrEnum):
     table = "table-5-2"
     cube = "iso-cube"
@@ -656,7 +812,7 @@ class TestChoice(StrEnum):
     all = "all"
 
 
-@app.command()
+@app.command(short_help="Pose accuracy (ISO 9283) and decoupling tests.")
 def evaluate(
     calibration: Annotated[
         Path, typer.Option(help="calibration.json (with cameras, see 'fit --cameras').")
@@ -843,7 +999,7 @@ def _parse_settle(text: str) -> tuple[str, float]:
     return "fixed", seconds
 
 
-@app.command()
+@app.command(short_help="Move through a design, settle and store images.")
 def acquire(
     out: Annotated[Path, typer.Option("--out", "-o", help="Run directory to create (or resume).")],
     rig: Annotated[str, typer.Option(help="'sim' or a rig TOML file.")] = "sim",
@@ -997,15 +1153,4 @@ def _fail(message: str) -> NoReturn:
 
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the ``microcal`` command: user errors end in one line and exit code 2."""
-    args = sys.argv[1:] if argv is None else argv
-    try:
-        code = app(args=args or ["--help"], prog_name="microcal", standalone_mode=False)
-    except typer.TyperException as exc:  # usage errors: bad option, value or command
-        ctx = getattr(exc, "ctx", None)
-        hint = f" (see: {ctx.command_path} --help)" if ctx is not None else ""
-        _fail(f"{exc.format_message()}{hint}")
-    except (typer.Abort, KeyboardInterrupt):
-        _fail("interrupted")
-    except MicrocalError as exc:
-        _fail(str(exc))
-    sys.exit(code if isinstance(code, int) else 0)
+    app(args=argv)

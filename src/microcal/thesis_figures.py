@@ -82,5 +82,11 @@ DECOUPLING_UM = {
     "matrix": {"x": (-5.29, 0.04), "y": (-5.53, 5.63), "z": (-0.88, 6.07)},
     "optimal": {"x": (-4.33, 0.21), "y": (-5.11, 3.64), "z": (-0.71, 5.99)},
 }
+#: Table 5-6: integration index Ω per axis, µm x sampling unit (the thesis's sampling).
+OMEGA_UM = {
+    "uncalibrated": {"x": 120.83, "y": 342.61, "z": 97.84},
+    "matrix": {"x": 92.78, "y": 45.75, "z": 100.54},
+    "optimal": {"x": 90.54, "y": 48.92, "z": 98.04},
+}
 #: Section 3.3: the claimed (not measured) accuracy of the stereo measurement, µm.
 CLAIMED_ACCURACY_UM = 3.0

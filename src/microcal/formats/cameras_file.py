@@ -59,6 +59,7 @@ def cameras_to_dict(cal: StereoCalibration, provenance: dict[str, Any]) -> dict[
             "views_rejected": c.views_rejected,
             "per_view_rms_px": c.per_view_rms_px,
             "std": c.std,
+            "residuals_px": {view: np.round(r, 4).tolist() for view, r in c.residuals_px.items()},
         }
     return {
         "format": CAMERAS_FORMAT,

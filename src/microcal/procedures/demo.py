@@ -2,8 +2,9 @@
 
 1. Stereo calibration from rendered images: the dot grid at five known heights (method (a),
    the thesis's), frames averaged per view.
-2. Acquisition: random joint commands over the travel (the thesis's design), a fixed settle
-   wait, several frames per pose; measurement of every pose in 3D with its covariance.
+2. Acquisition: random joint commands over the travel (the thesis's design), settling
+   detected by vision, several frames per pose, stored as regions around the board;
+   measurement of every pose in 3D with its covariance.
 3. Identification: matrix and polynomial (stepwise) models, fitted on the first poses and
    validated on the rest (the thesis's split), next to the oracle (the simulator's true
    kinematics predicting the same measurements).
@@ -23,17 +24,19 @@ from numpy.typing import NDArray
 from .._validation import FloatArray
 from ..devices.feedforward import FeedForward
 from ..error_summary import summarize_errors
+from ..errors import FormatError
 from ..sim import SimPlatform, platform
 from ..sim.render import Placement
 from ..synthetic import THESIS_WORKSPACE_MAX_UM, THESIS_WORKSPACE_MIN_UM
 from ..vision.detect import Detection, detect
 from ..vision.stereo_calibration import StereoCalibration, calibrate_known_displacements
 from ..vision.targets import Target, parse_target
+from .acquisition import AcquisitionConfig, Store, acquire
 from .evaluation import VisionProbe, run_decoupling, run_pose_accuracy
 from .identification import Identification, default_train, identify
-from .measurement import PoseMeasurement, measure_poses
+from .measurement import PoseMeasurement, frames_from_region, measure_poses
 
-__all__ = ["DemoResult", "calibrate_on_platform", "run_demo"]
+__all__ = ["DemoResult", "calibrate_on_platform", "demo_design", "run_demo"]
 
 CALIBRATION_TARGET = "dotgrid:40x30:250"
 CALIBRATION_STEPS_UM = (0.0, 1000.0, 2000.0, 3000.0, 4000.0)
@@ -52,6 +55,7 @@ class DemoResult:
     models: dict[str, Identification] = field(default_factory=dict)
     oracle: dict[str, float] = field(default_factory=dict)
     evaluation: dict[str, Any] = field(default_factory=dict)  # pose_accuracy, decoupling
+    records: list[dict[str, Any]] = field(default_factory=list)  # the acquisition's journal
     sim_time_s: float = 0.0
 
     @property
@@ -65,6 +69,13 @@ class DemoResult:
         ok = self.measured_ok
         p = np.array([m.p_um for m in self.measurements])[ok]
         return float(np.sqrt(np.mean(np.sum((p - self.truth_um[ok]) ** 2, axis=1))))
+
+
+def demo_design(seed: int, poses: int) -> FloatArray:
+    """The demo's joint commands: uniform over the thesis's workspace, (poses, 3) µm."""
+    rng = np.random.default_rng(seed + 1)
+    d: FloatArray = rng.uniform(THESIS_WORKSPACE_MIN_UM, THESIS_WORKSPACE_MAX_UM, (poses, 3))
+    return d
 
 
 def calibrate_on_platform(
@@ -106,12 +117,15 @@ def run_demo(
     cycles: int = 3,
     decoupling_samples: int = 17,
     progress: Callable[[str, int, int], None] | None = None,
+    store: Store | None = None,
 ) -> DemoResult:
     """Run the calibration on the simulated thesis platform (see the module docstring).
 
     With ``evaluate``, step 4 runs the pose-accuracy test (``cycles`` ISO cycles at the Table
     5-2 poses) and the decoupling test without and with both compensators, measured by the
-    calibrated cameras and by ground truth.
+    calibrated cameras and by ground truth. ``settle_s`` is the fixed wait of those tests;
+    the acquisition settles by vision. ``store`` receives every acquired pose as the
+    acquisition gives it (see :func:`~microcal.procedures.acquisition.acquire`).
     """
 
     def tick(stage: str, done: int, total: int) -> None:
@@ -139,29 +153,60 @@ def run_demo(
         )
         for n, c in cal.cameras.items()
     }
-    rng = np.random.default_rng(seed + 1)
-    d = rng.uniform(THESIS_WORKSPACE_MIN_UM, THESIS_WORKSPACE_MAX_UM, (poses, 3))
-    frames: dict[tuple[int, str], list[NDArray[np.generic]]] = {}
-    truth = []
-    for i, di in enumerate(d):
-        plat.manipulator.move_to_um(di)
-        plat.manipulator.wait_until_stopped(plat.clock)
-        plat.clock.sleep(settle_s)
-        truth.append(plat.truth_position_um())
-        for n, cam in plat.cameras.items():
-            frames[(i, n)] = [cam.grab() for _ in range(frames_per_pose)]
-        tick("acquisition", i + 1, poses)
+    d = demo_design(seed, poses)
     board = plat.scene.board
+    kept: dict[int, tuple[dict[str, list[NDArray[np.generic]]], dict[str, Any]]] = {}
+    truth = np.full((poses, 3), np.nan)
+
+    def keep(
+        pose: int, frames: dict[str, list[NDArray[np.generic]]], record: dict[str, Any]
+    ) -> None:
+        kept[pose] = (frames, dict(record))
+        truth[pose - 1] = plat.truth_position_um()
+        if store is not None:
+            store(pose, frames, record)
+
+    acquire(
+        plat.manipulator,
+        plat.cameras,
+        plat.clock,
+        d,
+        list(range(1, poses + 1)),
+        board,
+        keep,
+        config=AcquisitionConfig(frames_per_pose=frames_per_pose, store_roi=True),
+        temperature=lambda: plat.manipulator.temperature_at(plat.clock.now_s()),
+        progress=lambda done, total, _record: tick("acquisition (vision settle)", done, total),
+    )
+
+    def load(pose: int, name: str) -> list[NDArray[np.generic]]:
+        frames, record = kept[pose]
+        if record["status"] != "ok":
+            raise FormatError(f"acquisition failed: {record.get('reason', '')}")
+        if name not in frames:
+            raise FormatError("no image")
+        roi = record.get("roi_px", {}).get(name)
+        if roi is None:
+            return frames[name]
+        return frames_from_region(frames[name], roi[:2], roi[2:])
+
     measurements = measure_poses(
         list(range(1, poses + 1)),
         d,
-        lambda pose, n: frames[(pose - 1, n)],
+        load,
         cal.models(),
         board,
         progress=lambda done, total: tick("measurement", done, total),
     )
     result = DemoResult(
-        seed, cal, truth_px, d, measurements, np.array(truth), sim_time_s=plat.clock.now_s()
+        seed,
+        cal,
+        truth_px,
+        d,
+        measurements,
+        truth,
+        records=[kept[k][1] for k in sorted(kept)],
+        sim_time_s=plat.clock.now_s(),
     )
     ok = result.measured_ok
     p = np.array([m.p_um for m in measurements])[ok]

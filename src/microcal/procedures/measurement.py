@@ -84,6 +84,34 @@ class RoiPredictor:
         return int(lo[0]), int(lo[1]), int(hi[0]) + 1, int(hi[1]) + 1
 
 
+def frames_from_region(
+    frames: Sequence[NDArray[np.generic]], offset_px: Sequence[int], full_size_px: Sequence[int]
+) -> list[NDArray[np.generic]]:
+    """Put frames stored as a region back into frames of full size.
+
+    Parameters
+    ----------
+    frames : sequence of (h, w) arrays
+        The stored regions.
+    offset_px : (2,) int
+        x0, y0 of the region in the full frame.
+    full_size_px : (2,) int
+        Width and height of the full frame.
+
+    Returns
+    -------
+    list of (H, W) arrays
+        Each region pasted on a frame filled with the region's median grey level.
+    """
+    (x0, y0), (w, h) = offset_px, full_size_px
+    full = []
+    for f in frames:
+        canvas = np.full((h, w), np.median(np.asarray(f, dtype=np.float64)), dtype=f.dtype)
+        canvas[y0 : y0 + f.shape[0], x0 : x0 + f.shape[1]] = f
+        full.append(canvas)
+    return full
+
+
 def box_around(corners_px: FloatArray, margin_px: float = 30.0) -> tuple[int, int, int, int]:
     """A search box (x0, y0, x1, y1) around a board's corners, for the next frames of a pose.
 

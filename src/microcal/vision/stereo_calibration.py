@@ -57,6 +57,9 @@ class CameraCalibration:
     views_used: int
     views_rejected: list[dict[str, str]] = field(default_factory=list)
     std: dict[str, list[float]] = field(default_factory=dict)
+    residuals_px: dict[str, FloatArray] = field(default_factory=dict)
+    """Per used view, (N, 4): detected x, y and reprojection residual dx, dy (projected
+    minus detected), px."""
 
 
 @dataclass
@@ -90,6 +93,10 @@ def _camera_model(
 
 def _view_rms(model: CameraModel, p_um: FloatArray, q_px: FloatArray) -> float:
     return float(np.sqrt(np.mean(np.sum((model.project(p_um) - q_px) ** 2, axis=1))))
+
+
+def _residuals(projected_px: FloatArray, detected_px: FloatArray) -> FloatArray:
+    return np.hstack([detected_px, projected_px - detected_px])
 
 
 def _outliers(rms: dict[str, float]) -> dict[str, str]:
@@ -179,7 +186,14 @@ def _calibrate_one_known(
         ]
     )
     rms_all = float(np.sqrt(np.mean(np.sum(all_err**2, axis=1))))
-    return CameraCalibration(model, rms_all, rms_views, len(used), rejected, std)
+    residuals = {
+        image_names[i]: _residuals(
+            model.project(target.points_um()[detections[i].ids] + displacements_um[i]),
+            detections[i].q_px,
+        )
+        for i in used
+    }
+    return CameraCalibration(model, rms_all, rms_views, len(used), rejected, std, residuals)
 
 
 def _baseline(models: dict[str, CameraModel]) -> float:
@@ -293,6 +307,10 @@ def calibrate_unknown_poses(
             used = [i for i in used if image_names[name][i] not in bad]
         intr[name] = (K, dist)
         poses[name] = {i: (rvecs[k], tvecs[k]) for k, i in enumerate(used)}
+        residuals = {}
+        for k, i in enumerate(used):
+            projected, _ = cv2.projectPoints(obj[dets[i].ids], rvecs[k], tvecs[k], K, dist)
+            residuals[image_names[name][i]] = _residuals(projected.reshape(-1, 2), dets[i].q_px)
         sd = np.asarray(sd_in).ravel()
         cams[name] = CameraCalibration(
             CameraModel(np.eye(3), np.zeros(5), np.eye(3), np.zeros(3), image_size_px[name], name),
@@ -301,6 +319,7 @@ def calibrate_unknown_poses(
             len(used),
             rejected,
             {"fx_fy_cx_cy_px": sd[:4].tolist(), "k1_k2_p1_p2_k3": sd[4:9].tolist()},
+            residuals,
         )
     common = sorted(set(poses[names[0]]) & set(poses[names[1]]))
     if reference_view not in common:

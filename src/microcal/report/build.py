@@ -1,0 +1,271 @@
+"""Assemble the report: sections from the run's files, rendered with one jinja2 template."""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import jinja2
+import numpy as np
+
+from .._version import __version__
+from ..formats.atomic import write_text_atomic
+from ..thesis_figures import (
+    CLAIMED_ACCURACY_UM,
+    DECOUPLING_UM,
+    OMEGA_UM,
+    POSE_ACCURACY_UM,
+    REPROJECTION_ERROR_SIDE_PX,
+    REPROJECTION_ERROR_TOP_PX,
+    VALIDATION_UM,
+)
+from . import figures
+from .data import RunData, load_run
+
+__all__ = ["build_report", "write_report"]
+
+THESIS_REPROJECTION_PX = {"top": REPROJECTION_ERROR_TOP_PX, "side": REPROJECTION_ERROR_SIDE_PX}
+CONDITIONS = ("uncalibrated", "matrix", "optimal")
+
+
+def _stereo(data: RunData) -> dict[str, Any] | None:
+    if not data.cameras:
+        return None
+    cams = data.cameras.get("cameras", {})
+    rows, per_view, residuals, sizes = [], {}, {}, {}
+    for name, c in cams.items():
+        K = np.asarray(c["K"], dtype=float)
+        dist = list(c.get("dist", [0.0] * 5))
+        rows.append(
+            {
+                "name": name,
+                "rms_px": c.get("rms_px"),
+                "thesis_px": THESIS_REPROJECTION_PX.get(name),
+                "views_used": c.get("views_used"),
+                "rejected": c.get("views_rejected", []),
+                "fx": K[0, 0],
+                "fy": K[1, 1],
+                "cx": K[0, 2],
+                "cy": K[1, 2],
+                "k1": dist[0] if dist else 0.0,
+                "size": c.get("image_size_px"),
+            }
+        )
+        if c.get("per_view_rms_px"):
+            per_view[name] = c["per_view_rms_px"]
+        views = c.get("residuals_px") or {}
+        if views:
+            residuals[name] = np.vstack([np.asarray(v, dtype=float) for v in views.values()])
+            sizes[name] = c["image_size_px"]
+    stereo = data.cameras.get("stereo", {})
+    return {
+        "rows": rows,
+        "method": stereo.get("method", ""),
+        "baseline_um": stereo.get("baseline_um"),
+        "per_view": figures.per_view_rms(per_view) if per_view else None,
+        "residuals": figures.calibration_residuals(residuals) if residuals else None,
+        "coverage": figures.calibration_coverage(residuals, sizes) if residuals else None,
+    }
+
+
+def _acquisition(data: RunData) -> dict[str, Any] | None:
+    if data.commands_um is None and not data.journal:
+        return None
+    n_fit = None
+    for entry in data.calibration.manipulators.values() if data.calibration else []:
+        n_fit = entry.validation.get("n_fit")
+    settle = np.array([float(r["settle_s"]) for r in data.journal if "settle_s" in r])
+    failed = [
+        {"pose": r.get("pose"), "stage": "acquisition", "reason": r.get("reason", "")}
+        for r in data.journal
+        if r.get("status") != "ok"
+    ]
+    if data.measurements is not None:
+        failed += [
+            {"pose": pose, "stage": "measurement", "reason": reason}
+            for pose, reason in sorted(data.measurements.failed_reasons.items())
+            if not reason.startswith("acquisition failed")
+        ]
+    design = data.manifest.get("design", {})
+    return {
+        "n_commands": None if data.commands_um is None else len(data.commands_um),
+        "n_stored": sum(1 for r in data.journal if r.get("status") == "ok"),
+        "design": design,
+        "settle": data.manifest.get("settle"),
+        "frames": data.manifest.get("frames_per_pose"),
+        "mean_settle_s": float(settle.mean()) if settle.size else None,
+        "max_settle_s": float(settle.max()) if settle.size else None,
+        "design_figure": (
+            figures.command_design(data.commands_um, n_fit)
+            if data.commands_um is not None
+            else None
+        ),
+        "settle_figure": figures.settle_times(settle) if settle.size else None,
+        "failed": failed,
+    }
+
+
+def _measurement(data: RunData) -> dict[str, Any] | None:
+    m = data.measurements
+    if m is None:
+        return None
+    out: dict[str, Any] = {
+        "n_ok": len(m.pose),
+        "n_failed": m.n_failed,
+        "rms_error_um": data.results.get("measurement", {}).get("rms_error_um"),
+        "claimed_um": CLAIMED_ACCURACY_UM,
+    }
+    if m.std_um is not None:
+        out["median_std_um"] = np.median(m.std_um, axis=0).tolist()
+        out["figure"] = figures.measurement_uncertainty(m.std_um)
+    return out
+
+
+def _models(data: RunData) -> dict[str, Any] | None:
+    errors = data.model_errors()
+    if data.calibration is None:
+        return None
+    models = []
+    for e in errors:
+        axes = []
+        for i, axis in enumerate("xyz"):
+            axes.append({"axis": axis, "terms": e.model.axis_terms(i)})
+        v = e.validation
+        models.append(
+            {
+                "kind": e.kind,
+                "axes": axes,
+                "n_terms": int(np.sum(e.model.selected)),
+                "validation": v,
+                "recomputed": {
+                    "mean_um": float(np.mean(e.errors_um)),
+                    "max_um": float(np.max(e.errors_um)),
+                },
+                "thesis": VALIDATION_UM.get(e.kind),
+            }
+        )
+    if not models:  # no measurements beside the calibration: terms only
+        for entry in data.calibration.manipulators.values():
+            axes = [{"axis": a, "terms": entry.model.axis_terms(i)} for i, a in enumerate("xyz")]
+            models.append(
+                {
+                    "kind": entry.model.kind,
+                    "axes": axes,
+                    "n_terms": int(np.sum(entry.model.selected)),
+                    "validation": entry.validation,
+                    "recomputed": None,
+                    "thesis": VALIDATION_UM.get(entry.model.kind),
+                }
+            )
+    figure = (
+        figures.prediction_errors({e.kind: (e.poses, e.errors_um) for e in errors})
+        if errors
+        else None
+    )
+    return {"models": models, "figure": figure}
+
+
+def _pose_accuracy(data: RunData) -> dict[str, Any] | None:
+    pa = data.results.get("pose_accuracy")
+    if not pa:
+        return None
+    sources = [s for s in ("vision", "truth") if s in pa]
+    tables = []
+    for source in sources:
+        for name in CONDITIONS:
+            if name in pa[source]:
+                tables.append({"source": source, "condition": name, **pa[source][name]})
+    return {"sources": sources, "tables": tables, "thesis": POSE_ACCURACY_UM}
+
+
+def _decoupling(data: RunData) -> dict[str, Any] | None:
+    dc = data.results.get("decoupling")
+    if not dc:
+        return None
+    sources = [s for s in ("vision", "truth") if s in dc]
+    plots = []
+    for name in CONDITIONS:
+        runs = {
+            source: (
+                np.asarray(dc[source][name]["samples_um"], dtype=float),
+                np.asarray(dc[source][name]["segment"], dtype=int),
+            )
+            for source in sources
+            if dc[source].get(name, {}).get("samples_um")
+        }
+        if runs:
+            plots.append({"condition": name, "figure": figures.decoupling(name, runs)})
+    return {
+        "sources": sources,
+        "plots": plots,
+        "thesis_ranges": DECOUPLING_UM,
+        "thesis_omega": OMEGA_UM,
+    }
+
+
+def _provenance(data: RunData) -> list[tuple[str, Any]]:
+    rows: list[tuple[str, Any]] = [("run directory", str(data.run_dir))]
+    for label, prov in (
+        ("run", data.manifest.get("provenance")),
+        ("cameras", (data.cameras or {}).get("provenance")),
+        ("calibration", data.calibration.provenance if data.calibration else None),
+        ("results", data.results.get("provenance")),
+    ):
+        for key, value in (prov or {}).items():
+            rows.append((f"{label}: {key}", value))
+    if data.manifest.get("rig"):
+        rows.append(("rig", data.manifest["rig"]))
+    return rows
+
+
+def build_report(run_dir: str | os.PathLike[str]) -> str:
+    """The report of a run directory as one self-contained HTML page.
+
+    Sections whose files are missing say so instead of failing, so a report can be made at
+    any stage of a calibration (after ``acquire``, after ``fit``, after ``evaluate``).
+    """
+    data = load_run(run_dir)
+    context = {
+        "title": f"microcal calibration report: {Path(run_dir).resolve().name}",
+        "version": __version__,
+        "generated": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "results": data.results,
+        "stereo": _stereo(data),
+        "acquisition": _acquisition(data),
+        "measurement": _measurement(data),
+        "models": _models(data),
+        "pose_accuracy": _pose_accuracy(data),
+        "decoupling": _decoupling(data),
+        "provenance": _provenance(data),
+        "thesis": {
+            "reprojection": THESIS_REPROJECTION_PX,
+            "validation": VALIDATION_UM,
+            "pose_accuracy": POSE_ACCURACY_UM,
+            "claimed_um": CLAIMED_ACCURACY_UM,
+        },
+    }
+    text = resources.files(__package__).joinpath("report.html.j2").read_text(encoding="utf-8")
+    env = jinja2.Environment(autoescape=True, undefined=jinja2.StrictUndefined)
+    env.filters["f"] = _fmt
+    return env.from_string(text).render(**context)
+
+
+def _fmt(value: Any, digits: int = 2) -> str:
+    if value is None:
+        return "-"
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        return str(value)
+    return "-" if not np.isfinite(x) else f"{x:.{digits}f}"
+
+
+def write_report(
+    run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | None = None
+) -> Path:
+    """Build the report and write it atomically (default: ``RUN_DIR/report.html``)."""
+    path = Path(out) if out is not None else Path(run_dir) / "report.html"
+    return write_text_atomic(path, build_report(run_dir))

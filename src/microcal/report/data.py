@@ -1,0 +1,135 @@
+"""What a report is built from: the files of one run directory, each optional."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._validation import FloatArray
+from ..errors import InputError
+from ..formats.calibration_file import Calibration, load_calibration
+from ..formats.json_file import read_versioned_json
+from ..formats.measurements import Measurements, read_measurements
+from ..formats.results_file import load_results
+from ..formats.run_directory import read_commands, read_journal, read_manifest
+from ..kinematics.models import KinematicModel
+
+__all__ = ["ModelErrors", "RunData", "load_run"]
+
+#: The files a report reads, in the order a run produces them.
+RUN_FILES = (
+    "run.json",
+    "commands.csv",
+    "journal.jsonl",
+    "measurements.csv",
+    "cameras.json",
+    "calibration.json",
+    "results.json",
+)
+
+
+@dataclass
+class ModelErrors:
+    """Prediction errors of one model on the poses it was not fitted to (Eq 5.1)."""
+
+    kind: str
+    model: KinematicModel
+    validation: dict[str, Any]
+    poses: np.ndarray  # (n_validate,) int: the validation poses
+    errors_um: FloatArray  # (n_validate,)
+
+
+@dataclass
+class RunData:
+    """The parts of a run directory that exist; None or empty for what is missing."""
+
+    run_dir: Path
+    manifest: dict[str, Any] = field(default_factory=dict)
+    commands_um: FloatArray | None = None  # (N, 3)
+    journal: list[dict[str, Any]] = field(default_factory=list)
+    measurements: Measurements | None = None
+    cameras: dict[str, Any] | None = None
+    calibration: Calibration | None = None
+    results: dict[str, Any] = field(default_factory=dict)
+
+    def model_errors(self) -> list[ModelErrors]:
+        """Per identified model, its errors on the validation poses (recomputed from the files).
+
+        The split is the one recorded in the model's validation object: the first ``n_fit``
+        usable poses fitted, the rest validate.
+        """
+        if self.calibration is None or self.measurements is None:
+            return []
+        out = []
+        m = self.measurements
+        for entry in self.calibration.manipulators.values():
+            models = [(entry.model.kind, entry.model, entry.validation)]
+            matrix = entry.extra.get("matrix_model")
+            if matrix is not None and entry.model.kind != "matrix":
+                models.insert(
+                    0,
+                    (
+                        "matrix",
+                        KinematicModel.from_dict(matrix),
+                        dict(entry.extra.get("matrix_validation", {})),
+                    ),
+                )
+            for kind, model, validation in models:
+                n_fit = int(validation.get("n_fit", 0))
+                if not 0 < n_fit < len(m.pose):
+                    continue
+                u = m.d_um
+                if len(model.inputs) > 3:
+                    if m.temperature_c is None:
+                        continue
+                    u = np.hstack([u, m.temperature_c[:, None]])
+                err = np.linalg.norm(m.p_um[n_fit:] - model.predict_um(u[n_fit:]), axis=1)
+                out.append(ModelErrors(kind, model, validation, m.pose[n_fit:], err))
+        return out
+
+
+def _cameras(path: Path) -> dict[str, Any] | None:
+    if not path.exists():
+        return None
+    return read_versioned_json(path, ("microcal.cameras/1",))
+
+
+def load_run(run_dir: str | os.PathLike[str]) -> RunData:
+    """Read every report input that a run directory holds.
+
+    Raises
+    ------
+    InputError
+        The directory does not exist or holds none of the run's files.
+    FormatError
+        A file that exists but cannot be read (its message names the file).
+    """
+    root = Path(run_dir)
+    if not root.is_dir():
+        raise InputError(f"{root}: not a directory (expected a run directory)")
+    present = [name for name in RUN_FILES if (root / name).exists()]
+    if not present:
+        raise InputError(
+            f"{root}: holds none of {', '.join(RUN_FILES)}; is this a microcal run directory?"
+        )
+    data = RunData(root)
+    if (root / "run.json").exists():
+        data.manifest = dict(read_manifest(root))
+    if (root / "commands.csv").exists():
+        data.commands_um = read_commands(root)[1]
+    if (root / "journal.jsonl").exists():
+        data.journal = read_journal(root)
+    if (root / "measurements.csv").exists():
+        data.measurements = read_measurements(root / "measurements.csv")
+    data.cameras = _cameras(root / "cameras.json")
+    if (root / "calibration.json").exists():
+        data.calibration = load_calibration(root / "calibration.json")
+        if data.cameras is None and data.calibration.cameras:
+            data.cameras = {"cameras": data.calibration.cameras}
+    if (root / "results.json").exists():
+        data.results = load_results(root / "results.json")
+    return data

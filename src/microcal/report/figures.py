@@ -1,0 +1,225 @@
+"""The report's figures, drawn with matplotlib and returned as PNG data URIs.
+
+Each function takes plain arrays and returns a ``data:image/png;base64,...`` string, so the
+HTML stays one self-contained file. Figures use matplotlib's object interface (no pyplot
+state), so building a report touches no global settings.
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from .._validation import FloatArray
+
+__all__ = [
+    "calibration_coverage",
+    "calibration_residuals",
+    "command_design",
+    "decoupling",
+    "measurement_uncertainty",
+    "per_view_rms",
+    "prediction_errors",
+    "settle_times",
+]
+
+DPI = 90
+AXES = "xyz"
+CONDITION_COLOURS = {"uncalibrated": "tab:red", "matrix": "tab:blue", "optimal": "tab:green"}
+
+
+def _uri(fig: Figure) -> str:
+    FigureCanvasAgg(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI)
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def per_view_rms(per_view_px: Mapping[str, Mapping[str, float]]) -> str:
+    """Bar chart of the reprojection RMS of every view, one panel per camera.
+
+    Parameters
+    ----------
+    per_view_px : {camera: {view: rms px}}
+    """
+    fig = Figure(figsize=(4.2 * len(per_view_px), 3.0), layout="constrained")
+    for k, (cam, views) in enumerate(per_view_px.items()):
+        ax = fig.add_subplot(1, len(per_view_px), k + 1)
+        ax.bar(range(len(views)), list(views.values()), color="tab:blue")
+        ax.set_xticks(range(len(views)), list(views), rotation=60, fontsize=7)
+        ax.set_ylabel("RMS, px")
+        ax.set_title(f"{cam}: reprojection error per view")
+    return _uri(fig)
+
+
+def calibration_residuals(residuals_px: Mapping[str, FloatArray]) -> str:
+    """Scatter of the reprojection residuals (dx, dy) of all views, one panel per camera.
+
+    Parameters
+    ----------
+    residuals_px : {camera: (N, 4) float}
+        Detected x, y and residual dx, dy of every target point used.
+    """
+    fig = Figure(figsize=(3.6 * len(residuals_px), 3.4), layout="constrained")
+    for k, (cam, r) in enumerate(residuals_px.items()):
+        ax = fig.add_subplot(1, len(residuals_px), k + 1)
+        ax.scatter(r[:, 2], r[:, 3], s=2, alpha=0.4, color="tab:blue", linewidths=0)
+        lim = max(float(np.abs(r[:, 2:]).max()) * 1.05, 1e-3) if len(r) else 1.0
+        ax.set_xlim(-lim, lim)
+        ax.set_ylim(-lim, lim)
+        ax.set_aspect("equal")
+        ax.axhline(0, color="grey", lw=0.5)
+        ax.axvline(0, color="grey", lw=0.5)
+        ax.set_xlabel("dx, px")
+        ax.set_ylabel("dy, px")
+        ax.set_title(f"{cam}: residuals ({len(r)} points)")
+    return _uri(fig)
+
+
+def calibration_coverage(
+    residuals_px: Mapping[str, FloatArray], image_size_px: Mapping[str, Sequence[int]]
+) -> str:
+    """Where in each image the target points lay: coverage of the sensor by the calibration.
+
+    Parameters
+    ----------
+    residuals_px : {camera: (N, 4) float}
+    image_size_px : {camera: (width, height)}
+    """
+    fig = Figure(figsize=(4.0 * len(residuals_px), 3.3), layout="constrained")
+    for k, (cam, r) in enumerate(residuals_px.items()):
+        w, h = image_size_px[cam]
+        ax = fig.add_subplot(1, len(residuals_px), k + 1)
+        ax.scatter(r[:, 0], r[:, 1], s=1, color="tab:blue", linewidths=0)
+        ax.set_xlim(0, w)
+        ax.set_ylim(h, 0)
+        ax.set_aspect("equal")
+        ax.set_xlabel("u, px")
+        ax.set_ylabel("v, px")
+        ax.set_title(f"{cam}: target points over the {w} x {h} image", fontsize=9)
+    return _uri(fig)
+
+
+def command_design(d_um: FloatArray, n_fit: int | None) -> str:
+    """The joint commands in joint space (thesis Fig 4.2), fitting and validation poses apart.
+
+    Parameters
+    ----------
+    d_um : (N, 3) float
+    n_fit : int, optional
+        The first ``n_fit`` poses fit the model; the rest validate.
+    """
+    fig = Figure(figsize=(9.5, 3.6), layout="constrained")
+    ax = fig.add_subplot(1, 3, 1, projection="3d")
+    n = len(d_um) if n_fit is None else n_fit
+    ax.scatter(*d_um[:n].T, s=6, color="tab:blue", label="fit")
+    if n < len(d_um):
+        ax.scatter(*d_um[n:].T, s=6, color="tab:orange", label="validate")
+    ax.set_xlabel("dx, µm")
+    ax.set_ylabel("dy, µm")
+    ax.set_zlabel("dz, µm")
+    ax.legend(fontsize=7)
+    for k, (i, j) in enumerate(((0, 1), (0, 2))):
+        ax2 = fig.add_subplot(1, 3, k + 2)
+        ax2.scatter(d_um[:n, i], d_um[:n, j], s=5, color="tab:blue")
+        ax2.scatter(d_um[n:, i], d_um[n:, j], s=5, color="tab:orange")
+        ax2.set_xlabel(f"d{AXES[i]}, µm")
+        ax2.set_ylabel(f"d{AXES[j]}, µm")
+    return _uri(fig)
+
+
+def measurement_uncertainty(std_um: FloatArray) -> str:
+    """Histograms of the reported standard deviation of every measured pose, per axis.
+
+    Parameters
+    ----------
+    std_um : (N, 3) float
+    """
+    fig = Figure(figsize=(9.0, 2.8), layout="constrained")
+    for k in range(3):
+        ax = fig.add_subplot(1, 3, k + 1)
+        ax.hist(std_um[:, k], bins=25, color="tab:blue")
+        ax.set_xlabel(f"std {AXES[k]}, µm")
+        ax.set_ylabel("poses")
+    return _uri(fig)
+
+
+def settle_times(settle_s: FloatArray) -> str:
+    """Histogram of the settle time of every pose (after the device reported stopped).
+
+    Parameters
+    ----------
+    settle_s : (N,) float
+    """
+    fig = Figure(figsize=(4.5, 2.8), layout="constrained")
+    ax = fig.add_subplot(1, 1, 1)
+    ax.hist(settle_s, bins=25, color="tab:blue")
+    ax.set_xlabel("settle, s")
+    ax.set_ylabel("poses")
+    return _uri(fig)
+
+
+def prediction_errors(errors: Mapping[str, tuple[np.ndarray, FloatArray]]) -> str:
+    """Eq 5.1 error of each model at every validation pose (thesis Figs 5.3 and 5.4).
+
+    Parameters
+    ----------
+    errors : {model kind: ((n,) int poses, (n,) float errors µm)}
+    """
+    fig = Figure(figsize=(9.0, 3.2), layout="constrained")
+    ax = fig.add_subplot(1, 1, 1)
+    colours = {"matrix": "tab:blue", "polynomial": "tab:green"}
+    for kind, (poses, err) in errors.items():
+        colour = colours.get(kind, "tab:grey")
+        ax.plot(poses, err, "o-", ms=3, lw=0.8, color=colour, label=f"{kind}")
+        ax.axhline(float(np.mean(err)), color=colour, ls="--", lw=0.8)
+    ax.set_xlabel("validation pose")
+    ax.set_ylabel("prediction error, µm")
+    ax.legend(fontsize=8)
+    return _uri(fig)
+
+
+def decoupling(condition: str, runs: Mapping[str, tuple[FloatArray, np.ndarray]]) -> str:
+    """Undesired displacement along each segment of the decoupling path (Figs 5.6 to 5.8).
+
+    Parameters
+    ----------
+    condition : str
+        Uncalibrated, matrix or optimal (for the title).
+    runs : {source: ((N, 3) float, (N,) int)}
+        Per source ("vision", "truth"): the positions along the path, µm, and the axis moving
+        at each sample. The first source is drawn solid, the others dashed.
+    """
+    fig = Figure(figsize=(9.5, 2.9), layout="constrained")
+    colours = {0: "tab:red", 1: "tab:blue", 2: "tab:green"}
+    for moving in range(3):
+        ax = fig.add_subplot(1, 3, moving + 1)
+        for k, (source, (samples_um, segment)) in enumerate(runs.items()):
+            idx = np.flatnonzero(segment == moving)
+            if not idx.size:
+                continue
+            p = samples_um[idx]
+            travel = p[:, moving] - p[0, moving]
+            for axis in range(3):
+                if axis != moving:
+                    ax.plot(
+                        travel,
+                        p[:, axis] - p[0, axis],
+                        "o-" if k == 0 else "--",
+                        ms=2.5,
+                        lw=0.8,
+                        color=colours[axis],
+                        label=f"{AXES[axis]} ({source})",
+                    )
+        ax.axhline(0, color="grey", lw=0.5)
+        ax.set_xlabel(f"{AXES[moving]} travel, µm")
+        ax.set_ylabel("undesired, µm")
+        ax.set_title(f"moving {AXES[moving]}", fontsize=9)
+        ax.legend(fontsize=7, loc="upper left")
+    fig.suptitle(f"decoupling, {condition}", fontsize=10)
+    return _uri(fig)
