@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -30,3 +31,98 @@ def run_microcal(*args: object, cwd=None) -> subprocess.CompletedProcess[str]:
     """Run ``python -m microcal ARGS`` as a user would: no standard input, output captured."""
     return subprocess.run([sys.executable, "-m", "microcal", *map(str, args)], capture_output=True,
                           text=True, check=False, stdin=subprocess.DEVNULL, cwd=cwd)  # fmt: skip
+
+
+@pytest.fixture
+def netns():
+    """The test runs in its own network namespace with only loopback (see tests/netns.py)."""
+    from netns import own_network_namespace, unavailable_reason
+
+    reason = unavailable_reason()
+    if reason:
+        pytest.skip(reason)
+    with own_network_namespace():
+        yield
+
+
+@pytest.fixture
+def fake_mcs2(netns):
+    """A fake MCS2 controller on 127.0.0.1:55551 inside the test's network namespace."""
+    from fake_mcs2 import FakeMCS2
+
+    with FakeMCS2(port=55551) as fake:
+        yield fake
+
+
+ARV_FAKE = "arv-fake-gv-camera-0.8"
+
+
+def _udp_port_bound(address: str, port: int) -> bool:
+    import socket
+
+    hexaddr = socket.inet_aton(address)[::-1].hex().upper()
+    with open("/proc/net/udp", encoding="ascii") as fh:
+        return any(f"{hexaddr}:{port:04X}" in line for line in fh)
+
+
+@pytest.fixture
+def gige_cameras(netns):
+    """Start GigE Vision peers on loopback: ``start("127.0.0.1")`` runs Debian's fake camera
+    (arv-fake-gv-camera-0.8), ``start("127.0.0.2", viva=(w, h))`` an in-process viva-genicam
+    fake of that size. Everything started is stopped, by PID, at the end."""
+    import shutil
+    import time
+
+    from microcal.devices.aravis_camera import aravis_available
+
+    if shutil.which(ARV_FAKE) is None:
+        pytest.skip(f"needs {ARV_FAKE} (Debian package aravis-tools; .ci/run installs it)")
+    reason = aravis_available()
+    if reason:
+        pytest.skip(reason)
+    procs: list[subprocess.Popen[bytes]] = []
+
+    def start(address: str, serial: str = "MICROCAL01", viva: tuple[int, int] | None = None):
+        if viva is not None:
+            pytest.importorskip(
+                "viva_genicam.testing", reason="needs viva-genicam (pip install viva-genicam)"
+            )
+            peer = Path(__file__).with_name("viva_peer.py")
+            proc = subprocess.Popen([sys.executable, str(peer), str(viva[0]), str(viva[1]), address],
+                                    stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)  # fmt: skip
+            procs.append(proc)
+            assert proc.stdout is not None
+            if proc.stdout.readline().strip() != b"ready":
+                pytest.fail(f"viva-genicam fake camera did not start on {address}")
+            return proc
+        proc = subprocess.Popen([ARV_FAKE, "-i", address, "-s", serial], stdin=subprocess.DEVNULL,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+        procs.append(proc)
+        deadline = time.monotonic() + 5.0
+        while not _udp_port_bound(address, 3956):
+            if time.monotonic() > deadline or proc.poll() is not None:
+                pytest.fail(f"{ARV_FAKE} did not start on {address}:3956")
+            time.sleep(0.02)
+        return proc
+
+    yield start
+    for proc in procs:
+        proc.send_signal(18)  # SIGCONT, in case a test paused it
+        proc.terminate()
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=5)
+
+
+@pytest.fixture
+def mm_core():
+    """A Micro-Manager core (pymmcore-plus UniMMCore) with the pure-Python devices of
+    tests/mm_devices.py."""
+    pytest.importorskip("pymmcore_plus", reason="needs pymmcore-plus (pip install 'microcal[mm]')")
+    from microcal.devices.micromanager import open_core
+
+    core = open_core(python_devices="mm_devices:load")
+    yield core
+    core.unloadAllDevices()

@@ -28,6 +28,7 @@ LAYERS = {
     "procedures": 4,
     "formats": 5,
     "cli": 5,
+    "rigs": 5,
     "report": 5,
     "__main__": 5,
 }

@@ -1022,25 +1022,28 @@ def acquire(
     store: Annotated[
         str, typer.Option(help="'full' frames, or 'roi': only the region around the board.")
     ] = "full",
+    dry_run: Annotated[
+        bool,
+        typer.Option(
+            "--dry-run",
+            help="Check the connections, one frame per camera and the design against the "
+            "limits; move nothing and write nothing.",
+        ),
+    ] = False,
 ) -> None:
     """Drive the manipulator through a design and store images of every pose.
 
     Example: microcal acquire --rig sim --design random --poses 170 --out runs/a
+    (first: microcal acquire --rig myrig.toml --out runs/a --dry-run)
     """
-    import signal
-    import sys as _sys
-
-    from .designs import DESIGNS, check_design, make_design
-    from .formats.calibration_file import provenance
     from .formats.rig_file import load_rig
-    from .formats.run_directory import RunWriter, read_commands
-    from .kinematics.compensators import check_limits
-    from .procedures.acquisition import AcquisitionConfig, RunStoppedError
-    from .procedures.acquisition import acquire as run_acquisition
-    from .sim import platform
-    from .synthetic import THESIS_WORKSPACE_MAX_UM, THESIS_WORKSPACE_MIN_UM
+    from .rigs import open_rig
 
-    if not resume and ((out / "run.json").exists() or (out / "journal.jsonl").exists()):
+    if (
+        not resume
+        and not dry_run
+        and ((out / "run.json").exists() or (out / "journal.jsonl").exists())
+    ):
         raise InputError(
             f"{out}: already holds a run; use --resume to continue it or choose another --out"
         )
@@ -1048,8 +1051,76 @@ def acquire(
     settle_mode, fixed_s = _parse_settle(settle)
     if store not in ("full", "roi"):
         raise InputError(f"--store: expected 'full' or 'roi', got {store!r}")
-    plat = platform(rig_spec["preset"], seed=rig_spec["seed"], overrides=rig_spec["overrides"])
-    board = plat.scene.board
+    if resume and not (out / "run.json").exists():
+        raise InputError(f"{out}: no run to resume (no run.json); start it without --resume")
+    if resume and dry_run:
+        raise InputError("--dry-run and --resume: choose one")
+    with open_rig(rig_spec) as opened:
+        _acquire_on(opened, rig, rig_spec, out, design, poses, seed, resume, settle, settle_mode,
+                    fixed_s, frames, store, dry_run)  # fmt: skip
+
+
+def _dry_run(opened: Any, d: FloatArray, design: str) -> None:
+    from .vision.detect import detect
+
+    for what, text in opened.description.items():
+        print(f"{what}: {text}")
+    m = opened.manipulator
+    p = m.position_um()
+    print(
+        f"manipulator at {', '.join(f'{a} {v:.3f}' for a, v in zip(m.axes, p, strict=True))} µm, "
+        f"{'moving' if m.is_moving() else 'still'}; limits "
+        + ", ".join(
+            f"{a} [{lo:g}, {hi:g}]" for a, (lo, hi) in zip(m.axes, m.limits_um, strict=True)
+        )
+        + " µm"
+    )
+    for name, cam in opened.cameras.items():
+        frame = cam.grab()
+        h, w = frame.shape[:2]
+        if (w, h) != tuple(cam.sensor_size_px):
+            raise InputError(
+                f"camera {name}: frame is {w} x {h} px but the camera reports "
+                f"{cam.sensor_size_px[0]} x {cam.sensor_size_px[1]}"
+            )
+        found = detect(frame, opened.board)
+        board = "board found" if found.found else f"board not found ({found.reason})"
+        print(
+            f"camera {name}: {w} x {h} px, {frame.dtype}, mean {float(frame.mean()):.1f}; {board}"
+        )
+    print(f"design {design}: {len(d)} poses, all within the soft limits")
+    print("dry run: nothing moved, nothing written")
+
+
+def _acquire_on(
+    opened: Any,
+    rig: str,
+    rig_spec: dict[str, Any],
+    out: Path,
+    design: str,
+    poses: int,
+    seed: int,
+    resume: bool,
+    settle: str,
+    settle_mode: str,
+    fixed_s: float,
+    frames: int,
+    store: str,
+    dry_run: bool,
+) -> None:
+    import signal
+    import sys as _sys
+
+    from .designs import DESIGNS, check_design, make_design
+    from .formats.calibration_file import provenance
+    from .formats.run_directory import RunWriter, read_commands
+    from .kinematics.compensators import check_limits
+    from .procedures.acquisition import AcquisitionConfig, RunStoppedError
+    from .procedures.acquisition import acquire as run_acquisition
+    from .synthetic import THESIS_WORKSPACE_MAX_UM, THESIS_WORKSPACE_MIN_UM
+
+    board = opened.board
+    manipulator = opened.manipulator
     if resume:
         writer = RunWriter.resume(out, rig_spec)
         pose_ids, d = read_commands(out)
@@ -1062,13 +1133,16 @@ def acquire(
         else:
             d = _read_command_file(Path(design))
         if design in trajectories:  # for evaluation: only the limits matter
-            check_limits(d, plat.manipulator.limits_um)
+            check_limits(d, manipulator.limits_um)
         else:
-            check_design(d, plat.manipulator.limits_um)
+            check_design(d, manipulator.limits_um)
+        if dry_run:
+            _dry_run(opened, d, design)
+            return
         manifest = {
             "rig": rig_spec,
             "target": board.spec,
-            "cameras": list(plat.cameras),
+            "cameras": list(opened.cameras),
             "design": {
                 "kind": design if design in DESIGNS or design in trajectories else "file",
                 "poses": len(d),
@@ -1119,16 +1193,16 @@ def acquire(
     try:
         with bar:
             run_acquisition(
-                plat.manipulator,
-                plat.cameras,
-                plat.clock,
+                manipulator,
+                opened.cameras,
+                opened.clock,
                 d,
                 todo,
                 board,
                 writer.store,
                 config=config,
                 should_stop=lambda: stop["requested"],
-                temperature=lambda: plat.manipulator.temperature_at(plat.clock.now_s()),
+                temperature=opened.temperature,
                 progress=progress,
             )
     except RunStoppedError as exc:

@@ -163,7 +163,11 @@ class Camera(abc.ABC):
     def exposure_s(self, value: float) -> None:
         if not value > 0:
             raise InputError(f"exposure_s: expected > 0, got {value}")
+        self._apply_exposure(float(value))
         self._exposure_s = float(value)
+
+    def _apply_exposure(self, exposure_s: float) -> None:  # noqa: B027 (an optional hook)
+        """Send a new exposure to the device (drivers override; nothing by default)."""
 
     @property
     def dtype(self) -> type[np.unsignedinteger]:

@@ -1,0 +1,160 @@
+"""Micro-Manager devices as microcal devices: ``pip install 'microcal[mm]'`` (pymmcore-plus).
+
+Any XY stage plus focus (Z) stage and any camera that a Micro-Manager configuration provides
+(SmarAct, Sutter, Scientifica, Sensapex, Basler, ... through their adapters) become a
+:class:`~microcal.devices.base.Manipulator` and :class:`~microcal.devices.base.Camera`. The
+core is either loaded from a configuration file (``.cfg``, Micro-Manager's C++ adapters) or
+given pure-Python devices (pymmcore-plus's ``UniMMCore``) by a function of your own.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .._validation import FloatArray
+from ..errors import DeviceError, DeviceTimeoutError, InputError
+from .base import Camera, Manipulator
+
+__all__ = ["MMCamera", "MMManipulator", "mm_available", "open_core"]
+
+
+def mm_available() -> str | None:
+    """None when pymmcore-plus can be imported, else the reason."""
+    try:
+        import pymmcore_plus  # noqa: F401
+    except ImportError as exc:
+        return f"Micro-Manager needs pymmcore-plus ({exc}); install: pip install 'microcal[mm]'"
+    return None
+
+
+def open_core(config: str | None = None, python_devices: str | None = None) -> Any:
+    """A Micro-Manager core with its devices loaded and initialised.
+
+    Parameters
+    ----------
+    config : str, optional
+        A Micro-Manager configuration file (C++ device adapters).
+    python_devices : str, optional
+        ``"module:function"``: ``function(core)`` loads pure-Python devices into a
+        ``UniMMCore`` (``core.loadPyDevice(label, device)``).
+    """
+    reason = mm_available()
+    if reason:
+        raise DeviceError(reason)
+    if (config is None) == (python_devices is None):
+        raise InputError("micromanager: give exactly one of 'config' or 'python_devices'")
+    try:
+        if config is not None:
+            from pymmcore_plus import CMMCorePlus
+
+            core: Any = CMMCorePlus()
+            core.loadSystemConfiguration(config)
+            return core
+        from pymmcore_plus.experimental.unicore import UniMMCore
+
+        module_name, _, func_name = str(python_devices).partition(":")
+        try:
+            loader = getattr(importlib.import_module(module_name), func_name)
+        except (ImportError, AttributeError) as exc:
+            raise InputError(
+                f"python_devices: cannot load {python_devices!r} ({exc}); "
+                f"expected 'module:function'"
+            ) from None
+        core = UniMMCore()
+        loader(core)
+        core.initializeAllDevices()
+        return core
+    except (RuntimeError, OSError) as exc:
+        raise DeviceError(f"micromanager: cannot load the devices ({exc})") from None
+
+
+class MMManipulator(Manipulator):
+    """An XY stage and a focus stage of a Micro-Manager core as one 3-axis manipulator."""
+
+    def __init__(
+        self, core: Any, *, xy_stage: str, focus: str, limits_um: ArrayLike, name: str = "mm"
+    ) -> None:
+        super().__init__(name, ("x", "y", "z"), limits_um)
+        self.core, self.xy_stage, self.focus = core, xy_stage, focus
+        loaded = set(core.getLoadedDevices())
+        missing = [d for d in (xy_stage, focus) if d not in loaded]
+        if missing:
+            raise DeviceError(
+                f"{name}: device(s) {missing} not in the Micro-Manager configuration "
+                f"(loaded: {sorted(loaded)})"
+            )
+
+    def _call(self, what: str, fn: Any, *args: Any) -> Any:
+        try:
+            return fn(*args)
+        except RuntimeError as exc:
+            text = str(exc)
+            kind = DeviceTimeoutError if "timeout" in text.lower() else DeviceError
+            raise kind(f"{self.name}: {what}: {text}") from None
+
+    def _move(self, d_um: FloatArray) -> None:
+        x, y, z = (float(v) for v in d_um)
+        self._call("XY move", self.core.setXYPosition, self.xy_stage, x, y)
+        self._call("Z move", self.core.setPosition, self.focus, z)
+
+    def position_um(self) -> FloatArray:
+        xy = self._call("XY position", self.core.getXYPosition, self.xy_stage)
+        z = self._call("Z position", self.core.getPosition, self.focus)
+        return np.array([float(xy[0]), float(xy[1]), float(z)])
+
+    def is_moving(self) -> bool:
+        busy_xy = self._call("XY state", self.core.deviceBusy, self.xy_stage)
+        busy_z = self._call("Z state", self.core.deviceBusy, self.focus)
+        return bool(busy_xy or busy_z)
+
+    def stop(self) -> None:
+        self._call("XY stop", self.core.stop, self.xy_stage)
+        self._call("Z stop", self.core.stop, self.focus)
+
+
+class MMCamera(Camera):
+    """A camera of a Micro-Manager core; each grab is one ``snapImage``."""
+
+    def __init__(
+        self,
+        core: Any,
+        device: str,
+        *,
+        name: str,
+        exposure_s: float | None = None,
+        pixel_size_um: float = 3.45,
+    ) -> None:
+        self.core, self.device = core, device
+        if device not in set(core.getLoadedDevices()):
+            raise DeviceError(f"{name}: camera {device!r} not in the Micro-Manager configuration")
+        try:
+            core.setCameraDevice(device)
+            if exposure_s is not None:
+                core.setExposure(device, exposure_s * 1e3)
+            size = (int(core.getImageWidth()), int(core.getImageHeight()))
+            bits = int(core.getImageBitDepth())
+            exposure = float(core.getExposure(device)) / 1e3
+        except RuntimeError as exc:
+            raise DeviceError(f"{name}: cannot set up camera {device!r} ({exc})") from None
+        super().__init__(name, size, pixel_size_um, bits, exposure)
+
+    def _apply_exposure(self, exposure_s: float) -> None:
+        try:
+            self.core.setExposure(self.device, exposure_s * 1e3)
+        except RuntimeError as exc:
+            raise DeviceError(f"{self.name}: exposure not accepted ({exc})") from None
+
+    def grab(self) -> NDArray[np.unsignedinteger]:
+        try:
+            self.core.setCameraDevice(self.device)
+            self.core.snapImage()
+            image = np.asarray(self.core.getImage())
+        except RuntimeError as exc:
+            kind = DeviceTimeoutError if "timeout" in str(exc).lower() else DeviceError
+            raise kind(f"{self.name}: no frame ({exc})") from None
+        frame: NDArray[np.unsignedinteger] = image.astype(self.dtype, copy=True)
+        return frame
