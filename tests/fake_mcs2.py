@@ -47,6 +47,7 @@ class Faults:
     drop_after_move: int = 0  # close the connection after this many more MOVE commands (0: never)
     delay_s: float = 0.0  # wait this long before every answer
     fail_move_channel: int | None = None  # the next move of this channel fails
+    fail_after_moves: int = 0  # the move command this many commands from now fails (0: none)
     refuse_with: tuple[int, str] | None = None  # the next command is refused with this error
     silent: bool = False  # answer nothing at all
 
@@ -191,7 +192,11 @@ class FakeMCS2:
             ch.target_pm = float(int(value))
             ch.failed = False
             ch.fail_at_s = None
-            if self.faults.fail_move_channel == int(head):
+            countdown_hit = False
+            if self.faults.fail_after_moves:
+                self.faults.fail_after_moves -= 1
+                countdown_hit = self.faults.fail_after_moves == 0
+            if self.faults.fail_move_channel == int(head) or countdown_hit:
                 # blocked 40 % of the way
                 ch.fail_at_s = t + 0.4 * abs(ch.target_pm - ch.start_pm) / ch.speed_pm_s
                 self.faults.fail_move_channel = None

@@ -8,6 +8,8 @@ Backends whose peer or library is missing here are skipped with the reason.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 import pytest
 
@@ -20,29 +22,28 @@ LIMITS = [[0.0, 8000.0], [0.0, 8000.0], [0.0, 4800.0]]
 
 
 @pytest.fixture(params=["sim", "smaract-mcs2", "micromanager"])
-def manipulator(request) -> tuple[Manipulator, Clock]:
+def manipulator(request) -> Iterator[tuple[Manipulator, Clock]]:
     if request.param == "sim":
         plat = platform("thesis", seed=0)
-        return plat.manipulator, plat.clock
-    if request.param == "smaract-mcs2":
+        yield plat.manipulator, plat.clock
+    elif request.param == "smaract-mcs2":
         from microcal.devices.smaract_mcs2 import MCS2Manipulator
 
         request.getfixturevalue("fake_mcs2")
-        m = MCS2Manipulator("127.0.0.1", {"x": 0, "y": 1, "z": 2}, LIMITS, timeout_s=0.5)
-        m.connect()
-        request.addfinalizer(m.close)
-        return m, RealClock()
-    from microcal.devices.micromanager import MMManipulator
+        with MCS2Manipulator("127.0.0.1", {"x": 0, "y": 1, "z": 2}, LIMITS, timeout_s=0.5) as m:
+            yield m, RealClock()
+    else:
+        from microcal.devices.micromanager import MMManipulator
 
-    core = request.getfixturevalue("mm_core")
-    return MMManipulator(core, xy_stage="XY", focus="Z", limits_um=LIMITS), RealClock()
+        core = request.getfixturevalue("mm_core")
+        yield MMManipulator(core, xy_stage="XY", focus="Z", limits_um=LIMITS), RealClock()
 
 
 @pytest.fixture(params=["sim", "aravis-arv-fake", "aravis-viva", "micromanager"])
-def camera(request) -> Camera:
+def camera(request) -> Iterator[Camera]:
     if request.param == "sim":
-        return platform("thesis", seed=0).cameras["top"]
-    if request.param.startswith("aravis"):
+        yield platform("thesis", seed=0).cameras["top"]
+    elif request.param.startswith("aravis"):
         from microcal.devices.aravis_camera import AravisCamera
 
         start = request.getfixturevalue("gige_cameras")
@@ -52,11 +53,12 @@ def camera(request) -> Camera:
             start("127.0.0.2", viva=(1226, 1028))
         address = "127.0.0.1" if request.param == "aravis-arv-fake" else "127.0.0.2"
         cam = AravisCamera(address, name="top", exposure_s=0.005, timeout_s=2.0)
-        request.addfinalizer(cam.close)
-        return cam
-    from microcal.devices.micromanager import MMCamera
+        yield cam
+        cam.close()
+    else:
+        from microcal.devices.micromanager import MMCamera
 
-    return MMCamera(request.getfixturevalue("mm_core"), "TopCam", name="top")
+        yield MMCamera(request.getfixturevalue("mm_core"), "TopCam", name="top")
 
 
 # --- manipulators ------------------------------------------------------------------------------

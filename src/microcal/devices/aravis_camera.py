@@ -140,12 +140,15 @@ class AravisCamera(Camera):
         try:
             self._camera.software_trigger()
         except Exception as exc:
-            raise DeviceTimeoutError(
-                f"{self.name}: trigger not accepted ({_message(exc)})"
+            # Aravis has already resent the command: the camera is gone, not slow.
+            raise DeviceError(
+                f"{self.name}: camera not answering (software trigger: {_message(exc)})"
             ) from None
         buffer = self._stream.timeout_pop_buffer(int(self.timeout_s * 1e6))
         if buffer is None:
-            raise DeviceTimeoutError(f"{self.name}: no frame within {self.timeout_s:g} s")
+            raise DeviceTimeoutError(
+                f"{self.name}: camera not answering (no frame within {self.timeout_s:g} s)"
+            )
         try:
             status = buffer.get_status()
             if status != self._aravis.BufferStatus.SUCCESS:

@@ -62,6 +62,9 @@ class AcquisitionConfig:
         The device must report "stopped" within this.
     retries : int
         Grabs and queries tried this many times more after a transient fault.
+    max_failed_in_a_row : int
+        The run stops (resumable) when this many poses in a row fail: a device has most
+        likely stopped answering, and going on would only record failures.
     store_roi : bool
         Store only the region around the board (``roi_margin_squares`` squares around it);
         the offset goes to the record. A camera whose board is not found keeps full frames.
@@ -75,6 +78,7 @@ class AcquisitionConfig:
     settle_timeout_s: float = 10.0
     move_timeout_s: float = 60.0
     retries: int = 3
+    max_failed_in_a_row: int = 3
     store_roi: bool = False
     roi_margin_squares: float = 3.0
 
@@ -259,6 +263,7 @@ def acquire(
     last: tuple[FloatArray, FloatArray] | None = None  # (joints, virtual point px) of the last pose
     previous_d = np.asarray(manipulator.position_um(), dtype=np.float64)
     done = 0
+    failed_in_a_row = 0
     for k, pose in enumerate(poses):
         if should_stop():
             manipulator.stop()
@@ -338,6 +343,14 @@ def acquire(
         store(pose, frames, record)
         previous_d = d
         done += 1
+        failed_in_a_row = failed_in_a_row + 1 if record["status"] == "failed" else 0
         if progress:
             progress(k + 1, len(poses), record)
+        if failed_in_a_row >= cfg.max_failed_in_a_row:
+            with contextlib.suppress(DeviceError):
+                manipulator.stop()
+            raise RunStoppedError(
+                f"{failed_in_a_row} poses in a row failed, the last ({pose}): "
+                f"{record.get('reason', '')}; check the devices"
+            )
     return done
