@@ -1060,6 +1060,19 @@ def acquire(
                     fixed_s, frames, store, dry_run)  # fmt: skip
 
 
+def _grab_retrying(camera: Any, tries: int = 3) -> Any:
+    """One frame, trying again after a transient fault (a dropped frame, a timeout)."""
+    from .errors import DeviceTimeoutError, FrameError
+
+    for attempt in range(tries):
+        try:
+            return camera.grab()
+        except (FrameError, DeviceTimeoutError):
+            if attempt == tries - 1:
+                raise
+    raise AssertionError("unreachable")
+
+
 def _dry_run(opened: Any, d: FloatArray, design: str) -> None:
     from .vision.detect import detect
 
@@ -1076,7 +1089,7 @@ def _dry_run(opened: Any, d: FloatArray, design: str) -> None:
         + " µm"
     )
     for name, cam in opened.cameras.items():
-        frame = cam.grab()
+        frame = _grab_retrying(cam)
         h, w = frame.shape[:2]
         if (w, h) != tuple(cam.sensor_size_px):
             raise InputError(
