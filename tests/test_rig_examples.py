@@ -40,7 +40,7 @@ def test_sim_example_dry_run(tmp_path):
             "--poses",
             "40",
             "--dry-run",
-        ],  # fmt: skip
+        ],
     )
     assert result.exit_code == 0, result.output
     assert "dry run: nothing moved, nothing written" in result.output
