@@ -1176,8 +1176,7 @@ def _acquire_on(
     def request_stop(signum: int, _frame: object) -> None:
         stop["requested"] = True
 
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, request_stop)
+    previous = {sig: signal.signal(sig, request_stop) for sig in (signal.SIGINT, signal.SIGTERM)}
     failed: list[tuple[int, str]] = []
     settle_times: list[float] = []
     tty = _sys.stdout.isatty()
@@ -1223,6 +1222,9 @@ def _acquire_on(
             f"run stopped ({exc}); {len(writer.done)} of {len(pose_ids)} poses stored; "
             f"resume with: microcal acquire --rig {rig} --out {out} --resume"
         ) from None
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     size_mb = writer.size_bytes() / 1e6
     mean_settle = float(np.mean(settle_times)) if settle_times else 0.0
     print(
