@@ -21,6 +21,7 @@ def test_help_lists_every_command_on_one_line_in_workflow_order():
     listed = result.output.split("Commands:")[1].strip().splitlines()
     assert [line.split()[0] for line in listed] == COMMANDS
     assert not any(line.endswith("...") for line in listed)
+    assert "Example: microcal demo" in result.output
 
 
 @pytest.mark.parametrize("command", COMMANDS)

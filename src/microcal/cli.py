@@ -61,7 +61,9 @@ WORKFLOW = ("demo", "stereo-calibrate", "acquire", "measure", "fit", "solve", "e
 app = typer.Typer(
     name="microcal",
     cls=_Commands,
-    help="Vision-based automatic calibration of microrobotic systems.",
+    help="Vision-based automatic calibration of microrobotic systems.\n\n"
+    "Example: microcal demo  (the whole calibration on the simulated platform; then open "
+    "demo-out/report.html)",
     no_args_is_help=True,
     add_completion=False,
     rich_markup_mode=None,
