@@ -62,6 +62,8 @@ class AcquisitionConfig:
         The device must report "stopped" within this.
     retries : int
         Grabs and queries tried this many times more after a transient fault.
+    creep_learn_poses : int
+        Poses whose settling is watched in full to learn the creep (vision settling).
     max_failed_in_a_row : int
         The run stops (resumable) when this many poses in a row fail: a device has most
         likely stopped answering, and going on would only record failures.
@@ -79,6 +81,7 @@ class AcquisitionConfig:
     move_timeout_s: float = 60.0
     retries: int = 3
     max_failed_in_a_row: int = 3
+    creep_learn_poses: int = 5
     store_roi: bool = False
     roi_margin_squares: float = 3.0
 
@@ -259,7 +262,7 @@ def acquire(
     cfg = config or AcquisitionConfig()
     predictors = {n: RoiPredictor() for n in cameras}
     first = next(iter(cameras))
-    creep = CreepEstimator()
+    creep = CreepEstimator(learn_poses=cfg.creep_learn_poses)
     last: tuple[FloatArray, FloatArray] | None = None  # (joints, virtual point px) of the last pose
     previous_d = np.asarray(manipulator.position_um(), dtype=np.float64)
     done = 0

@@ -118,6 +118,7 @@ def run_demo(
     decoupling_samples: int = 17,
     progress: Callable[[str, int, int], None] | None = None,
     store: Store | None = None,
+    creep_learn_poses: int = 5,
 ) -> DemoResult:
     """Run the calibration on the simulated thesis platform (see the module docstring).
 
@@ -174,7 +175,9 @@ def run_demo(
         list(range(1, poses + 1)),
         board,
         keep,
-        config=AcquisitionConfig(frames_per_pose=frames_per_pose, store_roi=True),
+        config=AcquisitionConfig(
+            frames_per_pose=frames_per_pose, store_roi=True, creep_learn_poses=creep_learn_poses
+        ),
         temperature=lambda: plat.manipulator.temperature_at(plat.clock.now_s()),
         progress=lambda done, total, _record: tick("acquisition (vision settle)", done, total),
     )
