@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime as _dt
+import json
 import os
 from importlib import resources
 from pathlib import Path
@@ -215,10 +216,14 @@ def _provenance(data: RunData) -> list[tuple[str, Any]]:
         ("results", data.results.get("provenance")),
     ):
         for key, value in (prov or {}).items():
-            rows.append((f"{label}: {key}", value))
+            rows.append((f"{label}: {key}", _plain(value)))
     if data.manifest.get("rig"):
-        rows.append(("rig", data.manifest["rig"]))
+        rows.append(("rig", _plain(data.manifest["rig"])))
     return rows
+
+
+def _plain(value: Any) -> str:
+    return json.dumps(value, sort_keys=True) if isinstance(value, dict | list) else str(value)
 
 
 def build_report(run_dir: str | os.PathLike[str]) -> str:
