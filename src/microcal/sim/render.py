@@ -176,7 +176,7 @@ def _reflectance(
     return value, board
 
 
-_GRID_CACHE: dict[tuple[bytes, bytes, tuple[int, int, int, int]], tuple[FloatArray, ...]] = {}
+_GRID_CACHE: dict[tuple[bytes, bytes, tuple[int, ...]], tuple[FloatArray, ...]] = {}
 _GRID_CACHE_SIZE = 16
 
 
