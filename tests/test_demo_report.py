@@ -72,6 +72,10 @@ def test_demo_files_hold_the_keys_other_tools_read(quick_demo):
     cal = json.loads((out / "calibration.json").read_text())
     assert cal["format"] == "microcal.calibration/1"
     assert set(cal["cameras"]) == set(cams["cameras"])
+    for name, cam in cams["cameras"].items():  # per-point residuals only in cameras.json
+        assert len(cam["residuals_px"]) == cam["views_used"]
+        assert "residuals_px" not in cal["cameras"][name]
+        assert cal["cameras"][name]["K"] == cam["K"]
     m1 = cal["manipulators"]["m1"]
     assert set(m1["model"]) >= {"kind", "inputs", "terms", "coefficients", "covariance"}
     validation_keys = {"n_fit", "n_validate", "mean_um", "std_um", "max_um", "rms_um"}

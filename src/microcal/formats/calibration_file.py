@@ -190,7 +190,13 @@ class Calibration:
         """The JSON object of calibration.json."""
         return {
             "format": CALIBRATION_FORMAT,
-            "cameras": self.cameras,
+            # the cameras' models and figures; their per-point residuals stay in cameras.json
+            "cameras": {
+                name: {k: v for k, v in cam.items() if k != "residuals_px"}
+                if isinstance(cam, dict)
+                else cam
+                for name, cam in self.cameras.items()
+            },
             "manipulators": {n: m.to_dict() for n, m in self.manipulators.items()},
             "provenance": self.provenance,
         }
