@@ -26,7 +26,7 @@ from ..errors import DegenerateDataError, FormatError, InputError
 from ..kinematics.compensators import Compensator
 from ..kinematics.models import KinematicModel
 from .atomic import write_atomic, write_text_atomic
-from .json_file import read_versioned_json
+from .json_file import read_versioned_json, validation_message
 
 __all__ = [
     "CALIBRATION_FORMAT",
@@ -234,12 +234,6 @@ def write_calibration(path: str | os.PathLike[str], calibration: Calibration) ->
     return write_text_atomic(path, text + "\n")
 
 
-def _first_error(exc: ValidationError) -> str:
-    err = exc.errors()[0]
-    loc = ".".join(str(part) for part in err["loc"]) or "(top level)"
-    return f"{loc}: {err['msg']}"
-
-
 def load_calibration(path: str | os.PathLike[str]) -> Calibration:
     """Read and validate calibration.json.
 
@@ -254,7 +248,7 @@ def load_calibration(path: str | os.PathLike[str]) -> Calibration:
     try:
         schema = _CalibrationSchema.model_validate(raw)
     except ValidationError as exc:
-        raise FormatError(f"{p}: {_first_error(exc)}") from None
+        raise FormatError(f"{p}: {validation_message(exc)}") from None
     manipulators = {}
     for name in schema.manipulators:
         data = raw["manipulators"][name]

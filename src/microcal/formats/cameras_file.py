@@ -14,7 +14,7 @@ from ..errors import FormatError, InputError
 from ..geometry.camera_model import CameraModel
 from ..vision.stereo_calibration import StereoCalibration
 from .atomic import write_text_atomic
-from .json_file import read_versioned_json
+from .json_file import read_versioned_json, validation_message
 
 __all__ = [
     "CAMERAS_FORMAT",
@@ -79,9 +79,7 @@ def models_from_dict(data: dict[str, Any], where: str = "cameras") -> dict[str, 
     try:
         parsed = _Cameras.model_validate(data)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        loc = ".".join(str(p) for p in err["loc"])
-        raise FormatError(f"{where}: {loc}: {err['msg']}") from None
+        raise FormatError(f"{where}: {validation_message(exc)}") from None
     models = {}
     for name, cam in parsed.cameras.items():
         try:

@@ -7,9 +7,18 @@ import os
 from pathlib import Path
 from typing import Any
 
+from pydantic import ValidationError
+
 from ..errors import FormatError
 
-__all__ = ["read_versioned_json"]
+__all__ = ["read_versioned_json", "validation_message"]
+
+
+def validation_message(exc: ValidationError) -> str:
+    """The first problem pydantic found, as ``key.path: message`` for a one-line error."""
+    err = exc.errors()[0]
+    loc = ".".join(str(part) for part in err["loc"]) or "(top level)"
+    return f"{loc}: {err['msg']}"
 
 
 def read_versioned_json(

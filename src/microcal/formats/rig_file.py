@@ -35,6 +35,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from ..errors import FormatError
+from .json_file import validation_message
 
 __all__ = ["load_rig"]
 
@@ -138,9 +139,7 @@ def _hardware(path: Path, data: dict[str, Any]) -> dict[str, Any]:
     try:
         rig = _Hardware.model_validate(data)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        where = ".".join(str(p) for p in err["loc"]) or "(top level)"
-        raise FormatError(f"{path}: {where}: {err['msg']}") from None
+        raise FormatError(f"{path}: {validation_message(exc)}") from None
     m = rig.manipulator
     if m.kind == "smaract-mcs2" and (m.address is None or m.channels is None):
         raise FormatError(f"{path}: manipulator: smaract-mcs2 needs 'address' and 'channels'")
