@@ -1062,20 +1062,8 @@ def acquire(
                     fixed_s, frames, store, dry_run)  # fmt: skip
 
 
-def _grab_retrying(camera: Any, tries: int = 3) -> Any:
-    """One frame, trying again after a transient fault (a dropped frame, a timeout)."""
-    from .errors import DeviceTimeoutError, FrameError
-
-    for attempt in range(tries):
-        try:
-            return camera.grab()
-        except (FrameError, DeviceTimeoutError):
-            if attempt == tries - 1:
-                raise
-    raise AssertionError("unreachable")
-
-
 def _dry_run(opened: Any, d: FloatArray, design: str) -> None:
+    from .procedures.acquisition import grab_retrying
     from .vision.detect import detect
 
     for what, text in opened.description.items():
@@ -1091,7 +1079,7 @@ def _dry_run(opened: Any, d: FloatArray, design: str) -> None:
         + " µm"
     )
     for name, cam in opened.cameras.items():
-        frame = _grab_retrying(cam)
+        frame = grab_retrying(cam, retries=2)
         h, w = frame.shape[:2]
         if (w, h) != tuple(cam.sensor_size_px):
             raise InputError(

@@ -31,7 +31,7 @@ from ..vision.detect import detect
 from ..vision.targets import Target
 from .measurement import RoiPredictor, box_around
 
-__all__ = ["AcquisitionConfig", "RunStoppedError", "acquire"]
+__all__ = ["AcquisitionConfig", "RunStoppedError", "acquire", "grab_retrying"]
 
 Frame = NDArray[np.generic]
 Store = Callable[[int, dict[str, list[Frame]], dict[str, Any]], None]
@@ -96,7 +96,8 @@ def _retry(what: Callable[[], Any], retries: int) -> Any:
     raise AssertionError("unreachable")
 
 
-def _grab(camera: Camera, retries: int) -> Frame:
+def grab_retrying(camera: Camera, retries: int) -> Frame:
+    """One frame, grabbed again up to ``retries`` times after a dropped frame or a timeout."""
     frame: Frame = _retry(camera.grab, retries)
     return frame
 
@@ -197,7 +198,7 @@ def _settle_vision(
     frames: list[Frame] = []
     change = float("nan")
     while True:
-        frame = _grab(cameras[first], config.retries)
+        frame = grab_retrying(cameras[first], config.retries)
         frames.append(frame)
         corners = _board_corners(frame, target, roi)
         if corners is not None:
@@ -223,9 +224,11 @@ def _settle_vision(
     got = {first: frames[-n:]}
     for name, cam in cameras.items():
         if name != first:
-            got[name] = [_grab(cam, config.retries) for _ in range(n)]
+            got[name] = [grab_retrying(cam, config.retries) for _ in range(n)]
     if len(got[first]) < n:
-        got[first] += [_grab(cameras[first], config.retries) for _ in range(n - len(got[first]))]
+        got[first] += [
+            grab_retrying(cameras[first], config.retries) for _ in range(n - len(got[first]))
+        ]
     return clock.now_s() - start, change, got
 
 
@@ -288,7 +291,7 @@ def acquire(
                 clock.sleep(cfg.fixed_s)
                 settle_s, change = cfg.fixed_s, float("nan")
                 frames = {
-                    n: [_grab(cam, cfg.retries) for _ in range(cfg.frames_per_pose)]
+                    n: [grab_retrying(cam, cfg.retries) for _ in range(cfg.frames_per_pose)]
                     for n, cam in cameras.items()
                 }
             else:
