@@ -126,41 +126,19 @@ def _measurement(data: RunData) -> dict[str, Any] | None:
 
 
 def _models(data: RunData) -> dict[str, Any] | None:
-    errors = data.model_errors()
     if data.calibration is None:
         return None
-    models = []
-    for e in errors:
-        axes = []
-        for i, axis in enumerate("xyz"):
-            axes.append({"axis": axis, "terms": e.model.axis_terms(i)})
-        v = e.validation
-        models.append(
-            {
-                "kind": e.kind,
-                "axes": axes,
-                "n_terms": int(np.sum(e.model.selected)),
-                "validation": v,
-                "recomputed": {
-                    "mean_um": float(np.mean(e.errors_um)),
-                    "max_um": float(np.max(e.errors_um)),
-                },
-                "thesis": VALIDATION_UM.get(e.kind),
-            }
-        )
-    if not models:  # no measurements beside the calibration: terms only
-        for entry in data.calibration.manipulators.values():
-            axes = [{"axis": a, "terms": entry.model.axis_terms(i)} for i, a in enumerate("xyz")]
-            models.append(
-                {
-                    "kind": entry.model.kind,
-                    "axes": axes,
-                    "n_terms": int(np.sum(entry.model.selected)),
-                    "validation": entry.validation,
-                    "recomputed": None,
-                    "thesis": VALIDATION_UM.get(entry.model.kind),
-                }
-            )
+    errors = data.model_errors()
+    models = [
+        {
+            "kind": kind,
+            "axes": [{"axis": a, "terms": model.axis_terms(i)} for i, a in enumerate("xyz")],
+            "n_terms": int(np.sum(model.selected)),
+            "validation": validation,
+            "thesis": VALIDATION_UM.get(kind),
+        }
+        for kind, model, validation in data.models()
+    ]
     figure = (
         figures.prediction_errors({e.kind: (e.poses, e.errors_um) for e in errors})
         if errors

@@ -56,39 +56,40 @@ class RunData:
     calibration: Calibration | None = None
     results: dict[str, Any] = field(default_factory=dict)
 
+    def models(self) -> list[tuple[str, KinematicModel, dict[str, Any]]]:
+        """Every identified model as (kind, model, its validation object).
+
+        A matrix model kept beside a polynomial one (for the matrix compensator) comes first.
+        """
+        out: list[tuple[str, KinematicModel, dict[str, Any]]] = []
+        for entry in self.calibration.manipulators.values() if self.calibration else []:
+            matrix = entry.matrix_model
+            if matrix is not None and entry.model.kind != "matrix":
+                out.append(("matrix", matrix, dict(entry.extra.get("matrix_validation", {}))))
+            out.append((entry.model.kind, entry.model, entry.validation))
+        return out
+
     def model_errors(self) -> list[ModelErrors]:
         """Per identified model, its errors on the validation poses (recomputed from the files).
 
         The split is the one recorded in the model's validation object: the first ``n_fit``
         usable poses fitted, the rest validate.
         """
-        if self.calibration is None or self.measurements is None:
+        m = self.measurements
+        if m is None:
             return []
         out = []
-        m = self.measurements
-        for entry in self.calibration.manipulators.values():
-            models = [(entry.model.kind, entry.model, entry.validation)]
-            matrix = entry.extra.get("matrix_model")
-            if matrix is not None and entry.model.kind != "matrix":
-                models.insert(
-                    0,
-                    (
-                        "matrix",
-                        KinematicModel.from_dict(matrix),
-                        dict(entry.extra.get("matrix_validation", {})),
-                    ),
-                )
-            for kind, model, validation in models:
-                n_fit = int(validation.get("n_fit", 0))
-                if not 0 < n_fit < len(m.pose):
+        for kind, model, validation in self.models():
+            n_fit = int(validation.get("n_fit", 0))
+            if not 0 < n_fit < len(m.pose):
+                continue
+            u = m.d_um
+            if len(model.inputs) > 3:
+                if m.temperature_c is None:
                     continue
-                u = m.d_um
-                if len(model.inputs) > 3:
-                    if m.temperature_c is None:
-                        continue
-                    u = np.hstack([u, m.temperature_c[:, None]])
-                err = np.linalg.norm(m.p_um[n_fit:] - model.predict_um(u[n_fit:]), axis=1)
-                out.append(ModelErrors(kind, model, validation, m.pose[n_fit:], err))
+                u = np.hstack([u, m.temperature_c[:, None]])
+            err = np.linalg.norm(m.p_um[n_fit:] - model.predict_um(u[n_fit:]), axis=1)
+            out.append(ModelErrors(kind, model, validation, m.pose[n_fit:], err))
         return out
 
 
