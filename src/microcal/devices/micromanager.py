@@ -72,6 +72,12 @@ def open_core(config: str | None = None, python_devices: str | None = None) -> A
         raise DeviceError(f"micromanager: cannot load the devices ({exc})") from None
 
 
+def _device_error(message: str, exc: RuntimeError) -> DeviceError:
+    """The core's error as microcal's: a timeout is transient (tried again), others are not."""
+    kind = DeviceTimeoutError if "timeout" in str(exc).lower() else DeviceError
+    return kind(message)
+
+
 class MMManipulator(Manipulator):
     """An XY stage and a focus stage of a Micro-Manager core as one 3-axis manipulator."""
 
@@ -92,9 +98,7 @@ class MMManipulator(Manipulator):
         try:
             return fn(*args)
         except RuntimeError as exc:
-            text = str(exc)
-            kind = DeviceTimeoutError if "timeout" in text.lower() else DeviceError
-            raise kind(f"{self.name}: {what}: {text}") from None
+            raise _device_error(f"{self.name}: {what}: {exc}", exc) from None
 
     def _move(self, d_um: FloatArray) -> None:
         x, y, z = (float(v) for v in d_um)
@@ -154,7 +158,6 @@ class MMCamera(Camera):
             self.core.snapImage()
             image = np.asarray(self.core.getImage())
         except RuntimeError as exc:
-            kind = DeviceTimeoutError if "timeout" in str(exc).lower() else DeviceError
-            raise kind(f"{self.name}: no frame ({exc})") from None
+            raise _device_error(f"{self.name}: no frame ({exc})", exc) from None
         frame: NDArray[np.unsignedinteger] = image.astype(self.dtype, copy=True)
         return frame
