@@ -220,6 +220,7 @@ def demo(
             cycles=1 if quick else 3,
             decoupling_samples=5 if quick else 17,
             store=writer.store,
+            plat=plat,
         )
 
     cal = result.calibration

@@ -119,6 +119,7 @@ def run_demo(
     progress: Callable[[str, int, int], None] | None = None,
     store: Store | None = None,
     creep_learn_poses: int = 5,
+    plat: SimPlatform | None = None,
 ) -> DemoResult:
     """Run the calibration on the simulated thesis platform (see the module docstring).
 
@@ -126,14 +127,15 @@ def run_demo(
     5-2 poses) and the decoupling test without and with both compensators, measured by the
     calibrated cameras and by ground truth. ``settle_s`` is the fixed wait of those tests;
     the acquisition settles by vision. ``store`` receives every acquired pose as the
-    acquisition gives it (see :func:`~microcal.procedures.acquisition.acquire`).
+    acquisition gives it (see :func:`~microcal.procedures.acquisition.acquire`). ``plat`` is
+    the platform to run on, if the caller has built it already (``platform("thesis", seed)``).
     """
 
     def tick(stage: str, done: int, total: int) -> None:
         if progress:
             progress(stage, done, total)
 
-    plat = platform("thesis", seed=seed)
+    plat = plat or platform("thesis", seed=seed)
     grid = parse_target(CALIBRATION_TARGET)
     steps = np.array([[0.0, 0.0, z] for z in CALIBRATION_STEPS_UM])
     cal = calibrate_on_platform(
