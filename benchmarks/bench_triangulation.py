@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from microcal import triangulate, triangulate_optimal
-from microcal.synthetic import random_points, thesis_cameras
+from microcal.sim.synthetic_geometry import random_points
+from microcal.thesis.cameras import thesis_cameras
 
 from .harness import Case, best_time_s
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from microcal import CameraModel, InputError, camera_centre, project_points
-from microcal.synthetic import look_at_camera
+from microcal.sim.synthetic_geometry import look_at_camera
 
 # An ordinary photographic lens: strong barrel distortion, some tangential.
 PHOTO_DIST = np.array([-0.28, 0.09, 1.2e-3, -8e-4, -0.012])

@@ -15,7 +15,7 @@ from microcal.geometry import CameraModel
 from microcal.sim.camera import ImageFormation, SimCamera
 from microcal.sim.clock import SimClock
 from microcal.sim.render import Placement
-from microcal.synthetic import look_at_camera
+from microcal.sim.synthetic_geometry import look_at_camera
 from microcal.vision.targets import parse_target
 
 

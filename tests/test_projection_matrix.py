@@ -16,8 +16,8 @@ from microcal import (
     reprojection_error,
 )
 from microcal.geometry.projection_matrix import normalize_projection_matrix
-from microcal.synthetic import dot_grid_points, random_camera_pair, random_points
-from microcal.thesis_figures import P_SIDE_MM, P_TOP_MM, projection_matrix_um
+from microcal.sim.synthetic_geometry import dot_grid_points, random_camera_pair, random_points
+from microcal.thesis.figures import P_SIDE_MM, P_TOP_MM, projection_matrix_um
 
 
 def same_up_to_scale(A: np.ndarray, B: np.ndarray) -> float:

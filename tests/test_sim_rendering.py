@@ -8,7 +8,7 @@ import pytest
 
 from microcal import sim
 from microcal.sim.render import Placement, render_placement, roi_of
-from microcal.synthetic import thesis_cameras
+from microcal.thesis.cameras import thesis_cameras
 from microcal.vision.targets import parse_target
 
 BOARD = parse_target("chessboard:4x3:400")

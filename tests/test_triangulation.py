@@ -15,7 +15,7 @@ from microcal import (
     triangulate_optimal,
     triangulation_covariance,
 )
-from microcal.synthetic import random_camera_pair, random_points
+from microcal.sim.synthetic_geometry import random_camera_pair, random_points
 
 CENTRE = np.array([4000.0, 4000.0, 2400.0])
 

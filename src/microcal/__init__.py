@@ -6,7 +6,6 @@ coordinates in pixels; see ``docs/conventions.md``.
 """
 
 from ._version import __version__
-from .error_summary import ErrorSummary, summarize_errors
 from .errors import (
     DegenerateDataError,
     DetectionError,
@@ -34,6 +33,7 @@ from .kinematics import (
     fit_polynomial_model,
     stepwise_fit,
 )
+from .metrics.error_summary import ErrorSummary, summarize_errors
 
 __all__ = [
     "Calibration",

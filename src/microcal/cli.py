@@ -172,7 +172,7 @@ def demo(
     from .formats.run_directory import RunWriter
     from .procedures.demo import CALIBRATION_TARGET, demo_design, run_demo
     from .sim import platform
-    from .thesis_figures import (
+    from .thesis.figures import (
         CLAIMED_ACCURACY_UM,
         REPROJECTION_ERROR_SIDE_PX,
         REPROJECTION_ERROR_TOP_PX,
@@ -282,7 +282,7 @@ def demo(
 
 
 def _print_evaluation(console: Console, evaluation: dict[str, Any]) -> None:
-    from .thesis_figures import DECOUPLING_UM, POSE_ACCURACY_UM
+    from .thesis.figures import DECOUPLING_UM, POSE_ACCURACY_UM
 
     if not evaluation:
         return
@@ -855,15 +855,14 @@ def evaluate(
     from .formats.cameras_file import models_from_dict
     from .formats.results_file import update_results
     from .procedures.evaluation import (
-        TABLE_5_2_POSES_UM,
         VisionProbe,
         iso_cube_poses,
         run_decoupling,
         run_pose_accuracy,
     )
     from .sim import platform
-    from .synthetic import THESIS_WORKSPACE_MAX_UM, THESIS_WORKSPACE_MIN_UM
-    from .thesis_figures import POSE_ACCURACY_UM
+    from .thesis.experiment import TABLE_5_2_POSES_UM, WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
+    from .thesis.figures import POSE_ACCURACY_UM
 
     if rig != "sim":
         raise InputError(
@@ -906,7 +905,7 @@ def evaluate(
             test_poses = (
                 TABLE_5_2_POSES_UM
                 if poses == PoseChoice.table
-                else iso_cube_poses(THESIS_WORKSPACE_MIN_UM, THESIS_WORKSPACE_MAX_UM)
+                else iso_cube_poses(WORKSPACE_MIN_UM, WORKSPACE_MAX_UM)
             )
             parts["pose_accuracy"] = run_pose_accuracy(
                 plat.manipulator,
@@ -977,13 +976,13 @@ def _read_command_file(path: Path) -> FloatArray:
 
 
 def _evaluation_trajectories() -> dict[str, FloatArray]:
-    from .procedures.evaluation import TABLE_5_2_POSES_UM, decoupling_path, iso_cube_poses
-    from .synthetic import THESIS_WORKSPACE_MAX_UM, THESIS_WORKSPACE_MIN_UM
+    from .procedures.evaluation import decoupling_path, iso_cube_poses
+    from .thesis.experiment import TABLE_5_2_POSES_UM, WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
 
     return {
         "table-5-2": TABLE_5_2_POSES_UM,
         "decoupling": decoupling_path()[0],
-        "iso-cube": iso_cube_poses(THESIS_WORKSPACE_MIN_UM, THESIS_WORKSPACE_MAX_UM),
+        "iso-cube": iso_cube_poses(WORKSPACE_MIN_UM, WORKSPACE_MAX_UM),
     }
 
 
@@ -1039,8 +1038,8 @@ def acquire(
     Example: microcal acquire --rig sim --design random --poses 170 --out runs/a
     (first: microcal acquire --rig myrig.toml --out runs/a --dry-run)
     """
+    from .devices.rig import open_rig
     from .formats.rig_file import load_rig
-    from .rigs import open_rig
 
     if (
         not resume
@@ -1115,13 +1114,13 @@ def _acquire_on(
     import signal
     import sys as _sys
 
-    from .designs import DESIGNS, check_design, make_design
     from .formats.calibration_file import provenance
     from .formats.run_directory import RunWriter, read_commands
     from .kinematics.compensators import check_limits
     from .procedures.acquisition import AcquisitionConfig, RunStoppedError
     from .procedures.acquisition import acquire as run_acquisition
-    from .synthetic import THESIS_WORKSPACE_MAX_UM, THESIS_WORKSPACE_MIN_UM
+    from .procedures.designs import DESIGNS, check_design, make_design
+    from .thesis.experiment import WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
 
     board = opened.board
     manipulator = opened.manipulator
@@ -1131,7 +1130,7 @@ def _acquire_on(
     else:
         trajectories = _evaluation_trajectories()
         if design in DESIGNS:
-            d = make_design(design, poses, THESIS_WORKSPACE_MIN_UM, THESIS_WORKSPACE_MAX_UM, seed)
+            d = make_design(design, poses, WORKSPACE_MIN_UM, WORKSPACE_MAX_UM, seed)
         elif design in trajectories:
             d = trajectories[design]
         else:

@@ -11,8 +11,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .._validation import FloatArray, as_rows
-from ..error_summary import ErrorSummary, summarize_errors
 from ..errors import InputError
+from ..metrics.error_summary import ErrorSummary, summarize_errors
 from .projection_matrix import project_points
 
 __all__ = ["ErrorSummary", "reprojection_error", "summarize_errors"]

@@ -14,8 +14,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .._validation import FloatArray, as_array
-from ..error_summary import ErrorSummary, summarize_errors
 from ..errors import DegenerateDataError, InputError
+from ..metrics.error_summary import ErrorSummary, summarize_errors
 from .models import KinematicModel
 
 __all__ = [

@@ -23,11 +23,11 @@ from numpy.typing import NDArray
 
 from .._validation import FloatArray
 from ..devices.feedforward import FeedForward
-from ..error_summary import summarize_errors
 from ..errors import FormatError
+from ..metrics.error_summary import summarize_errors
 from ..sim import SimPlatform, platform
 from ..sim.render import Placement
-from ..synthetic import THESIS_WORKSPACE_MAX_UM, THESIS_WORKSPACE_MIN_UM
+from ..thesis.experiment import WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
 from ..vision.detect import Detection, detect
 from ..vision.stereo_calibration import StereoCalibration, calibrate_known_displacements
 from ..vision.targets import Target, parse_target
@@ -74,7 +74,7 @@ class DemoResult:
 def demo_design(seed: int, poses: int) -> FloatArray:
     """The demo's joint commands: uniform over the thesis's workspace, (poses, 3) µm."""
     rng = np.random.default_rng(seed + 1)
-    d: FloatArray = rng.uniform(THESIS_WORKSPACE_MIN_UM, THESIS_WORKSPACE_MAX_UM, (poses, 3))
+    d: FloatArray = rng.uniform(WORKSPACE_MIN_UM, WORKSPACE_MAX_UM, (poses, 3))
     return d
 
 

@@ -27,26 +27,17 @@ from ..devices.feedforward import FeedForward
 from ..errors import InputError
 from ..geometry import CameraModel
 from ..metrics import decoupling_metrics, pose_statistics
+from ..thesis.experiment import DECOUPLING_PATH_UM, TABLE_5_2_POSES_UM
 from ..vision.targets import Target
 from .measurement import RoiPredictor, measure_one
 
 __all__ = [
-    "DECOUPLING_PATH_UM",
-    "TABLE_5_2_POSES_UM",
     "VisionProbe",
     "decoupling_path",
     "iso_cube_poses",
     "run_decoupling",
     "run_pose_accuracy",
 ]
-
-#: Thesis Table 5-2: the desired poses of the pose-accuracy test, µm from home.
-TABLE_5_2_POSES_UM = np.array(
-    [[2000, 0, 0], [8000, 0, 0], [0, 2000, 0], [0, 8000, 0], [0, 0, 1500], [0, 0, 3000],
-     [1000, 1000, 600], [2000, 2000, 300]], dtype=float,
-)  # fmt: skip
-#: Thesis Fig 5.5: 8000 µm along x, then 8000 along y, then 4800 along z.
-DECOUPLING_PATH_UM = (8000.0, 8000.0, 4800.0)
 
 
 def iso_cube_poses(low_um: ArrayLike, high_um: ArrayLike) -> FloatArray:

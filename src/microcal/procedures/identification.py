@@ -23,16 +23,14 @@ from ..kinematics import (
     fit_polynomial_model,
     validate_split,
 )
+from ..thesis.experiment import SPLIT
 
-__all__ = ["THESIS_SPLIT", "Identification", "default_train", "identify"]
-
-#: The thesis's split: 110 of 170 poses fit, the last 60 validate (section 5.2).
-THESIS_SPLIT = (110, 170)
+__all__ = ["Identification", "default_train", "identify"]
 
 
 def default_train(n: int) -> int:
     """Poses used for fitting by default: the thesis's 110 / 170 share of ``n``."""
-    return max(1, min(n - 1, round(n * THESIS_SPLIT[0] / THESIS_SPLIT[1])))
+    return max(1, min(n - 1, round(n * SPLIT[0] / SPLIT[1])))
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ import numpy as np
 
 from .._version import __version__
 from ..formats.atomic import write_text_atomic
-from ..thesis_figures import (
+from ..thesis.figures import (
     CLAIMED_ACCURACY_UM,
     DECOUPLING_UM,
     OMEGA_UM,

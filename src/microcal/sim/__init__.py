@@ -3,7 +3,7 @@
 ``microcal.sim.platform(preset="thesis", seed=0)`` returns the whole platform.
 """
 
-from .kinematics import TrueKinematics, thesis_kinematics
+from .kinematics import TrueKinematics
 from .platforms import PlatformConfig, SimPlatform, load_overrides, platform
 
 __all__ = [
@@ -12,5 +12,4 @@ __all__ = [
     "TrueKinematics",
     "load_overrides",
     "platform",
-    "thesis_kinematics",
 ]

@@ -3,7 +3,8 @@
 ``microcal.sim.platform(preset="thesis", seed=0)`` builds the thesis's platform (section 2.4
 and 5.1): a top camera of 1600 x 1200 px with the thesis's P, a side camera of 2452 x 2056 px
 binned 2 x 2 with the thesis's P', both with a plausible lens distortion; a three-axis
-stick-slip manipulator with the true kinematics of :func:`thesis_kinematics`; the 4 x 3
+stick-slip manipulator with the true kinematics of
+:func:`~microcal.thesis.kinematics.thesis_kinematics`; the 4 x 3
 chessboard (pitch 400 µm) on the gripper, its inner-corner centroid being the end-effector.
 
 Every value can be changed: ``platform(..., overrides={"top.formation.read_noise_e": 30})``
@@ -23,11 +24,10 @@ import numpy as np
 from .._validation import FloatArray
 from ..errors import FormatError, InputError
 from ..geometry.camera_model import CameraModel
-from ..synthetic import thesis_cameras
+from ..thesis.cameras import thesis_cameras
 from ..vision.targets import Target, parse_target
 from .camera import CameraFaults, ImageFormation, SimCamera
 from .clock import SimClock
-from .kinematics import thesis_kinematics
 from .manipulator import ManipulatorFaults, SimManipulator
 from .render import Placement
 
@@ -194,6 +194,8 @@ def platform(
     overrides : dict, optional
         Dotted settings of :class:`PlatformConfig`, e.g. ``{"top.bit_depth": 12}``.
     """
+    from ..thesis.kinematics import thesis_kinematics  # the preset builds on this package
+
     if preset not in PRESETS:
         raise InputError(f"preset: expected one of {list(PRESETS)}, got {preset!r}")
     config = PlatformConfig()

@@ -15,9 +15,11 @@ import numpy as np
 
 from .._validation import FloatArray
 from ..geometry import CameraModel, triangulate_optimal, triangulation_covariance
-from ..synthetic import THESIS_WORKSPACE_MAX_UM, THESIS_WORKSPACE_MIN_UM, thesis_cameras
-from ..thesis_figures import VIRTUAL_POINT_STD_PX
-from .kinematics import TrueKinematics, approach_signs, thesis_kinematics
+from ..thesis.cameras import thesis_cameras
+from ..thesis.experiment import WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
+from ..thesis.figures import VIRTUAL_POINT_STD_PX
+from ..thesis.kinematics import thesis_kinematics
+from .kinematics import TrueKinematics, approach_signs
 
 __all__ = ["VIRTUAL_POINT_STD_PX", "SyntheticRun", "measure_positions", "synthetic_run"]
 
@@ -68,7 +70,7 @@ def synthetic_run(
     truth = truth or thesis_kinematics()
     cameras = cameras or thesis_cameras()
     if d_um is None:
-        d_um = rng.uniform(THESIS_WORKSPACE_MIN_UM, THESIS_WORKSPACE_MAX_UM, (n_poses, 3))
+        d_um = rng.uniform(WORKSPACE_MIN_UM, WORKSPACE_MAX_UM, (n_poses, 3))
     true = truth.position_um(d_um, approach_signs(d_um))
     measured, cov = measure_positions(true, cameras, rng)
     return SyntheticRun(d_um, true, measured, cov, truth)

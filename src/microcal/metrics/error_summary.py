@@ -7,8 +7,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ._validation import as_array
-from .errors import InputError
+from .._validation import as_array
+from ..errors import InputError
 
 __all__ = ["ErrorSummary", "summarize_errors"]
 

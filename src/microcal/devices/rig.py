@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from .devices.base import Camera, Clock, Manipulator, RealClock
-from .errors import DeviceError
-from .vision.targets import Target, parse_target
+from ..errors import DeviceError
+from ..vision.targets import Target, parse_target
+from .base import Camera, Clock, Manipulator, RealClock
 
 __all__ = ["Rig", "open_rig"]
 
@@ -48,7 +48,7 @@ class Rig:
 
 
 def _sim(spec: dict[str, Any]) -> Rig:
-    from .sim import platform
+    from ..sim import platform
 
     plat = platform(spec["preset"], seed=spec["seed"], overrides=spec["overrides"])
     return Rig(
@@ -77,14 +77,14 @@ def _open_hardware(spec: dict[str, Any], closers: list[Callable[[], None]]) -> R
     description: dict[str, str] = {}
     core: Any = None
     if "micromanager" in spec:
-        from .devices.micromanager import open_core
+        from .micromanager import open_core
 
         mm = spec["micromanager"]
         core = open_core(mm.get("config"), mm.get("python_devices"))
         closers.append(core.unloadAllDevices)
     manipulator: Manipulator
     if m["kind"] == "smaract-mcs2":
-        from .devices.smaract_mcs2 import MCS2Manipulator
+        from .smaract_mcs2 import MCS2Manipulator
 
         axes = list(m["channels"])
         limits = np.array([m["limits_um"][a] for a in axes], dtype=np.float64)
@@ -102,7 +102,7 @@ def _open_hardware(spec: dict[str, Any], closers: list[Callable[[], None]]) -> R
         description["manipulator"] = f"SmarAct MCS2 {mcs2.serial} at {m['address']}"
         manipulator = mcs2
     else:
-        from .devices.micromanager import MMManipulator
+        from .micromanager import MMManipulator
 
         limits = np.array([m["limits_um"][a] for a in "xyz"], dtype=np.float64)
         manipulator = MMManipulator(
@@ -113,7 +113,7 @@ def _open_hardware(spec: dict[str, Any], closers: list[Callable[[], None]]) -> R
     for name, c in spec["cameras"].items():
         exposure_s = c["exposure_ms"] / 1e3 if "exposure_ms" in c else None
         if c["kind"] == "aravis":
-            from .devices.aravis_camera import AravisCamera
+            from .aravis_camera import AravisCamera
 
             region = c.get("region_px")
             cam = AravisCamera(
@@ -129,7 +129,7 @@ def _open_hardware(spec: dict[str, Any], closers: list[Callable[[], None]]) -> R
             description[name] = f"{cam.vendor} {cam.serial} at {c['address']}"
             cameras[name] = cam
         else:
-            from .devices.micromanager import MMCamera
+            from .micromanager import MMCamera
 
             cameras[name] = MMCamera(core, c["device"], name=name, exposure_s=exposure_s)
             description[name] = f"Micro-Manager camera {c['device']}"

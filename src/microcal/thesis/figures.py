@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._validation import FloatArray
+from .._validation import FloatArray
 
 __all__ = [
     "CLAIMED_ACCURACY_UM",

@@ -19,8 +19,8 @@ import numpy as np
 import scipy.stats.qmc as qmc
 from numpy.typing import ArrayLike
 
-from ._validation import FloatArray, as_array
-from .errors import DegenerateDataError, InputError, LimitError
+from .._validation import FloatArray, as_array
+from ..errors import DegenerateDataError, InputError, LimitError
 
 __all__ = ["DESIGNS", "check_design", "make_design"]
 

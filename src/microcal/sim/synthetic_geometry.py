@@ -1,60 +1,24 @@
-"""Synthetic geometry for tests, benchmarks and the demo (library code, seeded).
+"""Seeded synthetic geometry for tests, benchmarks and the simulator (library code).
 
-Cameras built from the thesis's published projection matrices, random camera pairs around
-a workspace, random points and dot-grid targets. No rendering here: this is geometry only.
+Cameras looking at a point, random camera pairs around a workspace, random points and
+dot-grid targets. No rendering here: this is geometry only (the thesis's own cameras are in
+:mod:`microcal.thesis.cameras`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ._validation import FloatArray
-from .geometry.camera_model import CameraModel
-from .thesis_figures import (
-    P_SIDE_MM,
-    P_TOP_MM,
-    SIDE_IMAGE_SIZE_PX,
-    TOP_IMAGE_SIZE_PX,
-    projection_matrix_um,
-)
+from .._validation import FloatArray
+from ..geometry.camera_model import CameraModel
+from ..thesis.experiment import WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
 
 __all__ = [
-    "THESIS_WORKSPACE_MAX_UM",
-    "THESIS_WORKSPACE_MIN_UM",
     "dot_grid_points",
     "look_at_camera",
     "random_camera_pair",
     "random_points",
-    "thesis_cameras",
 ]
-
-#: The manipulator's travel in the thesis's experiments (Table 5-2, Fig 5.5): x, y up to
-#: 8000 µm and z up to 4800 µm, in {G}.
-THESIS_WORKSPACE_MIN_UM: FloatArray = np.array([0.0, 0.0, 0.0])
-THESIS_WORKSPACE_MAX_UM: FloatArray = np.array([8000.0, 8000.0, 4800.0])
-
-
-def thesis_cameras(
-    dist_top: FloatArray | None = None, dist_side: FloatArray | None = None
-) -> tuple[CameraModel, CameraModel]:
-    """The thesis's top and side cameras (section 5.1), world in µm.
-
-    Parameters
-    ----------
-    dist_top, dist_side : (5,) float, optional
-        Lens distortion to add (the thesis's P carry none).
-
-    Returns
-    -------
-    top, side : CameraModel
-    """
-    top = CameraModel.from_projection_matrix(
-        projection_matrix_um(P_TOP_MM), TOP_IMAGE_SIZE_PX, dist_top, name="top"
-    )
-    side = CameraModel.from_projection_matrix(
-        projection_matrix_um(P_SIDE_MM), SIDE_IMAGE_SIZE_PX, dist_side, name="side"
-    )
-    return top, side
 
 
 def look_at_camera(
@@ -136,8 +100,8 @@ def random_camera_pair(
 def random_points(
     rng: np.random.Generator,
     n: int,
-    low_um: FloatArray = THESIS_WORKSPACE_MIN_UM,
-    high_um: FloatArray = THESIS_WORKSPACE_MAX_UM,
+    low_um: FloatArray = WORKSPACE_MIN_UM,
+    high_um: FloatArray = WORKSPACE_MAX_UM,
 ) -> FloatArray:
     """``n`` points uniformly distributed in the box [low, high], µm; (n, 3)."""
     out: FloatArray = rng.uniform(low_um, high_um, size=(n, 3))
