@@ -718,7 +718,8 @@ def measure(
     from .formats.images import read_frames
     from .formats.measurements import write_measurements
     from .formats.run_directory import find_image, read_commands, read_journal, read_manifest
-    from .procedures.measurement import frames_from_region, measure_poses
+    from .procedures.measurement import measure_poses
+    from .vision.roi import frames_from_region
     from .vision.targets import parse_target
 
     if not run_dir.is_dir():

@@ -12,18 +12,15 @@ import json
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from functools import cached_property
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from numpy.typing import ArrayLike
 from pydantic import BaseModel, ConfigDict, ValidationError
 
-from .._validation import FloatArray
 from .._version import __version__
-from ..errors import DegenerateDataError, FormatError, InputError
-from ..kinematics.compensators import Compensator
+from ..errors import FormatError, InputError
+from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..kinematics.models import KinematicModel
 from .atomic import write_atomic, write_text_atomic
 from .json_file import read_versioned_json, validation_message
@@ -75,90 +72,6 @@ class _CalibrationSchema(_Open):
     cameras: dict[str, Any] = {}
     manipulators: dict[str, _ManipulatorSchema]
     provenance: dict[str, Any] = {}
-
-
-@dataclass(frozen=True)
-class ManipulatorCalibration:
-    """The calibration of one manipulator: its model and the figures that validate it."""
-
-    name: str
-    model: KinematicModel
-    validation: dict[str, Any] = field(default_factory=dict)
-    extra: dict[str, Any] = field(default_factory=dict)
-
-    def predict_um(self, u: ArrayLike) -> FloatArray:
-        """Position in {G} (µm) for joint values (and further inputs), (N, 3)."""
-        return self.model.predict_um(u)
-
-    @property
-    def matrix_model(self) -> KinematicModel | None:
-        """The matrix model stored beside a polynomial one (for the matrix compensator)."""
-        data = self.extra.get("matrix_model")
-        if data is None:
-            return self.model if self.model.kind == "matrix" else None
-        return KinematicModel.from_dict(data)
-
-    @cached_property
-    def compensator(self) -> Compensator:
-        """The model prepared for inversion (built on first use)."""
-        return Compensator(self.model)
-
-    @property
-    def joint_range_um(self) -> FloatArray | None:
-        """(3, 2) range of the joints in the identification data, if recorded."""
-        rng = self.extra.get("joint_range_um")
-        return None if rng is None else np.asarray(rng, dtype=np.float64)
-
-    def joints_for(
-        self,
-        p_um: ArrayLike,
-        *,
-        extra: ArrayLike | None = None,
-        limits_um: ArrayLike | None = None,
-    ) -> FloatArray:
-        """Joint commands (µm) that put the end-effector at ``p_um`` in {G}: the compensator.
-
-        The matrix model is inverted exactly (Eq 4.16); a polynomial model is solved by the
-        optimal compensator (Eq 4.17-4.19).
-
-        Parameters
-        ----------
-        p_um : (N, 3) or (3,) float
-            Desired positions in {G}, µm.
-        extra : float or (N, e) float, optional
-            Values of the model's extra inputs (the temperature in °C), if it has any.
-        limits_um : (3, 2) float, optional
-            Soft limits per joint; a target outside raises LimitError and nothing is returned.
-
-        Returns
-        -------
-        d_um : (N, 3) float
-
-        Raises
-        ------
-        DegenerateDataError
-            A target for which the model has no solution (it did not converge).
-        LimitError
-            A target that needs joints outside ``limits_um``.
-        """
-        comp = self.compensator
-        if limits_um is not None:
-            comp = Compensator(self.model, limits_um)
-        if self.model.kind == "matrix":
-            return comp.linear(p_um, extra=extra)
-        result = comp.solve(p_um, extra=extra)
-        if not result.converged.all():
-            bad = int(np.flatnonzero(~result.converged)[0])
-            raise DegenerateDataError(
-                f"{int((~result.converged).sum())} target(s) have no solution of the model "
-                f"(first: row {bad}, residual {result.residual_um[bad]:.3g} µm); "
-                f"is the target inside the calibrated workspace?"
-            )
-        return result.d_um
-
-    def to_dict(self) -> dict[str, Any]:
-        """The manipulator's object in calibration.json."""
-        return {**self.extra, "model": self.model.to_dict(), "validation": self.validation}
 
 
 @dataclass(frozen=True)

@@ -28,8 +28,8 @@ from .._validation import FloatArray
 from ..devices.base import Camera, Clock, Manipulator
 from ..errors import DeviceError, DeviceTimeoutError, FrameError, MicrocalError
 from ..vision.detect import detect
+from ..vision.roi import RoiPredictor, box_around
 from ..vision.targets import Target
-from .measurement import RoiPredictor, box_around
 
 __all__ = ["AcquisitionConfig", "RunStoppedError", "acquire", "grab_retrying"]
 

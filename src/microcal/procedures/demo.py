@@ -29,12 +29,13 @@ from ..sim import SimPlatform, platform
 from ..sim.render import Placement
 from ..thesis.experiment import WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
 from ..vision.detect import Detection, detect
+from ..vision.roi import frames_from_region
 from ..vision.stereo_calibration import StereoCalibration, calibrate_known_displacements
 from ..vision.targets import Target, parse_target
 from .acquisition import AcquisitionConfig, Store, acquire
 from .evaluation import VisionProbe, run_decoupling, run_pose_accuracy
 from .identification import Identification, default_train, identify
-from .measurement import PoseMeasurement, frames_from_region, measure_poses
+from .measurement import PoseMeasurement, measure_poses
 
 __all__ = ["DemoResult", "calibrate_on_platform", "demo_design", "run_demo"]
 

@@ -28,8 +28,9 @@ from ..errors import InputError
 from ..geometry import CameraModel
 from ..metrics import decoupling_metrics, pose_statistics
 from ..thesis.experiment import DECOUPLING_PATH_UM, TABLE_5_2_POSES_UM
+from ..vision.roi import RoiPredictor
 from ..vision.targets import Target
-from .measurement import RoiPredictor, measure_one
+from .measurement import measure_one
 
 __all__ = [
     "VisionProbe",
