@@ -16,7 +16,7 @@ import pytest
 from conftest import run_microcal
 from microcal import DegenerateDataError, LimitError, sim
 from microcal.procedures.acquisition import AcquisitionConfig, acquire
-from microcal.procedures.designs import check_design, make_design
+from microcal.kinematics.designs import check_design, make_design
 
 LIMITS = np.array([[-500, 8500], [-500, 8500], [-500, 5300.0]])
 LOW, HIGH = [0, 0, 0], [8000, 8000, 4800]
@@ -44,7 +44,7 @@ def test_designs_that_cannot_identify_are_refused():
         check_design(together, LIMITS)
     outside = d.copy()
     outside[7, 0] = 9000.0
-    with pytest.raises(LimitError, match="command 8: axis x = 9000 µm is outside the soft limits"):
+    with pytest.raises(LimitError, match="command 8: axis x = 9000.000 µm is outside the soft limits"):
         check_design(outside, LIMITS)
 
 
@@ -175,7 +175,7 @@ def test_resume_refuses_another_rig_or_edited_files(tmp_path):
     ("rows", "message"),
     [
         ("dx_um,dy_um,dz_um\n" + "".join(f"{i * 400},{i * 300},100\n" for i in range(20)), "moves axis z over 0 %"),
-        ("dx_um,dy_um,dz_um\n0,0,0\n9999,100,100\n4000,4000,4000\n", "axis x = 9999 µm is outside the soft limits"),
+        ("dx_um,dy_um,dz_um\n0,0,0\n9999,100,100\n4000,4000,4000\n", "axis x = 9999.000 µm is outside the soft limits"),
         ("x,y\n1,2\n", "expected a CSV with columns dx_um,dy_um,dz_um"),
     ],
 )  # fmt: skip

@@ -80,10 +80,12 @@ def test_limits_refuse_instead_of_clipping(poly):
     p = poly.predict_um(np.array([[1000.0, 1000.0, 4700.0]]))
     limits = np.array([[0, 8000], [0, 8000], [0, 4500.0]])
     with pytest.raises(
-        LimitError, match=r"joint 2 = 4700.000 µm .* limits \[0, 4500\] µm; nothing was moved"
+        LimitError,
+        match=r"target 1: axis z = 4700.000 µm for target .* is outside the soft limits "
+        r"\[0, 4500\] µm; nothing was moved",
     ):
         optimal_compensator(poly, p, limits_um=limits)
-    with pytest.raises(LimitError, match="1 of 1 target"):
+    with pytest.raises(LimitError, match=r"target 1: axis z = .* soft limits \[0, 4500\]"):
         matrix_compensator(poly, p, limits_um=limits)
 
 

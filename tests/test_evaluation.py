@@ -9,7 +9,7 @@ import pytest
 
 from conftest import run_microcal
 from microcal import InputError, LimitError, sim
-from microcal.devices.feedforward import FeedForward
+from microcal.control.feedforward import FeedForward
 from microcal.errors import DegenerateDataError
 from microcal.formats.calibration_file import (
     Calibration,

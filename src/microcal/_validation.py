@@ -74,3 +74,61 @@ def as_rows(value: ArrayLike, name: str, width: int, *, finite: bool = True) -> 
     if arr.ndim == 1 and arr.shape[0] == width:
         arr = arr[None, :]
     return _check(arr, name, shape, finite)
+
+
+def check_limits(
+    d_um: ArrayLike,
+    limits_um: ArrayLike,
+    *,
+    axes: Sequence[str] = ("x", "y", "z"),
+    row: str = "command",
+    owner: str = "",
+    targets_um: ArrayLike | None = None,
+) -> FloatArray:
+    """Refuse joint values outside the soft limits: the one limit check of microcal.
+
+    Parameters
+    ----------
+    d_um : (N, k) or (k,) float
+        Joint values, µm; non-finite values count as outside.
+    limits_um : (k, 2) float
+        Soft limits (low, high) per joint.
+    axes : sequence of k str
+        The joints' names, for the message.
+    row : str
+        What a row is ("command", "target"), for the message.
+    owner : str
+        The device refusing, for the message.
+    targets_um : (N, 3) float, optional
+        The positions the rows were computed for, named in the message.
+
+    Returns
+    -------
+    d_um : the values as a float array of the same shape.
+
+    Raises
+    ------
+    LimitError
+        Naming the first value outside, its limits and how many rows are outside.
+    """
+    from .errors import LimitError
+
+    d = np.asarray(d_um, dtype=np.float64)
+    rows = np.atleast_2d(d)
+    lim = as_array(limits_um, "limits_um", (rows.shape[1], 2))
+    outside = (rows < lim[:, 0]) | (rows > lim[:, 1]) | ~np.isfinite(rows)
+    bad = np.flatnonzero(outside.any(axis=1))
+    if bad.size:
+        i = int(bad[0])
+        k = int(np.flatnonzero(outside[i])[0])
+        who = f"{owner}: " if owner else ""
+        which = f"{row} {i + 1}: " if d.ndim == 2 else ""
+        target = ""
+        if targets_um is not None:
+            target = f" for target {np.round(np.atleast_2d(targets_um)[i], 3).tolist()} µm"
+        count = f" ({bad.size} of {rows.shape[0]} {row}s outside)" if bad.size > 1 else ""
+        raise LimitError(
+            f"{who}{which}axis {axes[k]} = {rows[i, k]:.3f} µm{target} is outside the soft "
+            f"limits [{lim[k, 0]:g}, {lim[k, 1]:g}] µm{count}; nothing was moved"
+        )
+    return d

@@ -851,7 +851,7 @@ def evaluate(
 
     Example: microcal evaluate --rig sim --calibration calibration.json --test pose-accuracy
     """
-    from .devices.feedforward import FeedForward
+    from .control.feedforward import FeedForward
     from .formats.calibration_file import load_calibration
     from .formats.cameras_file import models_from_dict
     from .formats.results_file import update_results
@@ -1118,9 +1118,9 @@ def _acquire_on(
     from .formats.calibration_file import provenance
     from .formats.run_directory import RunWriter, read_commands
     from .kinematics.compensators import check_limits
+    from .kinematics.designs import DESIGNS, check_design, make_design
     from .procedures.acquisition import AcquisitionConfig, RunStoppedError
     from .procedures.acquisition import acquire as run_acquisition
-    from .procedures.designs import DESIGNS, check_design, make_design
     from .thesis.experiment import WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
 
     board = opened.board

@@ -20,15 +20,14 @@ import numpy as np
 import scipy.optimize
 from numpy.typing import ArrayLike
 
-from .._validation import FloatArray, as_array, as_rows
-from ..errors import DegenerateDataError, InputError, LimitError
+from .._validation import FloatArray, as_array, as_rows, check_limits
+from ..errors import DegenerateDataError, InputError
 from .models import KinematicModel
 
 __all__ = [
     "MAX_CONDITION",
     "Compensation",
     "Compensator",
-    "check_limits",
     "matrix_compensator",
     "optimal_compensator",
 ]
@@ -92,26 +91,6 @@ def _extra_inputs(model: KinematicModel, n: int, extra: ArrayLike | None) -> Flo
     return as_array(e, "extra", (n, len(names)))
 
 
-def check_limits(
-    d_um: FloatArray, limits_um: ArrayLike | None, p_um: FloatArray | None = None
-) -> None:
-    """Raise LimitError if any row of ``d_um`` leaves ``limits_um`` ((j, 2) low/high per joint)."""
-    if limits_um is None:
-        return
-    lim = as_array(limits_um, "limits_um", (d_um.shape[1], 2))
-    outside = (d_um < lim[:, 0]) | (d_um > lim[:, 1]) | ~np.isfinite(d_um)
-    bad = np.flatnonzero(outside.any(axis=1))
-    if bad.size:
-        i = int(bad[0])
-        k = int(np.flatnonzero(outside[i])[0])
-        target = f" for target {np.round(p_um[i], 3).tolist()} µm" if p_um is not None else ""
-        raise LimitError(
-            f"{bad.size} of {d_um.shape[0]} target(s) need joints outside the soft limits: "
-            f"joint {k} = {d_um[i, k]:.3f} µm{target}, limits [{lim[k, 0]:g}, {lim[k, 1]:g}] µm; "
-            f"nothing was moved"
-        )
-
-
 def _solve3(J: FloatArray, r: FloatArray) -> FloatArray:
     """Solve ``J x = r`` for N 3x3 systems at once.
 
@@ -171,7 +150,8 @@ class Compensator:
         p = as_rows(p_um, "p_um", 3)
         e = _extra_inputs(self.model, p.shape[0], extra)
         d = self._start(p, e)
-        check_limits(d, self.limits_um, p)
+        if self.limits_um is not None:
+            check_limits(d, self.limits_um, row="target", targets_um=p)
         return d
 
     def solve(
@@ -240,7 +220,8 @@ class Compensator:
             if res < norm[i]:
                 d[i], norm[i] = sol.x, res
         converged = norm <= tol_um
-        check_limits(d[converged], self.limits_um, p[converged])
+        if self.limits_um is not None:
+            check_limits(d[converged], self.limits_um, row="target", targets_um=p[converged])
         return Compensation(d, converged, norm, iterations, n_fallback)
 
 

@@ -22,8 +22,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._validation import FloatArray
-from ..devices.feedforward import FeedForward
+from ..control.feedforward import FeedForward
 from ..errors import FormatError
+from ..kinematics.designs import make_design
 from ..metrics.error_summary import summarize_errors
 from ..sim import SimPlatform, platform
 from ..sim.render import Placement
@@ -37,7 +38,7 @@ from .evaluation import VisionProbe, run_decoupling, run_pose_accuracy
 from .identification import Identification, default_train, identify
 from .measurement import PoseMeasurement, measure_poses
 
-__all__ = ["DemoResult", "calibrate_on_platform", "demo_design", "run_demo"]
+__all__ = ["DemoResult", "calibrate_on_platform", "demo_design", "demo_design_seed", "run_demo"]
 
 CALIBRATION_TARGET = "dotgrid:40x30:250"
 CALIBRATION_STEPS_UM = (0.0, 1000.0, 2000.0, 3000.0, 4000.0)
@@ -72,11 +73,18 @@ class DemoResult:
         return float(np.sqrt(np.mean(np.sum((p - self.truth_um[ok]) ** 2, axis=1))))
 
 
+def demo_design_seed(seed: int) -> int:
+    """The seed of the demo's design (its draws are apart from the platform's)."""
+    return seed + 1
+
+
 def demo_design(seed: int, poses: int) -> FloatArray:
-    """The demo's joint commands: uniform over the thesis's workspace, (poses, 3) µm."""
-    rng = np.random.default_rng(seed + 1)
-    d: FloatArray = rng.uniform(WORKSPACE_MIN_UM, WORKSPACE_MAX_UM, (poses, 3))
-    return d
+    """The demo's joint commands: the ``random`` design over the thesis's workspace.
+
+    ``make_design("random", poses, WORKSPACE_MIN_UM, WORKSPACE_MAX_UM, demo_design_seed(seed))``,
+    which is what the demo's run.json records; (poses, 3) µm.
+    """
+    return make_design("random", poses, WORKSPACE_MIN_UM, WORKSPACE_MAX_UM, demo_design_seed(seed))
 
 
 def calibrate_on_platform(

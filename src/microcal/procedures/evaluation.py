@@ -22,8 +22,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .._validation import FloatArray
+from ..control.feedforward import FeedForward
 from ..devices.base import Camera, Clock, Manipulator
-from ..devices.feedforward import FeedForward
 from ..errors import InputError
 from ..geometry import CameraModel
 from ..metrics import decoupling_metrics, pose_statistics

@@ -8,7 +8,7 @@ calibration.json.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -23,9 +23,10 @@ from ..kinematics import (
     fit_polynomial_model,
     validate_split,
 )
+from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..thesis.experiment import SPLIT
 
-__all__ = ["Identification", "default_train", "identify"]
+__all__ = ["Identification", "calibrate_manipulator", "default_train", "identify"]
 
 
 def default_train(n: int) -> int:
@@ -112,3 +113,37 @@ def identify(
         cv = cross_validate(fit, u, positions, folds, seed)
         validation["cross_validation"] = cv.as_dict()
     return Identification(val.model, validation, val, cv, u, positions)
+
+
+def calibrate_manipulator(
+    name: str,
+    d_um: FloatArray,
+    p_um: FloatArray,
+    model: Literal["matrix", "polynomial"] = "polynomial",
+    *,
+    train: int | None = None,
+    **options: Any,
+) -> tuple[ManipulatorCalibration, Identification]:
+    """The whole calibration of one manipulator: its model, validation and what goes with it.
+
+    Identifies ``model`` as :func:`identify` does (``options`` are its keywords); a polynomial
+    model is joined by the matrix model fitted on the same poses (for the matrix compensator,
+    Eq 4.16), and the range of the joints the model was identified on is recorded.
+
+    Returns
+    -------
+    calibration : ManipulatorCalibration
+        What calibration.json holds for this manipulator.
+    identification : Identification
+        The fit itself (the data used, the split and cross-validation).
+    """
+    result = identify(d_um, p_um, model, train=train, **options)
+    d = np.asarray(d_um, dtype=np.float64)
+    extra: dict[str, Any] = {
+        "joint_range_um": np.column_stack([d.min(axis=0), d.max(axis=0)]).tolist()
+    }
+    if model == "polynomial":
+        matrix = identify(d_um, p_um, "matrix", train=train)
+        extra["matrix_model"] = matrix.model.to_dict()
+        extra["matrix_validation"] = matrix.validation
+    return ManipulatorCalibration(name, result.model, result.validation, extra), result

@@ -15,6 +15,7 @@ import numpy as np
 
 from .._validation import FloatArray
 from ..geometry import CameraModel, triangulate_optimal, triangulation_covariance
+from ..kinematics.designs import make_design
 from ..thesis.cameras import thesis_cameras
 from ..thesis.experiment import WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
 from ..thesis.figures import VIRTUAL_POINT_STD_PX
@@ -70,7 +71,7 @@ def synthetic_run(
     truth = truth or thesis_kinematics()
     cameras = cameras or thesis_cameras()
     if d_um is None:
-        d_um = rng.uniform(WORKSPACE_MIN_UM, WORKSPACE_MAX_UM, (n_poses, 3))
+        d_um = make_design("random", n_poses, WORKSPACE_MIN_UM, WORKSPACE_MAX_UM, rng)
     true = truth.position_um(d_um, approach_signs(d_um))
     measured, cov = measure_positions(true, cameras, rng)
     return SyntheticRun(d_um, true, measured, cov, truth)

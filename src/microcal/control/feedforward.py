@@ -15,10 +15,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .._validation import FloatArray, as_array
+from ..devices.base import Manipulator
 from ..errors import DegenerateDataError
 from ..kinematics.compensators import Compensator
 from ..kinematics.models import KinematicModel
-from .base import Manipulator
 
 __all__ = ["FeedForward"]
 

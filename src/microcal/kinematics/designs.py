@@ -19,8 +19,8 @@ import numpy as np
 import scipy.stats.qmc as qmc
 from numpy.typing import ArrayLike
 
-from .._validation import FloatArray, as_array
-from ..errors import DegenerateDataError, InputError, LimitError
+from .._validation import FloatArray, as_array, check_limits
+from ..errors import DegenerateDataError, InputError
 
 __all__ = ["DESIGNS", "check_design", "make_design"]
 
@@ -32,7 +32,7 @@ MAX_CORRELATION = 0.95
 
 
 def make_design(
-    kind: str, n: int, low_um: ArrayLike, high_um: ArrayLike, seed: int = 0
+    kind: str, n: int, low_um: ArrayLike, high_um: ArrayLike, seed: int | np.random.Generator = 0
 ) -> FloatArray:
     """Joint commands of a design.
 
@@ -43,7 +43,8 @@ def make_design(
         Number of poses (a grid has the nearest number its shape allows).
     low_um, high_um : (k,) float
         The travel to cover, µm.
-    seed : int
+    seed : int or numpy.random.Generator
+        A seed, or a generator to draw from (it advances).
 
     Returns
     -------
@@ -100,13 +101,7 @@ def check_design(
     """
     d = as_array(d_um, "commands", (None, len(axes)))
     lim = as_array(limits_um, "limits_um", (len(axes), 2))
-    outside = (d < lim[:, 0]) | (d > lim[:, 1])
-    if outside.any():
-        i, k = np.argwhere(outside)[0]
-        raise LimitError(
-            f"command {i + 1}: axis {axes[k]} = {d[i, k]:g} µm is outside the soft limits "
-            f"[{lim[k, 0]:g}, {lim[k, 1]:g}] µm; nothing was moved"
-        )
+    check_limits(d, lim, axes=axes)
     span = np.ptp(d, axis=0) / (lim[:, 1] - lim[:, 0])
     for k in np.flatnonzero(span < MIN_SPAN).tolist():
         raise DegenerateDataError(
