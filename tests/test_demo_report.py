@@ -21,15 +21,24 @@ CONDITIONS = {"uncalibrated", "matrix", "optimal"}
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
 
-@pytest.fixture(scope="module")
+_DEMO: dict[str, tuple[Path, str]] = {}
+
+
+@pytest.fixture(scope="session")
 def quick_demo(tmp_path_factory):
-    """One ``microcal demo --quick`` run for the whole module: (directory, terminal output)."""
-    out = tmp_path_factory.mktemp("demo") / "run"
-    result = runner.invoke(
-        app, ["demo", "--quick", "--seed", "1", "--out", str(out)], env={"COLUMNS": "200"}
-    )
-    assert result.exit_code == 0, result.output
-    return out, result.output
+    """One ``microcal demo --quick`` run for the whole session: (directory, terminal output).
+
+    Other modules import this fixture and share the same run; a test that changes the run
+    directory works on a copy of it.
+    """
+    if "quick" not in _DEMO:
+        out = tmp_path_factory.mktemp("demo") / "run"
+        result = runner.invoke(
+            app, ["demo", "--quick", "--seed", "1", "--out", str(out)], env={"COLUMNS": "200"}
+        )
+        assert result.exit_code == 0, result.output
+        _DEMO["quick"] = (out, result.output)
+    return _DEMO["quick"]
 
 
 def test_demo_prints_each_step_and_the_thesis_figures(quick_demo):
@@ -141,9 +150,12 @@ def _lookup(data, key: str):
     return data
 
 
-def test_report_numbers_equal_the_result_files(quick_demo):
-    out, _ = quick_demo
-    parsed = _cells(out / "report.html")
+def check_number_cells(out: Path, page: Path) -> set[str]:
+    """Every number cell of the report ``page`` equals the file of ``out`` its key names.
+
+    Returns the keys checked.
+    """
+    parsed = _cells(page)
     sources = {
         "results": json.loads((out / "results.json").read_text()),
         "cameras": json.loads((out / "cameras.json").read_text())["cameras"],
@@ -163,6 +175,13 @@ def test_report_numbers_equal_the_result_files(quick_demo):
         digits = len(text.split(".")[1]) if "." in text else 0
         assert text == f"{expected:.{digits}f}", key
         checked.add(key)
+    return checked
+
+
+def test_report_numbers_equal_the_result_files(quick_demo):
+    out, _ = quick_demo
+    checked = check_number_cells(out, out / "report.html")
+    parsed = _cells(out / "report.html")
     must = {"stereo.top.rms_px", "stereo.side.rms_px", "measurement.rms_error_um",
             "models.matrix.validation.mean_um", "models.polynomial.validation.max_um",
             "calibration.polynomial.mean_um", "calibration.matrix.mean_um"}  # fmt: skip

@@ -26,13 +26,55 @@ from ..thesis.figures import (
 from . import figures
 from .data import RunData, load_run
 
-__all__ = ["build_report", "write_report"]
+__all__ = ["build_report", "compares_with_thesis", "write_report"]
 
 THESIS_REPROJECTION_PX = {"top": REPROJECTION_ERROR_TOP_PX, "side": REPROJECTION_ERROR_SIDE_PX}
 CONDITIONS = ("uncalibrated", "matrix", "optimal")
 
 
-def _stereo(data: RunData) -> dict[str, Any] | None:
+def compares_with_thesis(data: RunData) -> bool:
+    """Whether the report sets the run's figures beside the thesis's.
+
+    Only a run on the simulator's ``thesis`` preset reproduces the thesis's platform, so only
+    its figures are comparable; a hardware rig, another preset or a run whose rig is not
+    recorded (no run.json) is reported on its own.
+    """
+    rig = data.rig or {}
+    return rig.get("driver") == "sim" and rig.get("preset") == "thesis"
+
+
+def _rig_text(data: RunData) -> str:
+    """One line naming the rig of a run, for a report without the thesis comparison."""
+    rig = data.rig
+    if rig is None:
+        return "not recorded (no run.json)" if not data.manifest else "not recorded in run.json"
+    driver = rig.get("driver")
+    if driver == "sim":
+        text = f"the simulator, preset {rig.get('preset', '?')}"
+        if rig.get("seed") is not None:
+            text += f", seed {rig['seed']}"
+        if rig.get("overrides"):
+            text += f", {len(rig['overrides'])} settings overridden"
+        return text
+    if driver == "hardware":
+        parts = []
+        manipulator = rig.get("manipulator")
+        if isinstance(manipulator, dict) and manipulator.get("kind"):
+            parts.append(f"manipulator {manipulator['kind']}")
+        cameras = rig.get("cameras")
+        if isinstance(cameras, dict) and cameras:
+            parts.append(
+                "cameras "
+                + ", ".join(
+                    f"{name} ({c['kind']})" if isinstance(c, dict) and c.get("kind") else name
+                    for name, c in cameras.items()
+                )
+            )
+        return "hardware" + (": " + "; ".join(parts) if parts else "")
+    return f"driver {driver}"
+
+
+def _stereo(data: RunData, thesis: bool) -> dict[str, Any] | None:
     if not data.cameras:
         return None
     cams = data.cameras.get("cameras", {})
@@ -44,7 +86,7 @@ def _stereo(data: RunData) -> dict[str, Any] | None:
             {
                 "name": name,
                 "rms_px": c.get("rms_px"),
-                "thesis_px": THESIS_REPROJECTION_PX.get(name),
+                "thesis_px": THESIS_REPROJECTION_PX.get(name) if thesis else None,
                 "views_used": c.get("views_used"),
                 "rejected": c.get("views_rejected", []),
                 "fx": K[0, 0],
@@ -109,7 +151,7 @@ def _acquisition(data: RunData) -> dict[str, Any] | None:
     }
 
 
-def _measurement(data: RunData) -> dict[str, Any] | None:
+def _measurement(data: RunData, thesis: bool) -> dict[str, Any] | None:
     m = data.measurements
     if m is None:
         return None
@@ -117,7 +159,7 @@ def _measurement(data: RunData) -> dict[str, Any] | None:
         "n_ok": len(m.pose),
         "n_failed": m.n_failed,
         "rms_error_um": data.results.get("measurement", {}).get("rms_error_um"),
-        "claimed_um": CLAIMED_ACCURACY_UM,
+        "claimed_um": CLAIMED_ACCURACY_UM if thesis else None,
     }
     if m.std_um is not None:
         out["median_std_um"] = np.median(m.std_um, axis=0).tolist()
@@ -125,7 +167,7 @@ def _measurement(data: RunData) -> dict[str, Any] | None:
     return out
 
 
-def _models(data: RunData) -> dict[str, Any] | None:
+def _models(data: RunData, thesis: bool) -> dict[str, Any] | None:
     if data.calibration is None:
         return None
     errors = data.model_errors()
@@ -135,7 +177,7 @@ def _models(data: RunData) -> dict[str, Any] | None:
             "axes": [{"axis": a, "terms": model.axis_terms(i)} for i, a in enumerate("xyz")],
             "n_terms": int(np.sum(model.selected)),
             "validation": validation,
-            "thesis": VALIDATION_UM.get(kind),
+            "thesis": VALIDATION_UM.get(kind) if thesis else None,
         }
         for kind, model, validation in data.models()
     ]
@@ -147,7 +189,7 @@ def _models(data: RunData) -> dict[str, Any] | None:
     return {"models": models, "figure": figure}
 
 
-def _pose_accuracy(data: RunData) -> dict[str, Any] | None:
+def _pose_accuracy(data: RunData, thesis: bool) -> dict[str, Any] | None:
     pa = data.results.get("pose_accuracy")
     if not pa:
         return None
@@ -157,10 +199,10 @@ def _pose_accuracy(data: RunData) -> dict[str, Any] | None:
         for name in CONDITIONS:
             if name in pa[source]:
                 tables.append({"source": source, "condition": name, **pa[source][name]})
-    return {"sources": sources, "tables": tables, "thesis": POSE_ACCURACY_UM}
+    return {"sources": sources, "tables": tables, "thesis": POSE_ACCURACY_UM if thesis else {}}
 
 
-def _decoupling(data: RunData) -> dict[str, Any] | None:
+def _decoupling(data: RunData, thesis: bool) -> dict[str, Any] | None:
     dc = data.results.get("decoupling")
     if not dc:
         return None
@@ -180,8 +222,8 @@ def _decoupling(data: RunData) -> dict[str, Any] | None:
     return {
         "sources": sources,
         "plots": plots,
-        "thesis_ranges": DECOUPLING_UM,
-        "thesis_omega": OMEGA_UM,
+        "thesis_ranges": DECOUPLING_UM if thesis else {},
+        "thesis_omega": OMEGA_UM if thesis else {},
     }
 
 
@@ -209,26 +251,34 @@ def build_report(run_dir: str | os.PathLike[str]) -> str:
 
     Sections whose files are missing say so instead of failing, so a report can be made at
     any stage of a calibration (after ``acquire``, after ``fit``, after ``evaluate``).
+    The thesis's figures stand beside the run's only for a run on the simulator's thesis
+    preset (`compares_with_thesis`); any other run is reported with its own figures alone.
     """
     data = load_run(run_dir)
+    thesis = compares_with_thesis(data)
     context = {
         "title": f"microcal calibration report: {Path(run_dir).resolve().name}",
         "version": __version__,
         "generated": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "results": data.results,
-        "stereo": _stereo(data),
+        "stereo": _stereo(data, thesis),
         "acquisition": _acquisition(data),
-        "measurement": _measurement(data),
-        "models": _models(data),
-        "pose_accuracy": _pose_accuracy(data),
-        "decoupling": _decoupling(data),
+        "measurement": _measurement(data, thesis),
+        "models": _models(data, thesis),
+        "pose_accuracy": _pose_accuracy(data, thesis),
+        "decoupling": _decoupling(data, thesis),
         "provenance": _provenance(data),
-        "thesis": {
-            "reprojection": THESIS_REPROJECTION_PX,
-            "validation": VALIDATION_UM,
-            "pose_accuracy": POSE_ACCURACY_UM,
-            "claimed_um": CLAIMED_ACCURACY_UM,
-        },
+        "rig": _rig_text(data),
+        "thesis": (
+            {
+                "reprojection": THESIS_REPROJECTION_PX,
+                "validation": VALIDATION_UM,
+                "pose_accuracy": POSE_ACCURACY_UM,
+                "claimed_um": CLAIMED_ACCURACY_UM,
+            }
+            if thesis
+            else None
+        ),
     }
     text = resources.files(__package__).joinpath("report.html.j2").read_text(encoding="utf-8")
     env = jinja2.Environment(autoescape=True, undefined=jinja2.StrictUndefined)

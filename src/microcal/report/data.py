@@ -56,6 +56,13 @@ class RunData:
     calibration: Calibration | None = None
     results: dict[str, Any] = field(default_factory=dict)
 
+    @property
+    def rig(self) -> dict[str, Any] | None:
+        """The rig run.json records (``{"driver": "sim", "preset": "thesis", ...}`` or
+        ``{"driver": "hardware", ...}``); None without a run.json or a rig entry in it."""
+        rig = self.manifest.get("rig")
+        return dict(rig) if isinstance(rig, dict) else None
+
     def models(self) -> list[tuple[str, KinematicModel, dict[str, Any]]]:
         """Every identified model as (kind, model, its validation object).
 
