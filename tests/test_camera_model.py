@@ -142,3 +142,28 @@ def test_project_rejects_bad_points(thesis_pair, value, match):
 def test_single_point_is_accepted(thesis_pair):
     q = thesis_pair[0].project([1000.0, 2000.0, 300.0])
     assert q.shape == (1, 2)
+
+
+def test_back_project_agrees_with_opencv():
+    cam = photo_camera(skew=0.0)
+    q = image_grid(cam, 21) * 0.9 + 60
+    origin, direction = cam.back_project(q)
+    np.testing.assert_array_equal(origin, np.broadcast_to(cam.centre_um, origin.shape))
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-14)
+    if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4
+        xy = cv2.undistortPointsIter(q[:, None, :], cam.K, cam.dist, None, None, crit)[:, 0, :]
+    else:  # OpenCV 5 folded the iteration criteria into undistortPoints
+        xy = cv2.undistortPoints(q[:, None, :], cam.K, cam.dist, R=None, criteria=crit)[:, 0, :]
+    ray_c = np.hstack([xy, np.ones((len(xy), 1))])
+    theirs = (ray_c / np.linalg.norm(ray_c, axis=1, keepdims=True)) @ cam.R
+    # Metric: worst-case difference of the unit directions (radians, for small angles).
+    assert np.abs(direction - theirs).max() < 1e-8
+    # and the rays point into the scene: the camera sees their points in front of it.
+    assert np.all((direction @ cam.R.T)[:, 2] > 0)
+
+
+def test_back_project_of_far_outside_pixels_is_nan_not_garbage():
+    cam = photo_camera()
+    _, direction = cam.back_project(np.array([[640.0, 480.0], [1e7, -1e7]]))
+    assert np.all(np.isfinite(direction[0]))
+    assert np.all(np.isnan(direction[1]))

@@ -1,4 +1,4 @@
-"""Projection matrix: normalised DLT (Eq 3.7-3.15) and RQ decomposition (Eq 3.16)."""
+"""Projection matrix: normalised DLT (Eq 3.7-3.15), RQ decomposition (Eq 3.16), normalisation."""
 
 from __future__ import annotations
 
@@ -11,11 +11,17 @@ from hypothesis import strategies as st
 from microcal import (
     DegenerateDataError,
     InputError,
+    camera_centre,
     decompose_projection_matrix,
     estimate_projection_matrix,
+    project_points,
     reprojection_error,
 )
-from microcal.geometry.projection_matrix import normalize_projection_matrix
+from microcal.geometry.projection_matrix import (
+    is_affine_projection_matrix,
+    normalize_camera_matrix,
+    normalize_projection_matrix,
+)
 from microcal.sim.synthetic_geometry import dot_grid_points, random_camera_pair, random_points
 from microcal.thesis.figures import P_SIDE_MM, P_TOP_MM, projection_matrix_um
 
@@ -160,3 +166,48 @@ def test_decompose_rejects_camera_at_infinity():
 def test_decompose_rejects_bad_shape():
     with pytest.raises(InputError, match=r"P: expected shape \(3, 4\), got \(3, 3\)"):
         decompose_projection_matrix(np.eye(3))
+
+
+def affine_matrix(scale: float = 1.0) -> np.ndarray:
+    """A hand-built affine camera (parallel projection): 0.04 px/µm along a rotated view."""
+    R = np.array([[0.8, 0.6, 0.0], [-0.36, 0.48, 0.8], [0.48, -0.64, 0.6]])
+    P = np.zeros((3, 4))
+    P[:2, :3] = 0.04 * R[:2]
+    P[:2, 3] = [700.0, 500.0]
+    P[2, 3] = 1.0
+    return scale * P
+
+
+@pytest.mark.parametrize("scale", [1.0, -3.0, 1e-4, 7e5])
+def test_normalize_camera_matrix_leaves_pinhole_normalisation_alone(thesis_pair, scale):
+    for cam in thesis_pair:
+        P = cam.P * scale
+        np.testing.assert_array_equal(normalize_camera_matrix(P), normalize_projection_matrix(P))
+
+
+@pytest.mark.parametrize("scale", [1.0, -2.5, 1e-6, 3e4])
+def test_normalize_camera_matrix_scales_an_affine_camera(scale):
+    P = affine_matrix(scale)
+    assert is_affine_projection_matrix(P)
+    out = normalize_camera_matrix(P)
+    np.testing.assert_array_equal(out[2], [0.0, 0.0, 0.0, 1.0])
+    # Metric: element-wise, relative to the largest entry (one division by the scale).
+    assert np.abs(out - affine_matrix()).max() <= 1e-15 * np.abs(affine_matrix()).max()
+
+
+def test_affine_camera_is_refused_where_a_centre_is_needed():
+    P = affine_matrix()
+    with pytest.raises(DegenerateDataError, match=r"got P\[2, :3\] = 0 \(an affine camera\)"):
+        normalize_projection_matrix(P)
+    with pytest.raises(DegenerateDataError, match="camera_centre: expected a pinhole camera"):
+        camera_centre(P)
+    P[2, 3] = 0.0
+    with pytest.raises(DegenerateDataError, match=r"or an affine camera .* got P\[2\] = 0"):
+        normalize_camera_matrix(P)
+
+
+def test_project_points_with_an_affine_camera(rng):
+    P = affine_matrix(-2.0)
+    p = random_points(rng, 20)
+    np.testing.assert_allclose(project_points(P, p), p @ (P[:2, :3] / P[2, 3]).T
+                               + P[:2, 3] / P[2, 3], rtol=1e-14)  # fmt: skip

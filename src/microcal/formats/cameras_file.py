@@ -1,9 +1,16 @@
-"""``cameras.json``: calibrated cameras in one {V}, versioned, validated on load."""
+"""``cameras.json``: calibrated cameras in one {V}, versioned, validated on load.
+
+Each camera names its model's kind in ``"model"`` (written always). Files written before the
+key existed hold pinhole cameras and are read as such. :data:`CAMERA_LOADERS` maps each kind
+to the function that builds its camera model from the camera's JSON object: a new kind of
+camera model adds one entry there.
+"""
 
 from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +25,9 @@ from .json_file import read_versioned_json, validation_message
 
 __all__ = [
     "CAMERAS_FORMAT",
+    "CAMERA_LOADERS",
+    "DEFAULT_CAMERA_MODEL",
+    "CameraLoader",
     "cameras_to_dict",
     "load_cameras",
     "models_from_dict",
@@ -26,9 +36,18 @@ __all__ = [
 ]
 
 CAMERAS_FORMAT = "microcal.cameras/1"
+#: The kind of a camera without a ``"model"`` key (files written before the key existed).
+DEFAULT_CAMERA_MODEL = "pinhole"
+
+#: Builds a camera model from its JSON object and its name. Raises pydantic's
+#: ``ValidationError`` for a malformed object or ``InputError`` for invalid values.
+#: It returns a ``CameraModel`` while the procedures that take the loaded cameras
+#: (``measure_poses``, ``VisionProbe``, ``virtual_point``) are typed for it; a second kind
+#: widens this, ``models_from_dict`` and those to ``CameraModelProtocol``.
+CameraLoader = Callable[[Mapping[str, Any], str], CameraModel]
 
 
-class _Camera(BaseModel):
+class _PinholeCamera(BaseModel):
     model_config = ConfigDict(extra="allow", allow_inf_nan=False)
     image_size_px: tuple[int, int]
     K: list[list[float]]
@@ -40,7 +59,17 @@ class _Camera(BaseModel):
 class _Cameras(BaseModel):
     model_config = ConfigDict(extra="allow", allow_inf_nan=False)
     format: str
-    cameras: dict[str, _Camera]
+    cameras: dict[str, dict[str, Any]]
+
+
+def _load_pinhole(cam: Mapping[str, Any], name: str) -> CameraModel:
+    c = _PinholeCamera.model_validate(cam)
+    K, dist, R, t_um = (np.array(v) for v in (c.K, c.dist, c.R, c.t_um))
+    return CameraModel(K, dist, R, t_um, c.image_size_px, name)
+
+
+#: Camera model kind (cameras.json's ``"model"``) -> its loader.
+CAMERA_LOADERS: dict[str, CameraLoader] = {"pinhole": _load_pinhole}
 
 
 def cameras_to_dict(cal: StereoCalibration, provenance: dict[str, Any]) -> dict[str, Any]:
@@ -49,6 +78,7 @@ def cameras_to_dict(cal: StereoCalibration, provenance: dict[str, Any]) -> dict[
     for name, c in cal.cameras.items():
         m = c.model
         cameras[name] = {
+            "model": m.kind,
             "image_size_px": list(m.image_size_px),
             "K": m.K.tolist(),
             "dist": m.dist.tolist(),
@@ -75,16 +105,36 @@ def write_cameras(path: str | os.PathLike[str], data: dict[str, Any]) -> Path:
 
 
 def models_from_dict(data: dict[str, Any], where: str = "cameras") -> dict[str, CameraModel]:
-    """Camera models from a cameras.json object (or the ``cameras`` part of calibration.json)."""
+    """Camera models from a cameras.json object (or the ``cameras`` part of calibration.json).
+
+    Each camera's ``"model"`` (``"pinhole"`` when absent) picks its loader in
+    :data:`CAMERA_LOADERS`.
+
+    Raises
+    ------
+    FormatError
+        The object does not validate, a camera names a model kind not in
+        :data:`CAMERA_LOADERS`, or its values do not make a camera; the message names
+        ``where`` and the camera.
+    """
     try:
         parsed = _Cameras.model_validate(data)
     except ValidationError as exc:
         raise FormatError(f"{where}: {validation_message(exc)}") from None
     models = {}
     for name, cam in parsed.cameras.items():
+        kind = cam.get("model", DEFAULT_CAMERA_MODEL)
+        loader = CAMERA_LOADERS.get(kind) if isinstance(kind, str) else None
+        if loader is None:
+            known = ", ".join(repr(k) for k in CAMERA_LOADERS)
+            raise FormatError(
+                f"{where}: cameras.{name}.model: expected one of {known}, got {kind!r} "
+                "(a camera model this version of microcal does not know)"
+            )
         try:
-            models[name] = CameraModel(np.array(cam.K), np.array(cam.dist), np.array(cam.R),
-                                       np.array(cam.t_um), cam.image_size_px, name)  # fmt: skip
+            models[name] = loader(cam, name)
+        except ValidationError as exc:
+            raise FormatError(f"{where}: cameras.{name}.{validation_message(exc)}") from None
         except InputError as exc:
             raise FormatError(f"{where}: cameras.{name}: {exc}") from None
     return models

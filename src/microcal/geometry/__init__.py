@@ -1,4 +1,4 @@
-"""Camera geometry (pure math layer): camera model, projection matrices, triangulation.
+"""Camera geometry (pure math layer): camera models, projection matrices, triangulation.
 
 Everything here depends on numpy and scipy only. Lengths are in micrometres, image
 coordinates in pixels (OpenCV's convention: (x, y) = (column, row), origin at the centre of
@@ -6,6 +6,7 @@ the top-left pixel), points are rows.
 """
 
 from .camera_model import CameraModel
+from .camera_protocol import CameraModelProtocol, check_camera_model
 from .projection_matrix import (
     camera_centre,
     decompose_projection_matrix,
@@ -13,16 +14,24 @@ from .projection_matrix import (
     project_points,
 )
 from .reprojection import reprojection_error
-from .triangulation import triangulate, triangulate_optimal, triangulation_covariance
+from .triangulation import (
+    triangulate,
+    triangulate_cameras,
+    triangulate_optimal,
+    triangulation_covariance,
+)
 
 __all__ = [
     "CameraModel",
+    "CameraModelProtocol",
     "camera_centre",
+    "check_camera_model",
     "decompose_projection_matrix",
     "estimate_projection_matrix",
     "project_points",
     "reprojection_error",
     "triangulate",
+    "triangulate_cameras",
     "triangulate_optimal",
     "triangulation_covariance",
 ]

@@ -10,6 +10,7 @@ intrinsic matrix ``K = [[fx, s, cx], [0, fy, cy], [0, 0, 1]]``. Without distorti
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -136,7 +137,15 @@ class CameraModel:
         Image width and height in pixels.
     name : str
         Free name of the camera ("top", "side", "left" ...).
+
+    Notes
+    -----
+    Implements :class:`~microcal.geometry.camera_protocol.CameraModelProtocol` with
+    ``kind == "pinhole"``.
     """
+
+    #: The model's kind, as cameras.json's ``"model"`` key spells it.
+    kind: ClassVar[str] = "pinhole"
 
     K: FloatArray
     dist: FloatArray
@@ -333,6 +342,40 @@ class CameraModel:
         xy = np.asarray(np.linalg.solve(A, (q - self.K[:2, 2]).T).T, dtype=np.float64)
         xy_d, _ = distort_normalized(xy, self.dist)
         return self._to_pixels(xy_d)
+
+    def back_project(
+        self, q_px: ArrayLike, *, distort: bool = True
+    ) -> tuple[FloatArray, FloatArray]:
+        """The rays of {G} that pixels come from.
+
+        Parameters
+        ----------
+        q_px : (N, 2) or (2,) float
+            Pixel coordinates.
+        distort : bool
+            The pixels carry the lens distortion (observed by the real camera; it is removed
+            first by :meth:`undistort_px`) or not (pixels of the ideal pinhole ``P``), as in
+            :meth:`project`.
+
+        Returns
+        -------
+        origin_um : (N, 3) float
+            The projection centre :attr:`centre_um`, in {G}, µm, once per pixel.
+        direction : (N, 3) float
+            Unit direction of each ray in {G}, towards the scene (positive depth): the points
+            ``origin_um + s * direction``, ``s > 0``, project onto ``q_px``. NaN where the
+            undistortion did not converge.
+        """
+        q = as_rows(q_px, "q_px", 2)
+        if distort and self.has_distortion:
+            q = self.undistort_px(q)
+        A = self.K[:2, :2]
+        xy = np.linalg.solve(A, (q - self.K[:2, 2]).T).T
+        ray_c = np.hstack([xy, np.ones((q.shape[0], 1))])
+        ray_c /= np.linalg.norm(ray_c, axis=1, keepdims=True)
+        direction = np.asarray(ray_c @ self.R, dtype=np.float64)  # R^T d, row by row
+        origin = np.asarray(np.broadcast_to(self.centre_um, direction.shape), dtype=np.float64)
+        return origin.copy(), direction
 
     def __repr__(self) -> str:
         fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]

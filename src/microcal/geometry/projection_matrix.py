@@ -4,6 +4,13 @@ Thesis Eq 3.7-3.16. The estimate is the normalised direct linear transformation 
 both point sets are first moved to their centroid and scaled (Hartley), which makes the
 linear system well conditioned; the thesis's plain least squares on raw millimetre and
 pixel values is not.
+
+Two forms of P meet here. A camera with a projection centre (pinhole) has ``P[2, :3] != 0``;
+its P is normalised so that ``||P[2, :3]|| = 1`` with ``det P[:, :3] > 0``
+(:func:`normalize_projection_matrix`). An affine camera (parallel projection, the centre at
+infinity) has ``P[2, :3] = 0``; its P is scaled so that ``P[2] = (0, 0, 0, 1)``.
+:func:`normalize_camera_matrix` takes either; estimation and decomposition are for pinhole
+cameras only.
 """
 
 from __future__ import annotations
@@ -20,6 +27,8 @@ __all__ = [
     "camera_centre",
     "decompose_projection_matrix",
     "estimate_projection_matrix",
+    "is_affine_projection_matrix",
+    "normalize_camera_matrix",
     "normalize_projection_matrix",
     "project_points",
 ]
@@ -47,8 +56,8 @@ def _similarity(points: FloatArray) -> FloatArray:
     return T
 
 
-def normalize_projection_matrix(P: ArrayLike) -> FloatArray:
-    """Fix the scale and sign of a projection matrix.
+def is_affine_projection_matrix(P: ArrayLike) -> bool:
+    """True if P is an affine camera's (``P[2, :3] = 0``: parallel projection).
 
     Parameters
     ----------
@@ -56,16 +65,72 @@ def normalize_projection_matrix(P: ArrayLike) -> FloatArray:
 
     Returns
     -------
+    bool
+        ``||P[2, :3]|| == 0``, the test :func:`normalize_projection_matrix` rejects.
+    """
+    P = as_array(P, "P", (3, 4))
+    return float(np.linalg.norm(P[2, :3])) == 0
+
+
+def normalize_projection_matrix(P: ArrayLike) -> FloatArray:
+    """Fix the scale and sign of a pinhole camera's projection matrix.
+
+    Parameters
+    ----------
+    P : (3, 4) float
+        ``P[2, :3] != 0`` (a camera with a projection centre).
+
+    Returns
+    -------
     P : (3, 4) float
         Scaled so that ``||P[2, :3]|| = 1`` and ``det P[:, :3] > 0``; then ``P[2] @ [p; 1]`` is
         the depth of ``p`` in front of the camera, in the world's unit.
+
+    Raises
+    ------
+    DegenerateDataError
+        If ``P[2, :3] = 0`` (an affine camera: use :func:`normalize_camera_matrix`).
     """
     P = as_array(P, "P", (3, 4))
     norm = float(np.linalg.norm(P[2, :3]))
     if norm == 0:
-        raise DegenerateDataError("P: expected a finite camera (P[2, :3] != 0), got P[2, :3] = 0")
+        raise DegenerateDataError(
+            "P: expected a finite camera (P[2, :3] != 0), got P[2, :3] = 0 (an affine camera)"
+        )
     sign = 1.0 if np.linalg.det(P[:, :3]) >= 0 else -1.0
     out: FloatArray = P * (sign / norm)
+    return out
+
+
+def normalize_camera_matrix(P: ArrayLike) -> FloatArray:
+    """Fix the scale and sign of a pinhole or an affine camera's projection matrix.
+
+    Parameters
+    ----------
+    P : (3, 4) float
+        Any scale and sign.
+
+    Returns
+    -------
+    P : (3, 4) float
+        Pinhole (``P[2, :3] != 0``): :func:`normalize_projection_matrix`, unchanged.
+        Affine (``P[2, :3] = 0``): ``P / P[2, 3]``, so that ``P[2] = (0, 0, 0, 1)``; the first
+        two rows map ``[p; 1]`` straight to pixels.
+
+    Raises
+    ------
+    DegenerateDataError
+        If ``P[2] = 0`` (no camera).
+    """
+    P = as_array(P, "P", (3, 4))
+    if not is_affine_projection_matrix(P):
+        return normalize_projection_matrix(P)
+    if P[2, 3] == 0:
+        raise DegenerateDataError(
+            "P: expected a pinhole (P[2, :3] != 0) or an affine camera (P[2] = (0, 0, 0, w), "
+            "w != 0), got P[2] = 0"
+        )
+    out: FloatArray = P / P[2, 3]
     return out
 
 
@@ -201,6 +266,16 @@ def camera_centre(P: ArrayLike) -> FloatArray:
     -------
     C : (3,) float
         In the world frame, the world's unit.
+
+    Raises
+    ------
+    DegenerateDataError
+        For an affine camera (``P[2, :3] = 0``): its centre is at infinity.
     """
     P = as_array(P, "P", (3, 4))
+    if is_affine_projection_matrix(P):
+        raise DegenerateDataError(
+            "camera_centre: expected a pinhole camera (P[2, :3] != 0), got an affine one "
+            "(P[2, :3] = 0); its centre is at infinity"
+        )
     return np.asarray(-np.linalg.solve(P[:, :3], P[:, 3]), dtype=np.float64)

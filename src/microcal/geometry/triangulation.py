@@ -1,6 +1,6 @@
 """Triangulation of points seen by two cameras, and the uncertainty of the result.
 
-Three functions, all vectorised over N points (no Python loop per point):
+Four functions, all vectorised over N points (no Python loop per point):
 
 - :func:`triangulate`: the linear method of thesis Eq 3.18. Each view gives two equations
   ``(x p3 - p1) . [p; 1] = 0`` and ``(y p3 - p2) . [p; 1] = 0``. With the point finite
@@ -15,6 +15,15 @@ Three functions, all vectorised over N points (no Python loop per point):
   maximum-likelihood estimate for Gaussian pixel noise.
 - :func:`triangulation_covariance`: first-order propagation of the pixel covariance to the
   3x3 covariance of the optimal estimate, ``(J^T W J)^-1``.
+- :func:`triangulate_cameras`: the optimal point and its covariance from two camera models
+  (anything that implements :class:`~.camera_protocol.CameraModelProtocol`).
+
+A projection matrix may be a pinhole camera's or an affine camera's (``P[2, :3] = 0``,
+parallel projection); :func:`~.projection_matrix.normalize_camera_matrix` scales each. An
+affine view's linear equations are its reprojection errors in pixels (``P[2] = (0, 0, 0,
+1)``), a pinhole view's are depth times them: with one view of each kind the linear point
+lies close to the pinhole view's ray, and the optimal method weighs the views by their pixel
+noise alone.
 """
 
 from __future__ import annotations
@@ -26,9 +35,15 @@ from numpy.typing import ArrayLike
 
 from .._validation import FloatArray, as_array, as_rows
 from ..errors import InputError
-from .projection_matrix import normalize_projection_matrix
+from .camera_protocol import CameraModelProtocol, check_camera_model
+from .projection_matrix import normalize_camera_matrix
 
-__all__ = ["triangulate", "triangulate_optimal", "triangulation_covariance"]
+__all__ = [
+    "triangulate",
+    "triangulate_cameras",
+    "triangulate_optimal",
+    "triangulation_covariance",
+]
 
 
 def _lstsq_columns(
@@ -87,8 +102,8 @@ def _lstsq_columns(
 def _check_pair(
     P1: ArrayLike, P2: ArrayLike, q1_px: ArrayLike, q2_px: ArrayLike
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    P1n = normalize_projection_matrix(as_array(P1, "P1", (3, 4)))
-    P2n = normalize_projection_matrix(as_array(P2, "P2", (3, 4)))
+    P1n = normalize_camera_matrix(as_array(P1, "P1", (3, 4)))
+    P2n = normalize_camera_matrix(as_array(P2, "P2", (3, 4)))
     q1 = as_rows(q1_px, "q1_px", 2)
     q2 = as_rows(q2_px, "q2_px", 2)
     if q1.shape[0] != q2.shape[0]:
@@ -127,7 +142,8 @@ def triangulate(
     Parameters
     ----------
     P1, P2 : (3, 4) float
-        Projection matrices of the two cameras (world in µm); any scale and sign.
+        Projection matrices of the two cameras (world in µm), pinhole or affine
+        (``P[2, :3] = 0``); any scale and sign.
     q1_px, q2_px : (N, 2) or (2,) float
         Undistorted pixel coordinates of the same N points in view 1 and view 2.
     method : {"linear", "optimal"}
@@ -177,7 +193,10 @@ def _whitening(cov: ArrayLike | float | None, n: int, name: str) -> FloatArray:
 
 
 def _project_with_jacobian(P: FloatArray, p: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Pinhole projection of (N, 3) points: pixels (N, 2) and d q / d p (N, 2, 3)."""
+    """Projection of (N, 3) points by P: pixels (N, 2) and d q / d p (N, 2, 3).
+
+    For an affine P (``P[2] = (0, 0, 0, 1)``) ``w = 1`` and this is ``P[:2] [p; 1]``.
+    """
     h = p @ P[:, :3].T + P[:, 3]
     w = h[:, 2]
     q = h[:, :2] / w[:, None]
@@ -217,7 +236,7 @@ def triangulate_optimal(
     Parameters
     ----------
     P1, P2 : (3, 4) float
-        Projection matrices (world in µm).
+        Projection matrices (world in µm), pinhole or affine; any scale and sign.
     q1_px, q2_px : (N, 2) or (2,) float
         Undistorted pixel coordinates.
     cov1_px2, cov2_px2 : None, float, (2, 2) or (N, 2, 2)
@@ -274,7 +293,7 @@ def triangulation_covariance(
     Parameters
     ----------
     P1, P2 : (3, 4) float
-        Projection matrices (world in µm).
+        Projection matrices (world in µm), pinhole or affine; any scale and sign.
     p_um : (N, 3) or (3,) float
         Triangulated points, µm.
     cov1_px2, cov2_px2 : float, (2, 2) or (N, 2, 2)
@@ -285,8 +304,8 @@ def triangulation_covariance(
     cov_um2 : (N, 3, 3) float
         Covariance of each point in µm².
     """
-    P1n = normalize_projection_matrix(as_array(P1, "P1", (3, 4)))
-    P2n = normalize_projection_matrix(as_array(P2, "P2", (3, 4)))
+    P1n = normalize_camera_matrix(as_array(P1, "P1", (3, 4)))
+    P2n = normalize_camera_matrix(as_array(P2, "P2", (3, 4)))
     p = as_rows(p_um, "p_um", 3)
     n = p.shape[0]
     if cov1_px2 is None or cov2_px2 is None:
@@ -298,3 +317,40 @@ def triangulation_covariance(
     assert Rinv is not None
     out: FloatArray = np.einsum("ikn,jkn->nij", Rinv, Rinv)
     return out
+
+
+def triangulate_cameras(
+    camera1: CameraModelProtocol,
+    camera2: CameraModelProtocol,
+    q1_px: ArrayLike,
+    q2_px: ArrayLike,
+    cov1_px2: ArrayLike | float,
+    cov2_px2: ArrayLike | float,
+) -> tuple[FloatArray, FloatArray]:
+    """Optimal triangulation with its covariance, from two camera models.
+
+    The cameras are used through :class:`~.camera_protocol.CameraModelProtocol` only (their
+    ``P``), so every kind of camera model is triangulated alike. The same as
+    :func:`triangulate_optimal` and :func:`triangulation_covariance` on ``camera1.P`` and
+    ``camera2.P``, number for number.
+
+    Parameters
+    ----------
+    camera1, camera2 : CameraModelProtocol
+        The two calibrated cameras, in one world frame {G}.
+    q1_px, q2_px : (N, 2) or (2,) float
+        Undistorted pixels (as ``camera.undistort_px`` gives them) of the same N points.
+    cov1_px2, cov2_px2 : float, (2, 2) or (N, 2, 2)
+        Pixel noise of each view: a standard deviation in px, or covariances in px².
+
+    Returns
+    -------
+    p_um : (N, 3) float
+        Points in {G}, µm.
+    cov_um2 : (N, 3, 3) float
+        Their covariances, µm².
+    """
+    P1 = check_camera_model(camera1, "camera1").P
+    P2 = check_camera_model(camera2, "camera2").P
+    p = triangulate_optimal(P1, P2, q1_px, q2_px, cov1_px2, cov2_px2)
+    return p, triangulation_covariance(P1, P2, p, cov1_px2, cov2_px2)

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from .._validation import FloatArray
 from ..errors import DetectionError
-from ..geometry import CameraModel, triangulate_optimal, triangulation_covariance
+from ..geometry import CameraModel, CameraModelProtocol, triangulate_cameras
 from ..vision.detect import detect
 from ..vision.roi import RoiPredictor, box_around
 from ..vision.targets import Target
@@ -156,8 +156,12 @@ def _pooled_frame_covariance(results: list[PoseMeasurement], name: str) -> Float
 
 
 def _triangulate(
-    results: list[PoseMeasurement], cameras: dict[str, CameraModel], names: list[str]
+    results: list[PoseMeasurement], cameras: Mapping[str, CameraModelProtocol], names: list[str]
 ) -> None:
+    """Optimal positions in {G} and their covariances for the poses measured in both cameras.
+
+    The cameras are used through the camera-model protocol only (any kind of camera model).
+    """
     ok = [m for m in results if m.status == "ok"]
     if not ok:
         return
@@ -172,9 +176,8 @@ def _triangulate(
             base = frame_cov if frame_cov is not None else m.vp_cov_px2[n]
             per_pose.append(base / k)
         cov[n] = np.array(per_pose)
-    P1, P2 = cameras[names[0]].P, cameras[names[1]].P
-    p = triangulate_optimal(P1, P2, q[names[0]], q[names[1]], cov[names[0]], cov[names[1]])
-    c = triangulation_covariance(P1, P2, p, cov[names[0]], cov[names[1]])
+    cam1, cam2 = cameras[names[0]], cameras[names[1]]
+    p, c = triangulate_cameras(cam1, cam2, q[names[0]], q[names[1]], cov[names[0]], cov[names[1]])
     for m, pi, ci in zip(ok, p, c, strict=True):
         m.p_um, m.cov_um2 = pi, ci
 
@@ -205,8 +208,6 @@ def measure_one(
         / len(m.vp_px[n])
         for n in names
     ]
-    P1, P2 = cameras[names[0]].P, cameras[names[1]].P
-    p = triangulate_optimal(P1, P2, q[0], q[1], cov[0], cov[1])
-    m.p_um = p[0]
-    m.cov_um2 = triangulation_covariance(P1, P2, p, cov[0], cov[1])[0]
+    p, c = triangulate_cameras(cameras[names[0]], cameras[names[1]], q[0], q[1], cov[0], cov[1])
+    m.p_um, m.cov_um2 = p[0], c[0]
     return m
