@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
+from numpy.typing import ArrayLike
+
 from ..devices.base import Manipulator
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from .feedforward import FeedForward
@@ -10,19 +14,24 @@ __all__ = ["open_loop_conditions"]
 
 
 def open_loop_conditions(
-    manipulator: Manipulator, calibration: ManipulatorCalibration
+    manipulator: Manipulator,
+    calibration: ManipulatorCalibration,
+    extra: Callable[[], ArrayLike] | None = None,
 ) -> dict[str, FeedForward | None]:
     """The open-loop conditions of thesis 5.3 for one calibrated manipulator.
 
     ``uncalibrated`` (None: joints commanded as given), ``matrix`` (the matrix compensator of
     the matrix model, Eq 4.16, or of the model itself when it is a matrix model) and, for a
-    polynomial model, ``optimal`` (Eq 4.17-4.19).
+    polynomial model, ``optimal`` (Eq 4.17-4.19). ``extra`` reads the values of the model's
+    extra inputs (the temperature) at every move.
     """
     model = calibration.model
+    matrix = calibration.matrix_model or model
+    matrix_extra = extra if matrix.extra_inputs else None
     out: dict[str, FeedForward | None] = {
         "uncalibrated": None,
-        "matrix": FeedForward(manipulator, calibration.matrix_model or model, "matrix"),
+        "matrix": FeedForward(manipulator, matrix, "matrix", matrix_extra),
     }
     if model.kind == "polynomial":
-        out["optimal"] = FeedForward(manipulator, model, "optimal")
+        out["optimal"] = FeedForward(manipulator, model, "optimal", extra)
     return out

@@ -11,6 +11,9 @@ One row per pose, a header naming units. Columns (others are kept and ignored he
 | `sx_um`, `sy_um`, `sz_um` | (optional) standard deviation of the measured position, µm |
 | `temperature_c` | (optional) ambient temperature, °C |
 | `reason` | (optional) why a pose failed |
+
+Extra inputs of a model (:mod:`microcal.kinematics.extra_inputs`) each have a column named
+by the registry (temperature: `temperature_c`); an empty cell or `nan` means not recorded.
 """
 
 from __future__ import annotations
@@ -18,13 +21,14 @@ from __future__ import annotations
 import csv
 import io
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from .._validation import FloatArray
-from ..errors import FormatError
+from ..errors import FormatError, InputError
+from ..kinematics.extra_inputs import EXTRA_INPUTS, extra_input
 from .atomic import write_text_atomic
 
 __all__ = [
@@ -52,6 +56,30 @@ class Measurements:
     temperature_c: FloatArray | None  # (N,)
     n_failed: int
     failed_reasons: dict[int, str]
+    extra: dict[str, FloatArray] = field(default_factory=dict)  # registry name -> (N,)
+
+    def extra_inputs(self, names: list[str], path: str | os.PathLike[str]) -> dict[str, FloatArray]:
+        """Values of extra inputs by registry name, each recorded at every pose used.
+
+        Raises
+        ------
+        InputError
+            An input without its column, or with poses where it was not recorded.
+        """
+        out: dict[str, FloatArray] = {}
+        for name in names:
+            entry = extra_input(name)
+            values = self.extra.get(name)
+            if values is None:
+                raise InputError(f"--{name}: {path} has no {entry.column!r} column")
+            missing = self.pose[~np.isfinite(values)]
+            if missing.size:
+                raise InputError(
+                    f"--{name}: {path} has no {entry.column} at {missing.size} pose(s) "
+                    f"(first: pose {int(missing[0])}); the rig recorded none there"
+                )
+            out[name] = values
+        return out
 
 
 def read_measurements(path: str | os.PathLike[str]) -> Measurements:
@@ -75,7 +103,8 @@ def read_measurements(path: str | os.PathLike[str]) -> Measurements:
     if missing:
         raise FormatError(f"{p}: missing column(s) {missing}; expected at least {list(REQUIRED)}")
     has_std = all(c in header for c in STD_COLUMNS)
-    has_temp = "temperature_c" in header
+    extra_names = [n for n, e in EXTRA_INPUTS.items() if e.column in header]
+    extra_rows: list[list[float]] = []
     rows = []
     seen: set[int] = set()
     n_failed = 0
@@ -94,7 +123,6 @@ def read_measurements(path: str | os.PathLike[str]) -> Measurements:
             continue
         cols = [*JOINT_COLUMNS, *POSITION_COLUMNS]
         cols += list(STD_COLUMNS) if has_std else []
-        cols += ["temperature_c"] if has_temp else []
         try:
             values = [float(row[c]) for c in cols]
         except (TypeError, ValueError):
@@ -105,14 +133,27 @@ def read_measurements(path: str | os.PathLike[str]) -> Measurements:
         if not np.all(np.isfinite(values)):
             raise FormatError(f"{p}, line {line}: non-finite value in a status-ok row")
         rows.append([pose, *values])
+        extra_rows.append([_extra_value(p, line, row, EXTRA_INPUTS[n].column) for n in extra_names])
     if not rows:
         raise FormatError(f"{p}: no row has status 'ok' ({n_failed} failed)")
     a = np.asarray(rows, dtype=np.float64)
     col = 7
     std = a[:, col : col + 3] if has_std else None
-    col += 3 if has_std else 0
-    temp = a[:, col] if has_temp else None
-    return Measurements(a[:, 0].astype(int), a[:, 1:4], a[:, 4:7], std, temp, n_failed, reasons)
+    ex = np.asarray(extra_rows, dtype=np.float64).reshape(len(rows), len(extra_names))
+    extra = {n: ex[:, k] for k, n in enumerate(extra_names)}
+    temp = extra.get("temperature")
+    pose_ids = a[:, 0].astype(int)
+    return Measurements(pose_ids, a[:, 1:4], a[:, 4:7], std, temp, n_failed, reasons, extra)
+
+
+def _extra_value(path: Path, line: int, row: dict[str, str], column: str) -> float:
+    """An extra input's cell: a number, or NaN where it was not recorded (empty, ``nan``)."""
+    text = (row.get(column) or "").strip()
+    if text == "" or text.lower() == "nan":
+        return float("nan")
+    if not _is_number(text) or not np.isfinite(float(text)):
+        raise FormatError(f"{path}, line {line}: {column} = {text!r} is not a number")
+    return float(text)
 
 
 def _is_number(text: str | None) -> bool:
@@ -132,21 +173,36 @@ def write_measurements(
     temperature_c: FloatArray | None = None,
     status: list[str] | None = None,
     reason: list[str] | None = None,
+    extra: dict[str, FloatArray] | None = None,
+    pose: list[int] | None = None,
 ) -> Path:
-    """Write a measurements file atomically (poses numbered from 1)."""
+    """Write a measurements file atomically.
+
+    Parameters
+    ----------
+    extra : dict of name -> (N,) float, optional
+        Extra inputs by registry name, each in its column (NaN: not recorded);
+        ``temperature_c`` is the same as ``extra={"temperature": ...}``.
+    pose : list of N int, optional
+        The pose numbers (default 1 to N).
+    """
     n = d_um.shape[0]
+    extras = dict(extra or {})
+    if temperature_c is not None:
+        extras["temperature"] = temperature_c
+    columns = [(extra_input(name).column, np.asarray(v, float)) for name, v in extras.items()]
     header = ["pose", "status", *JOINT_COLUMNS, *POSITION_COLUMNS]
     header += list(STD_COLUMNS) if std_um is not None else []
-    header += ["temperature_c"] if temperature_c is not None else []
+    header += [c for c, _ in columns]
     header += ["reason"]
     out = io.StringIO()
     w = csv.writer(out, lineterminator="\n")
     w.writerow(header)
     for i in range(n):
-        row: list[object] = [i + 1, status[i] if status else "ok"]
+        row: list[object] = [pose[i] if pose else i + 1, status[i] if status else "ok"]
         row += [f"{v:.6f}" for v in d_um[i]] + [f"{v:.6f}" for v in p_um[i]]
         row += [f"{v:.6f}" for v in std_um[i]] if std_um is not None else []
-        row += [f"{temperature_c[i]:.4f}"] if temperature_c is not None else []
+        row += ["" if not np.isfinite(v[i]) else f"{v[i]:.4f}" for _, v in columns]
         row += [reason[i] if reason else ""]
         w.writerow(row)
     return write_text_atomic(path, out.getvalue())

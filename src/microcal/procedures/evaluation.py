@@ -22,10 +22,12 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .._validation import FloatArray
+from ..control.conditions import open_loop_conditions
 from ..control.feedforward import FeedForward
 from ..devices.base import Camera, Clock, Manipulator
 from ..errors import InputError
 from ..geometry import CameraModel
+from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..metrics import decoupling_metrics, pose_statistics
 from ..thesis.experiment import DECOUPLING_PATH_UM, TABLE_5_2_POSES_UM
 from ..vision.roi import RoiPredictor
@@ -37,6 +39,7 @@ __all__ = [
     "decoupling_path",
     "iso_cube_poses",
     "run_decoupling",
+    "run_evaluation",
     "run_pose_accuracy",
 ]
 
@@ -248,3 +251,73 @@ def run_decoupling(
                 "segment": segment.tolist(),
             }
     return out
+
+
+def run_evaluation(
+    manipulator: Manipulator,
+    clock: Clock,
+    cameras: Mapping[str, Camera],
+    models: dict[str, CameraModel],
+    board: Target,
+    calibration: ManipulatorCalibration,
+    *,
+    tests: str = "all",
+    poses: str = "table-5-2",
+    cycles: int = 3,
+    frames: int = 5,
+    settle_s: float = 5.0,
+    truth: Callable[[], FloatArray] | None = None,
+    temperature: Callable[[], float] | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> dict[str, Any]:
+    """The evaluation tests of a calibrated manipulator on any rig (thesis 5.3).
+
+    Each test runs without compensation, with the matrix compensator and (for a polynomial
+    model) with the optimal one, measured by the calibrated cameras and, where ``truth``
+    is given (the simulator), by ground truth.
+
+    Parameters
+    ----------
+    cameras : mapping of name -> Camera
+        The rig's cameras; each needs a model in ``models``.
+    models : dict of name -> CameraModel
+        The calibrated cameras.
+    calibration : ManipulatorCalibration
+        The manipulator's calibration.
+    tests : {"all", "pose-accuracy", "decoupling"}
+    poses : {"table-5-2", "iso-cube"}
+        The pose-accuracy test's poses: Table 5-2's, or ISO 9283's cube P1-P5 spanning the
+        joint range the model was identified on (the soft limits when not recorded).
+    temperature : callable () -> °C, optional
+        The rig's sensor, for models with a temperature input.
+
+    Returns
+    -------
+    dict
+        ``pose_accuracy`` and/or ``decoupling`` objects of results.json.
+    """
+    missing = sorted(set(cameras) - set(models))
+    if missing:
+        raise InputError(f"evaluate: no camera calibration for the rig's camera(s) {missing}")
+    extra = calibration.model.extra_inputs
+    if extra and temperature is None:
+        raise InputError(
+            f"evaluate: the model needs {list(extra)} but the rig has no sensor for it"
+        )
+    read_extra = None if not extra or temperature is None else (lambda: [temperature()])
+    conditions = open_loop_conditions(manipulator, calibration, extra=read_extra)
+    probe = VisionProbe({n: cameras[n] for n in models if n in cameras}, models, board, frames)
+    kwargs: dict[str, Any] = {"settle_s": settle_s, "truth": truth, "progress": progress}
+    parts: dict[str, Any] = {}
+    if tests in ("all", "pose-accuracy"):
+        rng = calibration.joint_range_um
+        lim = manipulator.limits_um if rng is None else rng
+        poses_um = (
+            TABLE_5_2_POSES_UM if poses == "table-5-2" else iso_cube_poses(lim[:, 0], lim[:, 1])
+        )
+        parts["pose_accuracy"] = run_pose_accuracy(
+            manipulator, clock, probe, conditions, cycles=cycles, poses_um=poses_um, **kwargs
+        )
+    if tests in ("all", "decoupling"):
+        parts["decoupling"] = run_decoupling(manipulator, clock, probe, conditions, **kwargs)
+    return parts

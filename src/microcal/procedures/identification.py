@@ -7,12 +7,13 @@ calibration.json.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 
-from .._validation import FloatArray
+from .._validation import FloatArray, as_array
 from ..errors import DegenerateDataError, InputError
 from ..kinematics import (
     CrossValidation,
@@ -23,6 +24,7 @@ from ..kinematics import (
     fit_polynomial_model,
     validate_split,
 )
+from ..kinematics.extra_inputs import extra_input
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..thesis.experiment import SPLIT
 
@@ -57,7 +59,7 @@ def identify(
     train: int | None = None,
     folds: int | None = None,
     seed: int = 0,
-    temperature_c: FloatArray | None = None,
+    extra_inputs: Mapping[str, FloatArray] | None = None,
 ) -> Identification:
     """Fit and validate a kinematic model.
 
@@ -76,17 +78,20 @@ def identify(
     folds : int, optional
         Also cross-validate the whole procedure (selection included) with this many folds;
         its figures and how often each term was selected join the validation.
-    temperature_c : (N,) float, optional
-        Ambient temperature; when given, T and T² terms join the polynomial model (Eq 4.10).
+    extra_inputs : mapping of name -> (N,) float, optional
+        Values of extra inputs of the registry (:mod:`microcal.kinematics.extra_inputs`),
+        by name; their terms (for the temperature T and T², Eq 4.10) join the polynomial
+        model.
     """
     u = np.asarray(d_um, dtype=np.float64)
     positions = np.asarray(p_um, dtype=np.float64)
     extra: dict[str, int] = {}
-    if temperature_c is not None:
-        u = np.column_stack([u, temperature_c])
-        extra = {"T": 2}
-    if model == "matrix" and temperature_c is not None:
-        raise InputError("temperature terms need the polynomial model (Eq 4.10)")
+    for name, values in (extra_inputs or {}).items():
+        entry = extra_input(name)
+        u = np.column_stack([u, as_array(values, entry.column, (u.shape[0],))])
+        extra[entry.symbol] = entry.degree
+    if model == "matrix" and extra:
+        raise InputError(f"extra inputs {sorted(extra_inputs or {})} need the polynomial model")
 
     def fit(u_fit: FloatArray, p_fit: FloatArray) -> KinematicModel:
         if model == "matrix":

@@ -40,11 +40,15 @@ class RunPlan:
         The design's seed.
     d_um : (N, k) float
         Joint commands, µm, in visiting order.
+    low_um, high_um : (k,) float, optional
+        The box a generated design covers.
     """
 
     kind: str
     seed: int
     d_um: FloatArray
+    low_um: FloatArray | None = None
+    high_um: FloatArray | None = None
 
     @property
     def poses(self) -> int:
@@ -53,7 +57,10 @@ class RunPlan:
 
     def design_record(self) -> dict[str, object]:
         """The ``design`` object of run.json."""
-        return {"kind": self.kind, "poses": self.poses, "seed": self.seed}
+        record: dict[str, object] = {"kind": self.kind, "poses": self.poses, "seed": self.seed}
+        if self.low_um is not None and self.high_um is not None:
+            record |= {"low_um": self.low_um.tolist(), "high_um": self.high_um.tolist()}
+        return record
 
 
 def trajectory(name: str, limits_um: ArrayLike) -> FloatArray:
@@ -107,7 +114,7 @@ def plan_run(
     lim = as_array(limits_um, "limits_um", (len(axes), 2))
     if design in DESIGNS:
         d = make_design(design, poses, lim[:, 0], lim[:, 1], seed)
-        return RunPlan(design, seed, check_design(d, lim, axes))
+        return RunPlan(design, seed, check_design(d, lim, axes), lim[:, 0], lim[:, 1])
     if design in TRAJECTORIES:  # for evaluation: only the limits matter
         d = trajectory(design, lim)
         return RunPlan(design, seed, check_limits(d, lim, axes=axes))

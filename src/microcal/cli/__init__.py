@@ -1,0 +1,19 @@
+"""The command line: ``microcal --help``.
+
+A shell around the procedures: each command parses its options, calls one procedure or
+formats function and prints. Every user error ends with one line on stderr and exit code 2,
+never a traceback. One module per command (or pair of related commands).
+"""
+
+from __future__ import annotations
+
+from . import acquire, demo, evaluate, fit, measure, stereo
+from ._app import WORKFLOW, app
+
+__all__ = ["WORKFLOW", "app", "main"]
+_COMMANDS = (acquire, demo, evaluate, fit, measure, stereo)  # registered on import
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point of the ``microcal`` command: user errors end in one line and exit code 2."""
+    app(args=argv)

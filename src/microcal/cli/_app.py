@@ -1,0 +1,77 @@
+"""The command group and its error handling: one line and exit code 2 for a user error."""
+
+from __future__ import annotations
+
+import sys
+from typing import Any, NoReturn
+
+import typer
+from typer.core import TyperGroup
+
+from .._version import __version__
+from ..errors import MicrocalError
+
+WORKFLOW = ("demo", "stereo-calibrate", "acquire", "measure", "fit", "solve", "evaluate", "report")
+
+
+def fail(message: str) -> NoReturn:
+    """The one line a user error ends with, and exit code 2."""
+    print(f"microcal: error: {message}", file=sys.stderr)
+    sys.exit(2)
+
+
+class _Commands(TyperGroup):
+    """User errors end here (not around the entry point): shells and CliRunner alike."""
+
+    def main(  # type: ignore[override]
+        self, args: list[str] | None = None, prog_name: str | None = None, **extra: Any
+    ) -> Any:
+        argv = sys.argv[1:] if args is None else list(args)
+        extra.pop("standalone_mode", None)
+        try:
+            name = prog_name or "microcal"
+            code = super().main(
+                args=argv or ["--help"], prog_name=name, standalone_mode=False, **extra
+            )
+        except typer.TyperException as exc:  # usage errors: bad option, value or command
+            ctx = getattr(exc, "ctx", None)
+            hint = f" (see: {ctx.command_path} --help)" if ctx is not None else ""
+            fail(f"{exc.format_message()}{hint}")
+        except (typer.Abort, KeyboardInterrupt):
+            fail("interrupted")
+        except MicrocalError as exc:
+            fail(str(exc))
+        sys.exit(code if isinstance(code, int) else 0)
+
+    def list_commands(self, ctx: Any) -> list[str]:
+        """In the order of a calibration, not alphabetically."""
+        names = super().list_commands(ctx)
+        return [n for n in WORKFLOW if n in names] + [n for n in names if n not in WORKFLOW]
+
+
+app = typer.Typer(
+    name="microcal",
+    cls=_Commands,
+    help="Vision-based automatic calibration of microrobotic systems.\n\n"
+    "Example: microcal demo  (the whole calibration on the simulated platform; then open "
+    "demo-out/report.html)",
+    no_args_is_help=True,
+    add_completion=False,
+    rich_markup_mode=None,
+    pretty_exceptions_enable=False,
+)
+
+
+def _version(value: bool) -> None:
+    if value:
+        print(f"microcal {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(
+        False, "--version", callback=_version, is_eager=True, help="Print the version."
+    ),
+) -> None:
+    """Vision-based automatic calibration of microrobotic systems."""

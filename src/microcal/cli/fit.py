@@ -1,0 +1,98 @@
+"""``microcal fit`` (identify a model) and ``microcal solve`` (the compensator)."""
+
+from __future__ import annotations
+
+import sys
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated
+
+from rich.console import Console
+from typer import Argument, Option
+
+from ..report.console import print_parts
+from ._app import app
+
+ModelChoice = StrEnum("ModelChoice", {"matrix": "matrix", "polynomial": "polynomial"})
+SelectChoice = StrEnum("SelectChoice", {"stepwise": "stepwise", "all": "all"})
+_Source = Annotated[Path, Argument(help="Run directory or a measurements CSV file.")]
+_Out = Annotated[Path, Option("--out", "-o", help="Calibration file to write or update.")]
+_Model = Annotated[ModelChoice, Option(help="Kinematic model (thesis Eq 4.5 or 4.6).")]
+_Select = Annotated[SelectChoice, Option(help="Polynomial terms: stepwise selection or all.")]
+_Penter = Annotated[float, Option(help="Stepwise: p-value to enter.")]
+_Premove = Annotated[float, Option(help="Stepwise: p-value to leave.")]
+_Train = Annotated[int | None, Option(min=1, help="Fit on the first N poses (default: 110/170).")]
+_Folds = Annotated[int | None, Option(min=2, help="Validate by K-fold cross-validation.")]
+_FoldSeed = Annotated[int, Option(help="Seed of the cross-validation folds.")]
+_Extra = Annotated[list[str] | None, Option(help="Extra input (known: temperature), once each.")]
+_Temperature = Annotated[bool, Option(help="Same as --extra temperature (T, T² terms).")]
+_Name = Annotated[str, Option(help="Name of the manipulator in the calibration file.")]
+_Cameras = Annotated[Path | None, Option(help="cameras.json to include (for evaluate).")]
+_Mat = Annotated[Path | None, Option(help="Also export the calibration as a .mat file.")]
+
+
+@app.command(short_help="Identify a kinematic model from measurements.")
+def fit(
+    source: _Source, out: _Out = Path("calibration.json"), model: _Model = ModelChoice.polynomial,
+    select: _Select = SelectChoice.stepwise, penter: _Penter = 0.05, premove: _Premove = 0.10,
+    train: _Train = None, folds: _Folds = None, seed: _FoldSeed = 0, extra: _Extra = None,
+    temperature: _Temperature = False, manipulator: _Name = "m1", cameras: _Cameras = None,
+    mat: _Mat = None,
+) -> None:  # fmt: skip
+    """Identify a manipulator's kinematic model from measured positions.
+
+    Example: microcal fit runs/a --model polynomial --train 110 --out calibration.json
+    """
+    from ..formats.calibration_file import export_mat
+    from ..formats.calibration_update import add_manipulator
+    from ..formats.measurements import read_measurements
+    from ..procedures.identification import calibrate_manipulator
+    from ..report.text_tables import fit_lines
+
+    path = source / "measurements.csv" if source.is_dir() else source
+    meas = read_measurements(path)
+    names = [*(extra or []), *(["temperature"] if temperature else [])]
+    inputs = meas.extra_inputs(list(dict.fromkeys(names)), path)
+    entry, result = calibrate_manipulator(
+        manipulator, meas.d_um, meas.p_um, model.value, train=train, select=select.value,
+        penter=penter, premove=premove, folds=folds, seed=seed, extra_inputs=inputs,
+    )  # fmt: skip
+    calibration = add_manipulator(out, entry, cameras, {"measurements": path}, model.value)
+    if mat is not None:
+        export_mat(mat, calibration)
+    skipped = f" ({meas.n_failed} failed poses skipped)" if meas.n_failed else ""
+    header = (
+        f"{model.value} model of {manipulator!r} from {len(meas.pose)} poses of {path}{skipped}"
+    )
+    wrote = f"wrote {out}" + (f" and {mat}" if mat else "")
+    print_parts(Console(), fit_lines(result.model, result.validation, header, wrote))
+
+
+_Calibration = Annotated[Path, Argument(help="calibration.json")]
+_Position = Annotated[list[float], Argument(help="X Y Z in {G}, µm (-- before negatives).")]
+_Which = Annotated[str | None, Option(help="Manipulator name (optional if only one).")]
+_Celsius = Annotated[float | None, Option(help="Ambient temperature, °C, for models with T terms.")]
+_Limits = Annotated[str | None, Option(help="Soft limits LOW:HIGH per joint, µm, comma-separated.")]
+
+
+@app.command(short_help="Print joint commands that reach given positions.")
+def solve(
+    calibration: _Calibration, position_um: _Position, manipulator: _Which = None,
+    temperature: _Celsius = None, limits: _Limits = None,
+) -> None:  # fmt: skip
+    """Print the joint commands that put the end-effector at a position (the compensator).
+
+    Example: microcal solve calibration.json 2000 2000 300 --limits 0:8000,0:8000,0:4800
+    """
+    from ..formats.calibration_file import load_calibration
+    from ..formats.options import parse_limits, parse_position
+    from ..procedures.compensation import solve_position
+    from ..report.text_tables import solution_lines
+
+    m = load_calibration(calibration).manipulator(manipulator)
+    values = {} if temperature is None else {"temperature": temperature}
+    lim = parse_limits(limits) if limits else None
+    sol = solve_position(m, parse_position(position_um), values, limits_um=lim)
+    print("dx_um dy_um dz_um\n" + " ".join(f"{v:.4f}" for v in sol.d_um))
+    for line in solution_lines(sol, m):
+        print(line, file=sys.stderr)

@@ -1,0 +1,60 @@
+"""``microcal measure`` (3D positions of a run) and ``microcal report`` (its HTML report)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+from rich.console import Console
+from typer import Argument, Option
+
+from ..errors import InputError
+from ..report.console import print_parts, staged_progress
+from ._app import app
+
+_RunDir = Annotated[Path, Argument(help="Run directory (commands.csv and images/).")]
+_Cameras = Annotated[Path, Option(help="cameras.json (or a calibration.json with cameras).")]
+_Target = Annotated[str | None, Option(help="End-effector board (default: run.json's).")]
+
+
+@app.command(short_help="Measure the end-effector in 3D at every pose.")
+def measure(run_dir: _RunDir, cameras: _Cameras, target: _Target = None) -> None:
+    """Measure the end-effector in 3D at every pose of a run; writes measurements.csv.
+
+    Example: microcal measure runs/a --cameras cameras.json
+    """
+    from ..formats.cameras_file import load_cameras
+    from ..formats.run_directory import RunDirectory
+    from ..procedures.measurement import measure_poses
+    from ..report.text_tables import measurement_lines
+    from ..vision.targets import parse_target
+
+    run, models = RunDirectory.open(run_dir), load_cameras(cameras)
+    poses, d = run.commands()
+    board = parse_target(target or run.target_spec or "chessboard:4x3:400")
+    with staged_progress() as progress:
+        tick = lambda done, n: progress("measuring", done, n)  # noqa: E731
+        results = measure_poses(poses, d, run.frames, models, board, progress=tick)
+    path = run.write_measurements(poses, d, results)
+    print_parts(Console(), measurement_lines(results, path))
+
+
+_ReportDir = Annotated[Path, Argument(help="Run directory (any of its files).")]
+_ReportOut = Annotated[Path | None, Option("--out", "-o", help="Default RUN_DIR/report.html.")]
+
+
+@app.command(short_help="Write a run's calibration report (one HTML file).")
+def report(run_dir: _ReportDir, out: _ReportOut = None) -> None:
+    """Write the calibration report of a run: one self-contained HTML file with its figures.
+
+    It shows what the run directory holds: the stereo calibration, the command design, the
+    measurement uncertainty, the models and their validation errors, the pose-accuracy and
+    decoupling tests, failed poses and provenance.
+
+    Example: microcal report demo-out
+    """
+    from ..report import write_report
+
+    if out is not None and out.is_dir():
+        raise InputError(f"--out {out}: is a directory; give a file name such as report.html")
+    print(f"wrote {write_report(run_dir, out)}")

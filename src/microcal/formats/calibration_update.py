@@ -1,0 +1,57 @@
+"""Adding a manipulator's calibration to calibration.json (what ``microcal fit`` writes)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from ..errors import InputError
+from ..geometry import CameraModel
+from ..kinematics.manipulator_calibration import ManipulatorCalibration
+from .calibration_file import Calibration, load_calibration, provenance, write_calibration
+from .cameras_file import CAMERAS_FORMAT, models_from_dict, read_cameras
+
+__all__ = ["add_manipulator", "camera_models"]
+
+
+def add_manipulator(
+    out: Path,
+    entry: ManipulatorCalibration,
+    cameras: Path | None,
+    inputs: dict[str, Any],
+    model: str,
+) -> Calibration:
+    """Write ``out`` with ``entry`` added (or replaced); returns what was written.
+
+    An existing file keeps its other manipulators and its cameras, unless ``cameras`` (a
+    cameras.json) gives new ones. ``inputs`` are the files the calibration was made from.
+    """
+    existing = load_calibration(out) if out.exists() else None
+    camera_data = existing.cameras if existing else {}
+    if cameras is not None:
+        camera_data = read_cameras(cameras)[0]
+    manipulators = dict(existing.manipulators) if existing else {}
+    manipulators[entry.name] = entry
+    calibration = Calibration(
+        manipulators,
+        cameras=camera_data,
+        provenance=provenance(inputs, command="fit", model=model),
+    )
+    write_calibration(out, calibration)
+    return calibration
+
+
+def camera_models(calibration: Calibration) -> dict[str, CameraModel]:
+    """The calibrated cameras a calibration holds (``fit --cameras`` put them there).
+
+    Raises
+    ------
+    InputError
+        A calibration without cameras, saying how to add them.
+    """
+    where = str(calibration.path) if calibration.path else "calibration"
+    if not calibration.cameras:
+        raise InputError(
+            f"{where}: holds no cameras; run 'microcal fit ... --cameras cameras.json'"
+        )
+    return models_from_dict({"format": CAMERAS_FORMAT, "cameras": calibration.cameras}, where)

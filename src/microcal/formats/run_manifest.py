@@ -1,0 +1,124 @@
+"""run.json's manifest, built in one place for ``acquire`` and the demo, and the demo's start."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+from ..errors import InputError
+from .calibration_file import provenance
+from .run_directory import RunWriter
+
+__all__ = ["DEMO_FILES", "clear_demo_dir", "new_manifest", "start_demo_run"]
+
+#: What a demo writes into its directory (and may replace on the next demo).
+DEMO_FILES = frozenset(
+    {
+        "run.json",
+        "commands.csv",
+        "journal.jsonl",
+        "images",
+        "measurements.csv",
+        "cameras.json",
+        "calibration.json",
+        "results.json",
+        "report.html",
+    }
+)
+
+
+def new_manifest(
+    *,
+    rig: dict[str, Any],
+    target: str,
+    cameras: list[str],
+    design: dict[str, object],
+    settle: str,
+    frames_per_pose: int,
+    store: str,
+    command: str,
+    **provenance_extra: Any,
+) -> dict[str, Any]:
+    """The manifest of a new run: every option that shapes it, and where it came from.
+
+    Parameters
+    ----------
+    rig : dict
+        The rig as recorded (its spec; a resume must name the same).
+    design : dict
+        ``{"kind", "poses", "seed", "low_um", "high_um"}``: enough to draw the same commands
+        again (``make_design(kind, poses, low_um, high_um, seed)``).
+    settle : str
+        ``vision`` or ``fixed:SECONDS``.
+    store : str
+        ``full`` frames or ``roi``.
+    """
+    return {
+        "rig": rig,
+        "target": target,
+        "cameras": list(cameras),
+        "design": design,
+        "settle": settle,
+        "frames_per_pose": frames_per_pose,
+        "store": store,
+        "provenance": provenance(command=command, **provenance_extra),
+    }
+
+
+def clear_demo_dir(out: Path) -> None:
+    """Make ``out`` ready for a demo: new, empty, or holding only an earlier demo's files."""
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out}: is a file; choose a directory")
+    if not out.exists() or not any(out.iterdir()):
+        return
+    entries = {p.name for p in out.iterdir()}
+    try:
+        manifest = json.loads((out / "run.json").read_text(encoding="utf-8"))
+        is_demo = manifest.get("provenance", {}).get("command") == "demo"
+    except (OSError, ValueError, AttributeError):
+        is_demo = False
+    if not is_demo or not entries <= DEMO_FILES:
+        raise InputError(
+            f"--out {out}: holds files that an earlier demo did not write; "
+            f"choose a new or empty directory"
+        )
+    for name in entries:
+        path = out / name
+        if path.is_dir():
+            shutil.rmtree(path)
+        else:
+            path.unlink()
+
+
+def start_demo_run(out: Path, seed: int, poses: int, frames: int) -> tuple[Any, RunWriter]:
+    """The demo's platform and the writer of its run directory (run.json, commands.csv).
+
+    The manifest records the design the demo draws (``random`` with the demo's design seed
+    over the thesis's workspace), so ``make_design`` reproduces its commands.
+    """
+    from ..procedures.demo import demo_design, demo_design_seed
+    from ..sim import platform
+    from ..thesis.experiment import WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
+
+    clear_demo_dir(out)
+    plat = platform("thesis", seed=seed)
+    manifest = new_manifest(
+        rig={"driver": "sim", "preset": "thesis", "seed": seed, "overrides": {}},
+        target=plat.scene.board.spec,
+        cameras=list(plat.cameras),
+        design={
+            "kind": "random",
+            "poses": poses,
+            "seed": demo_design_seed(seed),
+            "low_um": WORKSPACE_MIN_UM.tolist(),
+            "high_um": WORKSPACE_MAX_UM.tolist(),
+        },
+        settle="vision",
+        frames_per_pose=frames,
+        store="roi",
+        command="demo",
+        seed=seed,
+    )
+    return plat, RunWriter.create(out, manifest, demo_design(seed, poses))

@@ -1,0 +1,70 @@
+"""Compensation of one position: the joints that put the end-effector there, and how sure."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .._validation import FloatArray, as_array
+from ..errors import InputError
+from ..kinematics.extra_inputs import by_symbol, values_for
+from ..kinematics.manipulator_calibration import ManipulatorCalibration
+
+__all__ = ["Solution", "solve_position"]
+
+
+@dataclass(frozen=True)
+class Solution:
+    """Joint commands for a target and what to know about them.
+
+    Attributes
+    ----------
+    d_um : (3,) float
+        Joint commands, µm.
+    residual_um : (3,) float
+        model(d) - target, µm.
+    outside_range : (3, 2) float or None
+        The joint range the model was identified on, when ``d_um`` leaves it (the model
+        extrapolates there); None otherwise.
+    """
+
+    d_um: FloatArray
+    residual_um: FloatArray
+    outside_range: FloatArray | None
+
+
+def solve_position(
+    calibration: ManipulatorCalibration,
+    target_um: ArrayLike,
+    values: Mapping[str, float] | None = None,
+    *,
+    limits_um: ArrayLike | None = None,
+) -> Solution:
+    """The compensator for one target position in {G}.
+
+    Parameters
+    ----------
+    target_um : (3,) float
+    values : mapping of name -> value, optional
+        Values of the model's extra inputs by registry name (``{"temperature": 23.0}``).
+    limits_um : (3, 2) float, optional
+        Soft limits; a target needing joints outside raises LimitError.
+    """
+    target = as_array(target_um, "position", (3,))
+    symbols = calibration.model.extra_inputs
+    unused = sorted(set(values or {}) - {by_symbol(s).name for s in symbols})
+    if unused:
+        raise InputError(
+            f"--{unused[0]}: the model of {calibration.name!r} has no {unused[0]} input"
+            + (f" (its extra inputs: {list(symbols)})" if symbols else "")
+        )
+    extra = values_for(symbols, values or {})
+    d = calibration.joints_for(target, extra=extra, limits_um=limits_um)[0]
+    u = d if extra is None else np.concatenate([d, extra[0]])
+    residual = calibration.predict_um(u)[0] - target
+    rng = calibration.joint_range_um
+    outside = rng is not None and bool(np.any((d < rng[:, 0]) | (d > rng[:, 1])))
+    return Solution(d, residual, rng if outside else None)

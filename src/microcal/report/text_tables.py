@@ -1,0 +1,301 @@
+"""The tables the commands print: plain titles, columns and rows of text, no terminal code.
+
+Each builder takes what a procedure returned and gives a :class:`TextTable`; the command line
+prints it. The thesis's columns appear only where the run is the thesis's experiment.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..kinematics.models import KinematicModel
+from ..thesis.figures import (
+    CLAIMED_ACCURACY_UM,
+    DECOUPLING_UM,
+    POSE_ACCURACY_UM,
+    REPROJECTION_ERROR_SIDE_PX,
+    REPROJECTION_ERROR_TOP_PX,
+    VALIDATION_UM,
+)
+
+__all__ = [
+    "TextTable",
+    "decoupling_table",
+    "demo_closing",
+    "demo_intro",
+    "demo_stereo_table",
+    "demo_summary",
+    "evaluation_tables",
+    "fit_lines",
+    "identification_table",
+    "measurement_lines",
+    "pose_accuracy_table",
+    "solution_lines",
+    "stereo_lines",
+    "stereo_table",
+    "terms_table",
+    "validation_lines",
+]
+
+
+@dataclass
+class TextTable:
+    """A table to print: a title, column headings (all but the first right-aligned), rows."""
+
+    title: str
+    columns: list[str]
+    rows: list[list[str]] = field(default_factory=list)
+
+
+def stereo_table(calibration: Any, digits: int = 4) -> TextTable:
+    """Per camera: RMS, views used and rejected, focal lengths (a ``StereoCalibration``)."""
+    table = TextTable(
+        f"Stereo calibration ({calibration.method})",
+        ["camera", "RMS px", "views used", "rejected", "fx px", "fy px"],
+    )
+    for name, c in calibration.cameras.items():
+        table.rows.append([name, f"{c.rms_px:.{digits}f}", str(c.views_used),
+                           str(len(c.views_rejected)), f"{c.model.K[0, 0]:.1f}",
+                           f"{c.model.K[1, 1]:.1f}"])  # fmt: skip
+    return table
+
+
+def demo_stereo_table(calibration: Any, truth_px: Mapping[str, float], target: str) -> TextTable:
+    """The demo's stereo calibration next to the thesis's reprojection errors."""
+    thesis = {"top": REPROJECTION_ERROR_TOP_PX, "side": REPROJECTION_ERROR_SIDE_PX}
+    table = TextTable(
+        f"1. Stereo calibration: {target} at 5 known heights ({calibration.method})",
+        ["camera", "RMS px", "thesis px", "vs true camera px", "fx px", "fy px"],
+    )
+    for name, c in calibration.cameras.items():
+        table.rows.append([name, f"{c.rms_px:.3f}", f"{thesis.get(name, float('nan')):.3f}",
+                           f"{truth_px[name]:.3f}", f"{c.model.K[0, 0]:.1f}",
+                           f"{c.model.K[1, 1]:.1f}"])  # fmt: skip
+    return table
+
+
+def identification_table(
+    validations: Mapping[str, Mapping[str, Any]], oracle: Mapping[str, float]
+) -> TextTable:
+    """Validation errors per model next to the thesis's, and the oracle's (Eq 5.1, µm)."""
+    n_fit = int(next(iter(validations.values()))["n_fit"])
+    table = TextTable(
+        f"3. Identification: first {n_fit} poses fit, the rest validate (Eq 5.1, µm)",
+        ["model", "mean", "std", "max", "thesis mean", "thesis std", "thesis max"],
+    )
+    keys = ("mean", "std", "max")
+    for kind, v in validations.items():
+        ours = [f"{float(v[f'{k}_um']):.2f}" for k in keys]
+        table.rows.append([kind, *ours, *(f"{VALIDATION_UM[kind][k]:.2f}" for k in keys)])
+    table.rows.append(["oracle", *(f"{oracle[k]:.2f}" for k in keys), "-", "-", "-"])
+    return table
+
+
+def pose_accuracy_table(
+    pose_accuracy: Mapping[str, Any], conditions: list[str], *, thesis: bool, title: str = ""
+) -> TextTable:
+    """Mean / worst AP_P per condition, by vision and ground truth; the thesis's if asked."""
+    sources = [s for s in ("vision", "truth") if s in pose_accuracy]
+    table = TextTable(
+        title or "Pose accuracy AP_P (µm): mean / worst",
+        ["condition", *(("ground truth" if s == "truth" else s) for s in sources)]
+        + (["thesis"] if thesis else []),
+    )
+    for name in conditions:
+        row = [name] + [
+            f"{pose_accuracy[s][name]['mean_ap_p_um']:.2f} / "
+            f"{pose_accuracy[s][name]['max_ap_p_um']:.2f}"
+            for s in sources
+        ]
+        if thesis:
+            mean, worst = POSE_ACCURACY_UM[name]
+            row.append(f"{mean:.2f} / {worst:.2f}")
+        table.rows.append(row)
+    return table
+
+
+def decoupling_table(
+    decoupling: Mapping[str, Any], conditions: list[str], *, thesis: bool, title: str = ""
+) -> TextTable:
+    """Undesired displacement [min, max] per axis: by truth with the thesis's figures, or by
+    vision | truth (by vision alone on a rig without ground truth)."""
+    table = TextTable(
+        title or "Decoupling: undesired displacement \\[min, max] (µm)",
+        ["condition", "x", "y", "z"],
+    )
+    for name in conditions:
+        cells = []
+        for axis in "xyz":
+            if thesis:
+                lo, hi = decoupling["truth"][name]["undesired_um"][axis]
+                t_lo, t_hi = DECOUPLING_UM[name][axis]
+                cells.append(f"[{lo:.1f}, {hi:.1f}] ({t_lo:.1f}, {t_hi:.1f})")
+                continue
+            parts = [decoupling[s][name]["undesired_um"][axis]
+                     for s in ("vision", "truth") if s in decoupling]  # fmt: skip
+            cells.append(" | ".join(f"[{v[0]:.1f}, {v[1]:.1f}]" for v in parts))
+        table.rows.append([name, *cells])
+    return table
+
+
+def terms_table(model: KinematicModel) -> TextTable:
+    """The selected terms of a model: coefficient ± standard error per axis."""
+    table = TextTable(
+        "Selected terms: coefficient ± standard error (µm per unit of the term)",
+        ["term", "x (µm)", "y (µm)", "z (µm)"],
+    )
+    for a, t in enumerate(model.terms):
+        if not model.selected[:, a].any():
+            continue
+        cells = []
+        for axis in range(3):
+            if model.selected[axis, a]:
+                se = float(np.sqrt(model.covariance[axis, a, a]))
+                cells.append(f"{model.coefficients[axis, a]:.6g} ± {se:.2g}")
+            else:
+                cells.append("-")
+        table.rows.append([t.name, *cells])
+    return table
+
+
+def demo_summary(result: Any, frames: int) -> list[TextTable | str]:
+    """What ``microcal demo`` prints of a ``DemoResult``, step by step, next to the thesis."""
+    from ..procedures.demo import CALIBRATION_TARGET
+
+    out: list[TextTable | str] = [
+        demo_stereo_table(result.calibration, result.calibration_truth_px, CALIBRATION_TARGET)
+    ]
+    ok = result.measured_ok
+    stds = np.array([m.std_um for m, good in zip(result.measurements, ok, strict=True) if good])
+    out.append(
+        f"2. Measured {int(ok.sum())} of {len(ok)} poses ({frames} frames each, "
+        f"{result.sim_time_s / 60:.0f} min of simulated time): 3D error vs ground truth "
+        f"{result.measurement_rms_um:.2f} µm RMS "
+        f"(the thesis claimed ±{CLAIMED_ACCURACY_UM:g} µm without measuring); reported std x/y/z "
+        + "/".join(f"{v:.2f}" for v in np.median(stds, axis=0))
+        + " µm."
+    )
+    validations = {k: result.models[k].validation for k in ("matrix", "polynomial")}
+    out.append(identification_table(validations, result.oracle))
+    evaluation = result.evaluation
+    if evaluation:
+        names = ["uncalibrated", "matrix", "optimal"]
+        title = "4. Pose accuracy at the Table 5-2 poses: mean / worst AP_P (µm)"
+        out.append(
+            pose_accuracy_table(evaluation["pose_accuracy"], names, thesis=True, title=title)
+        )
+        title = "5. Decoupling: undesired displacement \\[min, max] (µm), truth (thesis)"
+        out.append(decoupling_table(evaluation["decoupling"], names, thesis=True, title=title))
+    return out
+
+
+def validation_lines(v: dict[str, Any]) -> list[str]:
+    """What ``microcal fit`` prints of a calibration.json ``validation`` object."""
+    lines = [
+        f"validation ({v['method']}): mean {v['mean_um']:.2f} µm, std {v['std_um']:.2f}, "
+        f"max {v['max_um']:.2f}, RMS {v['rms_um']:.2f}, 95 % {v['p95_um']:.2f}; RMS per axis "
+        "x/y/z " + "/".join(f"{r:.2f}" for r in v["rms_axis_um"].values()) + " µm"
+    ]
+    if "cross_validation" in v:
+        cv = v["cross_validation"]
+        lines.append(
+            f"{cv['folds']}-fold cross-validation (selection repeated per fold): mean "
+            f"{cv['mean_um']:.2f} µm, std {cv['std_um']:.2f}, max {cv['max_um']:.2f}"
+        )
+        unstable = [f"{axis}:{term} {share:.0%}" for axis, shares in cv["term_frequency"].items()
+                    for term, share in shares.items() if 0 < share < 1]  # fmt: skip
+        if unstable:
+            lines.append("terms not selected in every fold: " + ", ".join(unstable))
+    return lines
+
+
+def evaluation_tables(parts: Mapping[str, Any], poses: str, *, thesis: bool) -> list[TextTable]:
+    """What ``microcal evaluate`` prints: pose accuracy over ``poses``, decoupling by vision
+    and truth; the thesis's pose-accuracy figures where ``thesis`` (its poses, its preset)."""
+    out = []
+    if "pose_accuracy" in parts:
+        pa = parts["pose_accuracy"]
+        title = f"Pose accuracy AP_P (µm): mean / worst over the {poses} poses"
+        out.append(pose_accuracy_table(pa, list(pa["vision"]), thesis=thesis, title=title))
+    if "decoupling" in parts:
+        dc = parts["decoupling"]
+        title = "Decoupling: undesired displacement \\[min, max] (µm), vision | truth"
+        out.append(decoupling_table(dc, list(dc["vision"]), thesis=False, title=title))
+    return out
+
+
+def demo_intro(out: Path, poses: int) -> str:
+    """The line ``microcal demo`` starts with."""
+    return (
+        f"microcal demo on the simulated thesis platform, writing {out}/: stereo "
+        f"calibration from rendered images, {poses} poses acquired with vision settling and "
+        "measured in 3D, kinematic identification, compensation, and the ISO 9283 and "
+        "decoupling tests."
+    )
+
+
+def demo_closing(result: Any, out: Path, wall_s: float) -> list[TextTable | str]:
+    """The lines ``microcal demo`` ends with: what it wrote, the terms selected."""
+    model = result.models["polynomial"].model
+    terms = "; ".join(
+        f"{axis}: {', '.join(name for name, _, _ in model.axis_terms(i))}"
+        for i, axis in enumerate("xyz")
+    )
+    return [
+        f"wrote {out}/: the run (run.json, commands.csv, journal.jsonl, images/), "
+        f"measurements.csv, cameras.json, calibration.json, results.json and report.html "
+        f"({wall_s:.0f} s); open {out / 'report.html'} in a browser",
+        f"polynomial terms selected stepwise: {terms}",
+    ]
+
+
+def measurement_lines(results: list[Any], path: Path) -> list[TextTable | str]:
+    """What ``microcal measure`` prints of its pose measurements."""
+    ok = [r for r in results if r.status == "ok"]
+    lines: list[TextTable | str] = [f"measured {len(ok)} of {len(results)} poses; wrote {path}"]
+    if ok:
+        med = np.median([r.std_um for r in ok], axis=0)
+        lines.append(
+            "median standard deviation x/y/z: " + "/".join(f"{v:.2f}" for v in med) + " µm"
+        )
+    lines += [f"pose {r.pose} failed: {r.reason}" for r in results if r.status != "ok"]
+    return lines
+
+
+def stereo_lines(calibration: Any, out: Path) -> list[TextTable | str]:
+    """What ``microcal stereo-calibrate`` prints: the table, rejected views, the baseline."""
+    lines: list[TextTable | str] = [stereo_table(calibration)]
+    for name, c in calibration.cameras.items():
+        lines += [f"rejected {name} {r['image']}: {r['reason']}" for r in c.views_rejected]
+    lines.append(
+        f"baseline {calibration.baseline_um:.0f} µm; stereo RMS {calibration.rms_px:.4f} px; "
+        f"wrote {out}"
+    )
+    return lines
+
+
+def fit_lines(
+    model: KinematicModel, validation: Mapping[str, Any], header: str, wrote: str
+) -> list[TextTable | str]:
+    """What ``microcal fit`` prints: what was fitted, its terms, validation, what it wrote."""
+    return [header, terms_table(model), *validation_lines(dict(validation)), wrote]
+
+
+def solution_lines(solution: Any, calibration: Any) -> list[str]:
+    """The notes ``microcal solve`` prints on stderr about a compensator's solution."""
+    lines = []
+    if solution.outside_range is not None:
+        ranges = ",".join(f"{lo:.0f}:{hi:.0f}" for lo, hi in solution.outside_range)
+        lines.append(
+            f"note: these joints lie outside the range the model was identified on {ranges} "
+            "µm; the model extrapolates there"
+        )
+    residual = ", ".join(f"{v:.2e}" for v in solution.residual_um)
+    kind, name = calibration.model.kind, calibration.name
+    lines.append(f"{kind} model of {name!r}: model(d) - target = {residual} µm")
+    return lines
