@@ -3,18 +3,22 @@
 Manipulators: the simulator, the SmarAct MCS2 driver (fake controller over TCP) and the
 Micro-Manager bridge (pymmcore-plus Python devices). Cameras: the simulator, Aravis against
 Debian's fake GigE Vision camera and against viva-genicam's, and the Micro-Manager bridge.
-Backends whose peer or library is missing here are skipped with the reason.
+Backends whose peer or library is missing here are skipped with the reason. Every device
+closes once and for good (idempotent, refusing every operation afterwards, as a context
+manager too); both clocks wait the same way and refuse the same durations.
 """
 
 from __future__ import annotations
 
+import itertools
+import math
 from collections.abc import Iterator
 
 import numpy as np
 import pytest
 
 from microcal.devices.base import Camera, Clock, Manipulator, RealClock
-from microcal.errors import InputError, LimitError
+from microcal.errors import DeviceError, InputError, LimitError
 from microcal.sim import platform
 from microcal.sim.clock import SimClock
 
@@ -59,6 +63,36 @@ def camera(request) -> Iterator[Camera]:
         from microcal.devices.micromanager import MMCamera
 
         yield MMCamera(request.getfixturevalue("mm_core"), "TopCam", name="top")
+
+
+@pytest.fixture(params=["real", "sim"])
+def clock(request) -> Clock:
+    return RealClock() if request.param == "real" else SimClock(start_s=12.5)
+
+
+# --- clocks ------------------------------------------------------------------------------------
+def test_now_is_monotonic_and_sleep_advances_it(clock):
+    t0 = clock.now_s()
+    assert isinstance(t0, float)
+    clock.sleep(0.0)
+    clock.sleep(-0.0)
+    t1 = clock.now_s()
+    assert t1 >= t0
+    clock.sleep(0.01)
+    t2 = clock.now_s()
+    assert t2 - t1 >= 0.01 - 1e-9
+    reads = [clock.now_s() for _ in range(100)]
+    assert all(b >= a for a, b in itertools.pairwise(reads))
+
+
+@pytest.mark.parametrize("duration", [-1.0, -1e-9, math.nan, math.inf, -math.inf])
+def test_sleep_refuses_negative_and_non_finite_durations_alike(clock, duration):
+    before = clock.now_s()
+    with pytest.raises(InputError, match=r"sleep: expected a finite duration >= 0 s, got "):
+        clock.sleep(duration)
+    assert clock.now_s() - before < 0.5  # refused at once, nothing waited (sim: time unchanged)
+    if isinstance(clock, SimClock):
+        assert clock.now_s() == before
 
 
 # --- manipulators ------------------------------------------------------------------------------
@@ -111,6 +145,41 @@ def test_wait_has_a_timeout(manipulator):
     m.stop()
 
 
+def test_close_is_idempotent_and_every_operation_after_it_is_refused(manipulator):
+    m, clock = manipulator
+    assert not m.closed
+    m.close()
+    assert m.closed
+    m.close()  # again: nothing happens
+    assert m.closed
+    for operation in (
+        lambda: m.move_to_um([100.0, 100.0, 100.0]),
+        m.position_um,
+        m.is_moving,
+        m.stop,
+        lambda: m.wait_until_stopped(clock, timeout_s=1.0),
+    ):
+        with pytest.raises(DeviceError, match=rf"^{m.name}: .* on a closed manipulator; open"):
+            operation()
+
+
+def test_a_manipulator_is_a_context_manager_that_closes(manipulator):
+    m, _ = manipulator
+    with m as same:
+        assert same is m
+        assert m.position_um().shape == (3,)
+    assert m.closed
+    with pytest.raises(DeviceError, match="closed"):
+        m.position_um()
+
+
+def test_the_context_manager_closes_when_the_block_fails(manipulator):
+    m, _ = manipulator
+    with pytest.raises(LimitError), m:
+        m.move_to_um([99999.0, 0.0, 0.0])
+    assert m.closed
+
+
 # --- cameras -----------------------------------------------------------------------------------
 def test_frames_have_the_sensor_size_and_dtype(camera):
     frame = camera.grab()
@@ -137,3 +206,23 @@ def test_exposure_is_validated_and_applied(camera):
     camera.exposure_s = 0.004
     assert camera.exposure_s == pytest.approx(0.004)
     assert camera.grab().shape[::-1] == tuple(camera.sensor_size_px)
+
+
+def test_camera_close_is_idempotent_and_grabs_after_it_are_refused(camera):
+    assert not camera.closed
+    camera.close()
+    camera.close()  # again: nothing happens
+    assert camera.closed
+    with pytest.raises(DeviceError, match=rf"^{camera.name}: grab on a closed camera; open"):
+        camera.grab()
+    with pytest.raises(DeviceError, match="on a closed camera"):
+        camera.exposure_s = 0.004
+
+
+def test_a_camera_is_a_context_manager_that_closes(camera):
+    with camera as same:
+        assert same is camera
+        assert camera.grab().shape[::-1] == tuple(camera.sensor_size_px)
+    assert camera.closed
+    with pytest.raises(DeviceError, match="closed"):
+        camera.grab()

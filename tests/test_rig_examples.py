@@ -1,31 +1,260 @@
-"""The documented rig files parse, and the simulator's can be checked with --dry-run."""
+"""The documented rig files parse into typed specs whose records are run.json's; the simulator's
+can be checked with --dry-run; an opened rig closes its devices once, all of them."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
 
 from microcal.cli import app
+from microcal.devices.rig import open_rig
+from microcal.devices.rig_spec import (
+    AravisCameraSpec,
+    HardwareRigSpec,
+    MCS2Spec,
+    MicroManagerSpec,
+    MMCameraSpec,
+    MMStageSpec,
+    SimRigSpec,
+)
+from microcal.errors import DeviceError, FormatError, InputError
 from microcal.formats.rig_file import load_rig
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "rigs"
+LIMITS = {"x": [0.0, 8000.0], "y": [0.0, 8000.0], "z": [0.0, 4800.0]}
+
+# The records run.json files hold (as load_rig's dicts gave them before the typed specs):
+# a resumed run compares the new rig's record with the stored one.
+SMARACT_GIGE_RECORD = {
+    "driver": "hardware",
+    "board": "chessboard:4x3:400",
+    "manipulator": {"kind": "smaract-mcs2", "limits_um": LIMITS, "address": "192.168.1.200",
+                    "port": 55551, "channels": {"x": 0, "y": 1, "z": 2}, "timeout_s": 2.0,
+                    "reconnects": 2, "speed_um_s": 2000.0},
+    "cameras": {
+        "top": {"kind": "aravis", "address": "192.168.1.11", "exposure_ms": 10.0,
+                "pixel_format": "Mono8", "timeout_s": 2.0, "pixel_size_um": 3.45},
+        "side": {"kind": "aravis", "address": "192.168.1.12", "exposure_ms": 10.0,
+                 "pixel_format": "Mono8", "timeout_s": 2.0, "pixel_size_um": 3.45},
+    },
+}  # fmt: skip
+MICROMANAGER_RECORD = {
+    "driver": "hardware",
+    "board": "chessboard:4x3:400",
+    "manipulator": {"kind": "micromanager", "limits_um": LIMITS, "port": 55551, "timeout_s": 2.0,
+                    "reconnects": 2, "xy_stage": "XYStage", "focus": "ZStage"},
+    "cameras": {
+        "top": {"kind": "micromanager", "device": "TopCamera", "exposure_ms": 10.0,
+                "pixel_format": "Mono8", "timeout_s": 2.0, "pixel_size_um": 3.45},
+        "side": {"kind": "micromanager", "device": "SideCamera", "exposure_ms": 10.0,
+                 "pixel_format": "Mono8", "timeout_s": 2.0, "pixel_size_um": 3.45},
+    },
+    "micromanager": {"config": str(EXAMPLES / "MMConfig_rig.cfg")},
+}  # fmt: skip
+SIM_FAULTS_RECORD = {
+    "driver": "sim",
+    "preset": "thesis",
+    "seed": 3,
+    "overrides": {
+        "top.faults.drop_rate": 0.05,
+        "top.faults.occlusion_rate": 0.02,
+        "manipulator.faults.timeout_rate": 0.01,
+    },
+}
+
+MCS2_RIG = """
+driver = "hardware"
+[manipulator]
+kind = "smaract-mcs2"
+address = "127.0.0.1"
+channels = { x = 0, y = 1, z = 2 }
+limits_um = { x = [0, 8000], y = [0, 8000], z = [0, 4800] }
+[cameras.top]
+kind = "aravis"
+address = "127.0.0.1"
+region_px = [0, 0, 320, 240]
+[cameras.side]
+kind = "aravis"
+address = "127.0.0.2"
+exposure_ms = 5
+"""
 
 
-@pytest.mark.parametrize("name", ["smaract-gige.toml", "micromanager.toml", "sim-faults.toml"])
-def test_example_rig_files_parse(name):
+@pytest.mark.parametrize(
+    ("name", "record"),
+    [
+        ("smaract-gige.toml", SMARACT_GIGE_RECORD),
+        ("micromanager.toml", MICROMANAGER_RECORD),
+        ("sim-faults.toml", SIM_FAULTS_RECORD),
+    ],
+)
+def test_example_rig_files_parse_into_specs_with_the_run_json_record(name, record):
     rig = load_rig(str(EXAMPLES / name))
-    if rig["driver"] == "hardware":
-        assert set(rig["cameras"]) == {"top", "side"}
-        assert set(rig["manipulator"]["limits_um"]) == {"x", "y", "z"}
-    else:
-        assert rig["overrides"]["top.faults.drop_rate"] == 0.05
+    assert rig.to_dict() == record
+    assert json.loads(json.dumps(rig.to_dict())) == record  # as stored and read back
+
+
+def test_example_specs_are_typed():
+    rig = load_rig(str(EXAMPLES / "smaract-gige.toml"))
+    assert isinstance(rig, HardwareRigSpec)
+    assert isinstance(rig.manipulator, MCS2Spec)
+    assert rig.manipulator.axes == ("x", "y", "z")
+    assert rig.manipulator.limits_array().tolist() == list(LIMITS.values())
+    assert all(isinstance(c, AravisCameraSpec) for c in rig.cameras.values())
+    assert list(rig.cameras) == ["top", "side"]
+    assert rig.cameras["top"].exposure_s == pytest.approx(0.01)
+    mm = load_rig(str(EXAMPLES / "micromanager.toml"))
+    assert isinstance(mm, HardwareRigSpec)
+    assert isinstance(mm.manipulator, MMStageSpec)
+    assert isinstance(mm.cameras["side"], MMCameraSpec)
+    assert mm.uses_micromanager
+
+
+def test_sim_alone_is_the_default_simulated_platform():
+    assert load_rig("sim") == SimRigSpec()
+    assert load_rig("sim").to_dict() == {
+        "driver": "sim", "preset": "thesis", "seed": 0, "overrides": {}
+    }  # fmt: skip
+
+
+def test_defaults_live_in_the_specs_and_records_are_json(tmp_path):
+    path = tmp_path / "rig.toml"
+    path.write_text(MCS2_RIG)
+    rig = load_rig(str(path))
+    assert isinstance(rig, HardwareRigSpec)
+    assert rig == HardwareRigSpec(
+        MCS2Spec("127.0.0.1", {"x": 0, "y": 1, "z": 2}, LIMITS),  # type: ignore[arg-type]
+        {
+            "top": AravisCameraSpec("127.0.0.1", region_px=(0, 0, 320, 240)),
+            "side": AravisCameraSpec("127.0.0.2", exposure_ms=5.0),
+        },
+    )
+    m = rig.manipulator
+    assert isinstance(m, MCS2Spec)
+    assert (m.port, m.timeout_s, m.reconnects, m.speed_um_s) == (55551, 2.0, 2, None)
+    assert rig.board == "chessboard:4x3:400"
+    record = rig.to_dict()
+    assert "exposure_ms" not in record["cameras"]["top"]  # as written: not given
+    assert record["cameras"]["top"]["region_px"] == [0, 0, 320, 240]
+    assert json.loads(json.dumps(record)) == record  # a resume compares equal records
 
 
 def test_micromanager_config_path_is_relative_to_the_rig_file():
     rig = load_rig(str(EXAMPLES / "micromanager.toml"))
-    assert rig["micromanager"]["config"] == str(EXAMPLES / "MMConfig_rig.cfg")
+    assert isinstance(rig, HardwareRigSpec)
+    assert rig.micromanager == MicroManagerSpec(config=str(EXAMPLES / "MMConfig_rig.cfg"))
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda t: t.replace('region_px = [0, 0, 320, 240]', 'device = "Cam"'),
+         r"cameras\.top\.device: not a setting of kind 'aravis' \(its settings: address,"),
+        (lambda t: t.replace('address = "127.0.0.1"\nchannels', 'focus = "Z"\nchannels'),
+         r"manipulator\.focus: not a setting of kind 'smaract-mcs2'"),
+        (lambda t: t.replace('address = "127.0.0.1"\nchannels', 'channels'),
+         r"manipulator: smaract-mcs2 needs 'address'"),
+        (lambda t: t.replace("exposure_ms = 5", 'pixel_format = "RGB8"'),
+         r"cameras\.side\.pixel_format: expected one of Mono8, Mono10"),
+        (lambda t: t.replace("[0, 4800]", "[4800, 0]"),
+         r"manipulator\.limits_um\.z: expected \[low, high\] with low < high"),
+        (lambda t: t.replace("exposure_ms = 5", "exposure_ms = nan"), r"cameras\.side\.exposure_ms"),
+        (lambda t: t.split("[cameras.side]")[0], r"cameras: expected two cameras"),
+        (lambda t: t.replace('kind = "aravis"', 'kind = "micromanager"\ndevice = "C"', 1)
+         .replace('address = "127.0.0.1"\nregion_px = [0, 0, 320, 240]\n', ""),
+         r"micromanager: Micro-Manager devices need the core"),
+    ],
+)  # fmt: skip
+def test_rig_file_mistakes_are_one_line_naming_the_key(tmp_path, edit, message):
+    path = tmp_path / "rig.toml"
+    path.write_text(edit(MCS2_RIG))
+    with pytest.raises(FormatError, match=message) as info:
+        load_rig(str(path))
+    assert len(str(info.value).splitlines()) == 1
+    assert str(info.value).startswith(f"{path}: ")
+
+
+def test_specs_built_in_python_check_themselves():
+    with pytest.raises(InputError, match=r"limits_um: expected a \[low, high\] for each of"):
+        MMStageSpec("XY", "Z", {"x": (0.0, 1.0), "y": (0.0, 1.0)})
+    with pytest.raises(InputError, match=r"timeout_s: expected a finite number > 0, got -1"):
+        MCS2Spec("host", {"x": 0}, {"x": (0.0, 1.0)}, timeout_s=-1)
+    with pytest.raises(InputError, match="micromanager: give exactly one of 'config'"):
+        MicroManagerSpec(config="a.cfg", python_devices="m:f")
+    with pytest.raises(InputError, match="seed: expected an integer >= 0, got -1"):
+        SimRigSpec(seed=-1)
+
+
+def test_open_rig_takes_a_spec_and_closing_it_closes_every_device_once():
+    rig = open_rig(SimRigSpec(seed=1))
+    devices = [rig.manipulator, *rig.cameras.values()]
+    with rig as same:
+        assert same is rig
+        assert rig.cameras["top"].grab().ndim == 2
+    assert rig.closed
+    assert all(d.closed for d in devices)
+    rig.close()  # again: harmless
+    with pytest.raises(DeviceError, match="on a closed manipulator"):
+        rig.manipulator.position_um()
+    with pytest.raises(DeviceError, match="expected a SimRigSpec or HardwareRigSpec"):
+        open_rig({"driver": "sim"})  # type: ignore[arg-type]
+
+
+def test_a_device_that_fails_to_open_closes_those_opened_before(fake_mcs2, monkeypatch):
+    from microcal.devices.smaract_mcs2 import MCS2Manipulator
+
+    closed = []
+    original = MCS2Manipulator._close
+    monkeypatch.setattr(MCS2Manipulator, "_close", lambda self: closed.append(original(self)))
+    spec = HardwareRigSpec(
+        MCS2Spec("127.0.0.1", {"x": 0, "y": 1, "z": 2}, LIMITS, timeout_s=0.5),  # type: ignore[arg-type]
+        {"top": AravisCameraSpec("127.0.0.9"), "side": AravisCameraSpec("127.0.0.10")},
+    )
+    with pytest.raises(DeviceError, match=r"Aravis|top: cannot open the camera at 127\.0\.0\.9"):
+        open_rig(spec)
+    assert fake_mcs2.connections == 1  # the controller answered ...
+    assert len(closed) == 1  # ... and was closed again
+
+
+def test_the_simulated_rig_has_ground_truth_and_a_temperature():
+    with open_rig(SimRigSpec(seed=2)) as rig:
+        assert rig.truth is not None
+        assert rig.truth().shape == (3,)
+        assert rig.temperature is not None
+        assert 15.0 < rig.temperature() < 30.0
+
+
+def test_a_device_that_fails_to_close_does_not_keep_the_others_open(monkeypatch):
+    rig = open_rig(SimRigSpec())
+    released = []
+    rig.resources.append(lambda: released.append(True))
+
+    def broken() -> None:
+        raise DeviceError("top: camera not answering")
+
+    monkeypatch.setattr(rig.cameras["top"], "_close", broken)
+    with pytest.raises(DeviceError, match=r"rig: closing top \(top: camera not answering\) failed"):
+        rig.close()
+    assert all(d.closed for d in (*rig.cameras.values(), rig.manipulator))
+    assert released == [True]
+    rig.close()  # already closed: nothing again
+    assert released == [True]
+
+
+def test_closing_errors_do_not_hide_the_error_that_ended_the_block(monkeypatch):
+    rig = open_rig(SimRigSpec())
+
+    def broken() -> None:
+        raise DeviceError("side: camera not answering")
+
+    monkeypatch.setattr(rig.cameras["side"], "_close", broken)
+    with pytest.raises(KeyError, match="the run's own error"), rig:
+        raise KeyError("the run's own error")
+    assert rig.closed
+    assert rig.manipulator.closed
 
 
 def test_sim_example_dry_run(tmp_path):

@@ -133,3 +133,36 @@ def test_the_namespace_has_only_loopback(netns):
     with pytest.raises(OSError, match="unreachable"):
         s.sendto(b"x", ("192.0.2.1", 3956))
     s.close()
+
+
+def test_close_ends_the_connection_for_good_and_commands_after_it_are_refused(fake_mcs2):
+    m = driver()
+    m.close()
+    m.close()  # again: nothing happens
+    log = list(fake_mcs2.log)
+    with pytest.raises(DeviceError, match=r"mcs2: position query on a closed manipulator"):
+        m.position_um()
+    with pytest.raises(DeviceError, match=r"on a closed manipulator"):
+        m.errors()  # a driver-specific query: refused too, not reconnected
+    with pytest.raises(DeviceError, match=r"connect on a closed manipulator"):
+        m.connect()
+    assert fake_mcs2.log == log
+    assert fake_mcs2.connections == 1
+
+
+def test_as_a_context_manager_it_connects_and_closes(fake_mcs2):
+    with MCS2Manipulator("127.0.0.1", CHANNELS, LIMITS, timeout_s=0.5) as m:
+        assert m.serial == "MCS2-FAKE0001"
+        np.testing.assert_allclose(m.position_um(), [0.0, 0.0, 0.0])
+    assert m.closed
+    with driver() as connected:  # connected already: not connected twice
+        connected.position_um()
+    assert fake_mcs2.connections == 2
+
+
+def test_a_lost_connection_reconnects_but_does_not_close_the_driver(fake_mcs2):
+    m = driver()
+    fake_mcs2.faults.drop_after_move = 1
+    m.move_to_um([10.0, 10.0, 10.0])
+    assert not m.closed
+    assert m.reconnections == 1

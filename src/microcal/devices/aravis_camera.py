@@ -136,7 +136,7 @@ class AravisCamera(Camera):
         except Exception as exc:
             raise DeviceError(f"{self.name}: exposure not accepted ({_message(exc)})") from None
 
-    def grab(self) -> NDArray[np.unsignedinteger]:
+    def _grab(self) -> NDArray[np.unsignedinteger]:
         try:
             self._camera.software_trigger()
         except Exception as exc:
@@ -162,10 +162,11 @@ class AravisCamera(Camera):
             self._stream.push_buffer(buffer)
         return frame
 
-    def close(self) -> None:
-        """Stop streaming and release the camera."""
+    def _close(self) -> None:
+        """Stop streaming and release the stream and the camera."""
         if self._camera is not None:
-            with contextlib.suppress(Exception):  # closing: nothing left to do
+            # a camera that no longer answers cannot stop: there is nothing left to do
+            with contextlib.suppress(Exception):
                 self._camera.stop_acquisition()
         self._stream = None
         self._camera = None

@@ -105,19 +105,22 @@ class MMManipulator(Manipulator):
         self._call("XY move", self.core.setXYPosition, self.xy_stage, x, y)
         self._call("Z move", self.core.setPosition, self.focus, z)
 
-    def position_um(self) -> FloatArray:
+    def _position_um(self) -> FloatArray:
         xy = self._call("XY position", self.core.getXYPosition, self.xy_stage)
         z = self._call("Z position", self.core.getPosition, self.focus)
         return np.array([float(xy[0]), float(xy[1]), float(z)])
 
-    def is_moving(self) -> bool:
+    def _is_moving(self) -> bool:
         busy_xy = self._call("XY state", self.core.deviceBusy, self.xy_stage)
         busy_z = self._call("Z state", self.core.deviceBusy, self.focus)
         return bool(busy_xy or busy_z)
 
-    def stop(self) -> None:
+    def _stop(self) -> None:
         self._call("XY stop", self.core.stop, self.xy_stage)
         self._call("Z stop", self.core.stop, self.focus)
+
+    def _close(self) -> None:
+        self.core = None  # the core and its devices belong to whoever opened it (the rig)
 
 
 class MMCamera(Camera):
@@ -152,7 +155,7 @@ class MMCamera(Camera):
         except RuntimeError as exc:
             raise DeviceError(f"{self.name}: exposure not accepted ({exc})") from None
 
-    def grab(self) -> NDArray[np.unsignedinteger]:
+    def _grab(self) -> NDArray[np.unsignedinteger]:
         try:
             self.core.setCameraDevice(self.device)
             self.core.snapImage()
@@ -161,3 +164,6 @@ class MMCamera(Camera):
             raise _device_error(f"{self.name}: no frame ({exc})", exc) from None
         frame: NDArray[np.unsignedinteger] = image.astype(self.dtype, copy=True)
         return frame
+
+    def _close(self) -> None:
+        self.core = None  # the core and its devices belong to whoever opened it (the rig)

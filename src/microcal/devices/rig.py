@@ -1,8 +1,9 @@
-"""Open the devices a rig file names: the simulator, or hardware drivers.
+"""Open the devices a rig spec names: the simulator, or hardware drivers.
 
 ``open_rig(load_rig("myrig.toml"))`` gives a :class:`Rig` whose manipulator, cameras and clock
 the procedures drive the same way whatever is behind them. Close it when done (it is a
-context manager).
+context manager): it closes every device through its own ``close()``, then releases what the
+rig holds besides (a Micro-Manager core).
 """
 
 from __future__ import annotations
@@ -10,149 +11,245 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from types import TracebackType
 from typing import Any
 
-import numpy as np
-
+from .._validation import FloatArray
 from ..errors import DeviceError
 from ..vision.targets import Target, parse_target
-from .base import Camera, Clock, Manipulator, RealClock
+from .base import Camera, Clock, Device, Manipulator, RealClock
+from .rig_spec import (
+    AravisCameraSpec,
+    HardwareRigSpec,
+    MCS2Spec,
+    MMCameraSpec,
+    MMStageSpec,
+    RigSpec,
+    SimRigSpec,
+)
 
 __all__ = ["Rig", "open_rig"]
 
 
 @dataclass
 class Rig:
-    """The opened devices of a rig."""
+    """The opened devices of a rig.
+
+    Attributes
+    ----------
+    manipulator : Manipulator
+    cameras : dict of str to Camera
+        By the names the run uses, in order.
+    clock : Clock
+    board : Target
+        The end-effector's target.
+    temperature : callable () -> float, optional
+        Ambient temperature now, °C (the simulator's; None when the rig has no sensor).
+    truth : callable () -> (3,) float, optional
+        The end-effector's true position now, µm in {G}: the simulator's ground truth, for
+        tests and benchmarks (None for hardware).
+    description : dict of str to str
+        What answered, per device (for the dry run and the record).
+    resources : list of callable
+        Releases of what the rig holds besides its devices (a Micro-Manager core's
+        ``unloadAllDevices``), called after the devices are closed, last first.
+    """
 
     manipulator: Manipulator
     cameras: dict[str, Camera]
     clock: Clock
     board: Target
     temperature: Callable[[], float] | None = None
-    description: dict[str, str] = field(default_factory=dict)  # device -> what answered
-    _closers: list[Callable[[], None]] = field(default_factory=list)
+    truth: Callable[[], FloatArray] | None = None
+    description: dict[str, str] = field(default_factory=dict)
+    resources: list[Callable[[], None]] = field(default_factory=list)
+    _closed: bool = field(default=False, init=False, repr=False)
+
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` has been called."""
+        return self._closed
 
     def close(self) -> None:
-        """Release every device (errors while closing are ignored)."""
-        for close in reversed(self._closers):
-            with contextlib.suppress(Exception):
-                close()
-        self._closers.clear()
+        """Close every device, then release the rig's resources; again, it does nothing.
+
+        Every device is closed even when closing another fails.
+
+        Raises
+        ------
+        DeviceError
+            Closing something failed (named), after everything else was closed.
+        """
+        if self._closed:
+            return
+        self._closed = True
+        devices: list[tuple[str, Device]] = [*self.cameras.items()]
+        devices.append(("manipulator", self.manipulator))
+        failed = _close_all(devices, self.resources)
+        self.resources.clear()
+        if failed:
+            raise DeviceError(
+                f"rig: closing {'; '.join(failed)} failed; everything else was closed"
+            )
 
     def __enter__(self) -> Rig:
         return self
 
-    def __exit__(self, *_exc: object) -> None:
-        self.close()
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        if exc_type is None:
+            self.close()
+            return
+        with contextlib.suppress(DeviceError):  # the error that ended the block is the news
+            self.close()
 
 
-def _sim(spec: dict[str, Any]) -> Rig:
+def _close_all(devices: list[tuple[str, Device]], resources: list[Callable[[], None]]) -> list[str]:
+    """Close the devices in order, then release the resources last first; what failed."""
+    failed: list[str] = []
+    for name, device in devices:
+        try:
+            device.close()
+        except Exception as exc:  # closing goes on whatever one device does
+            failed.append(f"{name} ({exc})")
+    for release in reversed(resources):
+        try:
+            release()
+        except Exception as exc:
+            failed.append(f"{getattr(release, '__qualname__', 'a resource')} ({exc})")
+    return failed
+
+
+def open_rig(spec: RigSpec) -> Rig:
+    """Open the devices of a rig (``formats.rig_file.load_rig``'s result).
+
+    Parameters
+    ----------
+    spec : SimRigSpec or HardwareRigSpec
+
+    Raises
+    ------
+    DeviceError
+        A device that cannot be reached or set up; the message names it. Whatever was
+        opened before it is closed again.
+    """
+    if isinstance(spec, SimRigSpec):
+        return _sim(spec)
+    if isinstance(spec, HardwareRigSpec):
+        return _hardware(spec)
+    raise DeviceError(
+        f"rig: expected a SimRigSpec or HardwareRigSpec (formats.rig_file.load_rig), "
+        f"got {type(spec).__name__}"
+    )
+
+
+def _sim(spec: SimRigSpec) -> Rig:
     from ..sim import platform
 
-    plat = platform(spec["preset"], seed=spec["seed"], overrides=spec["overrides"])
+    plat = platform(spec.preset, seed=spec.seed, overrides=dict(spec.overrides))
     return Rig(
         plat.manipulator,
         dict(plat.cameras),
         plat.clock,
         plat.scene.board,
         temperature=lambda: plat.manipulator.temperature_at(plat.clock.now_s()),
-        description={"platform": f"simulated, preset {spec['preset']}, seed {spec['seed']}"},
+        truth=plat.truth_position_um,
+        description={"platform": f"simulated, preset {spec.preset}, seed {spec.seed}"},
     )
 
 
-def _hardware(spec: dict[str, Any]) -> Rig:
-    closers: list[Callable[[], None]] = []
+def _hardware(spec: HardwareRigSpec) -> Rig:
+    opened: list[tuple[str, Device]] = []  # closed again, last first, if a later one fails
+    resources: list[Callable[[], None]] = []
     try:
-        return _open_hardware(spec, closers)
+        return _open_hardware(spec, opened, resources)
     except BaseException:
-        for close in reversed(closers):
-            with contextlib.suppress(Exception):
-                close()
+        _close_all(opened[::-1], resources)
         raise
 
 
-def _open_hardware(spec: dict[str, Any], closers: list[Callable[[], None]]) -> Rig:
-    m = spec["manipulator"]
+def _open_hardware(
+    spec: HardwareRigSpec,
+    opened: list[tuple[str, Device]],
+    resources: list[Callable[[], None]],
+) -> Rig:
     description: dict[str, str] = {}
     core: Any = None
-    if "micromanager" in spec:
+    if spec.micromanager is not None:
         from .micromanager import open_core
 
-        mm = spec["micromanager"]
-        core = open_core(mm.get("config"), mm.get("python_devices"))
-        closers.append(core.unloadAllDevices)
-    manipulator: Manipulator
-    if m["kind"] == "smaract-mcs2":
-        from .smaract_mcs2 import MCS2Manipulator
-
-        axes = list(m["channels"])
-        limits = np.array([m["limits_um"][a] for a in axes], dtype=np.float64)
-        mcs2 = MCS2Manipulator(
-            m["address"],
-            m["channels"],
-            limits,
-            port=m.get("port", 55551),
-            timeout_s=m.get("timeout_s", 2.0),
-            reconnects=m.get("reconnects", 2),
-            speed_um_s=m.get("speed_um_s"),
-        )
-        mcs2.connect()
-        closers.append(mcs2.close)
-        description["manipulator"] = f"SmarAct MCS2 {mcs2.serial} at {m['address']}"
-        manipulator = mcs2
-    else:
-        from .micromanager import MMManipulator
-
-        limits = np.array([m["limits_um"][a] for a in "xyz"], dtype=np.float64)
-        manipulator = MMManipulator(
-            core, xy_stage=m["xy_stage"], focus=m["focus"], limits_um=limits
-        )
-        description["manipulator"] = f"Micro-Manager {m['xy_stage']} + {m['focus']}"
+        core = open_core(spec.micromanager.config, spec.micromanager.python_devices)
+        resources.append(core.unloadAllDevices)
+    manipulator = _open_manipulator(spec.manipulator, core, description)
+    opened.append(("manipulator", manipulator))
     cameras: dict[str, Camera] = {}
-    for name, c in spec["cameras"].items():
-        exposure_s = c["exposure_ms"] / 1e3 if "exposure_ms" in c else None
-        if c["kind"] == "aravis":
-            from .aravis_camera import AravisCamera
-
-            region = c.get("region_px")
-            cam = AravisCamera(
-                c["address"],
-                name=name,
-                exposure_s=exposure_s or 0.01,
-                pixel_format=c.get("pixel_format", "Mono8"),
-                region_px=tuple(region) if region else None,
-                timeout_s=c.get("timeout_s", 2.0),
-                pixel_size_um=c.get("pixel_size_um", 3.45),
-            )
-            closers.append(cam.close)
-            description[name] = f"{cam.vendor} {cam.serial} at {c['address']}"
-            cameras[name] = cam
-        else:
-            from .micromanager import MMCamera
-
-            cameras[name] = MMCamera(core, c["device"], name=name, exposure_s=exposure_s)
-            description[name] = f"Micro-Manager camera {c['device']}"
+    for name, cam_spec in spec.cameras.items():
+        cameras[name] = _open_camera(name, cam_spec, core, description)
+        opened.append((name, cameras[name]))
     return Rig(
         manipulator,
         cameras,
         RealClock(),
-        parse_target(spec.get("board", "chessboard:4x3:400")),
+        parse_target(spec.board),
         description=description,
-        _closers=closers,
+        resources=resources,
     )
 
 
-def open_rig(spec: dict[str, Any]) -> Rig:
-    """Open the devices of a rig (``formats.rig_file.load_rig``'s result).
+def _open_manipulator(
+    m: MCS2Spec | MMStageSpec, core: Any, description: dict[str, str]
+) -> Manipulator:
+    if isinstance(m, MCS2Spec):
+        from .smaract_mcs2 import MCS2Manipulator
 
-    Raises
-    ------
-    DeviceError
-        A device that cannot be reached or set up; the message names it.
-    """
-    if spec["driver"] == "sim":
-        return _sim(spec)
-    if spec["driver"] == "hardware":
-        return _hardware(spec)
-    raise DeviceError(f"rig: driver {spec['driver']!r} is unknown")
+        mcs2 = MCS2Manipulator(
+            m.address,
+            m.channels,
+            m.limits_array(),
+            port=m.port,
+            timeout_s=m.timeout_s,
+            reconnects=m.reconnects,
+            speed_um_s=m.speed_um_s,
+        )
+        try:
+            mcs2.connect()
+        except BaseException:
+            mcs2.close()
+            raise
+        description["manipulator"] = f"SmarAct MCS2 {mcs2.serial} at {m.address}"
+        return mcs2
+    from .micromanager import MMManipulator
+
+    stage = MMManipulator(core, xy_stage=m.xy_stage, focus=m.focus, limits_um=m.limits_array())
+    description["manipulator"] = f"Micro-Manager {m.xy_stage} + {m.focus}"
+    return stage
+
+
+def _open_camera(
+    name: str, c: AravisCameraSpec | MMCameraSpec, core: Any, description: dict[str, str]
+) -> Camera:
+    if isinstance(c, AravisCameraSpec):
+        from .aravis_camera import AravisCamera
+
+        cam = AravisCamera(
+            c.address,
+            name=name,
+            exposure_s=c.exposure_s,
+            pixel_format=c.pixel_format,
+            region_px=c.region_px,
+            timeout_s=c.timeout_s,
+            pixel_size_um=c.pixel_size_um,
+        )
+        description[name] = f"{cam.vendor} {cam.serial} at {c.address}"
+        return cam
+    from .micromanager import MMCamera
+
+    mm_cam = MMCamera(
+        core, c.device, name=name, exposure_s=c.exposure_s, pixel_size_um=c.pixel_size_um
+    )
+    description[name] = f"Micro-Manager camera {c.device}"
+    return mm_cam

@@ -30,6 +30,7 @@ from __future__ import annotations
 import socket
 import time
 from collections.abc import Mapping
+from typing import Self
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -59,6 +60,10 @@ _FAULTS = {
 
 class MCS2Manipulator(Manipulator):
     """A manipulator driven by a SmarAct MCS2 controller, one channel per axis.
+
+    Call :meth:`connect` first (``with MCS2Manipulator(...) as m:`` connects and closes);
+    :meth:`close` closes the connection for good, while a connection lost in between is
+    opened again by the next command.
 
     Parameters
     ----------
@@ -103,11 +108,19 @@ class MCS2Manipulator(Manipulator):
         self.serial = ""
         self._sock: socket.socket | None = None
         self._buffer = b""
+        self._connected = False
         self.reconnections = 0  # connections opened again after a loss (for the journal)
 
     # --- connection -----------------------------------------------------------------------
     def connect(self) -> None:
-        """Open the connection and set every channel to closed-loop absolute moves."""
+        """Open the connection and set every channel to closed-loop absolute moves.
+
+        Raises
+        ------
+        DeviceError
+            The controller cannot be reached or refuses the setup, or the driver is closed.
+        """
+        self._check_open("connect")
         self._open()
         self.serial = self._query(":DEV:SNUM?").strip('"')
         self._drain_errors()
@@ -115,9 +128,14 @@ class MCS2Manipulator(Manipulator):
             self._command(f":CHAN{ch}:MMOD 0")
             if self.speed_um_s is not None:
                 self._command(f":CHAN{ch}:VEL {round(self.speed_um_s * PM_PER_UM)}")
+        self._connected = True
 
-    def close(self) -> None:
-        """Close the connection (the controller keeps its state)."""
+    def _close(self) -> None:
+        """Close the connection for good (the controller keeps its state)."""
+        self._disconnect()
+
+    def _disconnect(self) -> None:
+        """Drop the socket (a lost or confused connection); the next exchange opens it again."""
         if self._sock is not None:
             try:
                 self._sock.close()
@@ -125,15 +143,18 @@ class MCS2Manipulator(Manipulator):
                 self._sock = None
                 self._buffer = b""
 
-    def __enter__(self) -> MCS2Manipulator:
-        self.connect()
+    def __enter__(self) -> Self:
+        """Connect (unless :meth:`connect` was called already); :meth:`close` on leaving."""
+        if not self._connected:
+            try:
+                self.connect()
+            except BaseException:
+                self.close()
+                raise
         return self
 
-    def __exit__(self, *_exc: object) -> None:
-        self.close()
-
     def _open(self) -> None:
-        self.close()
+        self._disconnect()
         try:
             self._sock = socket.create_connection((self.address, self.port), self.timeout_s)
         except TimeoutError:
@@ -149,6 +170,7 @@ class MCS2Manipulator(Manipulator):
 
     def _exchange(self, line: str) -> str:
         """Send one line and read one answer line; no retry."""
+        self._check_open(f"command {line!r}")
         if self._sock is None:
             self._open()
         assert self._sock is not None
@@ -170,12 +192,12 @@ class MCS2Manipulator(Manipulator):
             try:
                 return self._exchange(line)
             except TimeoutError:
-                self.close()  # a late answer would pair with the next question
+                self._disconnect()  # a late answer would pair with the next question
                 raise DeviceTimeoutError(
                     f"{self.name}: no answer to {line!r} within {self.timeout_s:g} s"
                 ) from None
             except (ConnectionError, OSError) as exc:
-                self.close()
+                self._disconnect()
                 if attempt == self.reconnects:
                     raise DeviceError(
                         f"{self.name}: connection to {self.address}:{self.port} lost "
@@ -213,7 +235,7 @@ class MCS2Manipulator(Manipulator):
         for ch, d in zip(self.channels, d_um, strict=True):
             self._command(f":MOVE{ch} {round(float(d) * PM_PER_UM)}", MoveError)
 
-    def position_um(self) -> FloatArray:
+    def _position_um(self) -> FloatArray:
         values = [self._query(f":CHAN{ch}:POS?") for ch in self.channels]
         try:
             return np.array([float(v) / PM_PER_UM for v in values])
@@ -230,7 +252,7 @@ class MCS2Manipulator(Manipulator):
                 f"{self.name}: state of channel {channel} is {answer!r}, not a number"
             ) from None
 
-    def is_moving(self) -> bool:
+    def _is_moving(self) -> bool:
         moving = False
         for axis, ch in zip(self.axes, self.channels, strict=True):
             bits = self.state(ch)
@@ -242,7 +264,7 @@ class MCS2Manipulator(Manipulator):
             moving = moving or bool(bits & STATE_BITS["moving"])
         return moving
 
-    def stop(self) -> None:
+    def _stop(self) -> None:
         for ch in self.channels:
             self._command(f":STOP{ch}")
 

@@ -1,5 +1,9 @@
 """Rig files (TOML): which devices a run uses. ``sim`` alone is the simulated thesis platform.
 
+:func:`load_rig` gives a typed spec (``microcal.devices.rig_spec``: :class:`SimRigSpec` or
+:class:`HardwareRigSpec`, with every default filled in) that ``devices.rig.open_rig`` opens
+and whose ``to_dict()`` is the rig's record in ``run.json``.
+
 ```toml
 driver = "sim"        # the simulated platform
 preset = "thesis"
@@ -28,13 +32,26 @@ exposure_ms = 10
 
 from __future__ import annotations
 
+import dataclasses
 import tomllib
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
 
-from ..errors import FormatError
+from ..devices.rig_spec import (
+    AravisCameraSpec,
+    CameraSpec,
+    HardwareRigSpec,
+    ManipulatorSpec,
+    MCS2Spec,
+    MicroManagerSpec,
+    MMCameraSpec,
+    MMStageSpec,
+    RigSpec,
+    SimRigSpec,
+)
+from ..errors import FormatError, InputError
 from .json_file import validation_message
 
 __all__ = ["load_rig"]
@@ -49,10 +66,27 @@ def _flatten(prefix: str, node: dict[str, Any], out: dict[str, Any]) -> None:
             out[name] = value
 
 
-def load_rig(spec: str) -> dict[str, Any]:
-    """``{"driver": "sim", "preset": ..., "seed": ..., "overrides": {dotted: value}}``."""
+def load_rig(spec: str) -> RigSpec:
+    """The rig a ``--rig`` option names: ``"sim"`` (the simulated thesis platform) or a file.
+
+    Parameters
+    ----------
+    spec : str
+        ``"sim"``, or the path of a rig TOML file.
+
+    Returns
+    -------
+    SimRigSpec or HardwareRigSpec
+        Every setting filled in (the defaults are the specs').
+
+    Raises
+    ------
+    FormatError
+        No such file, not TOML, or a setting missing, unknown or out of range (one line
+        naming the key).
+    """
     if spec == "sim":
-        return {"driver": "sim", "preset": "thesis", "seed": 0, "overrides": {}}
+        return SimRigSpec()
     path = Path(spec)
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
@@ -67,19 +101,20 @@ def load_rig(spec: str) -> dict[str, Any]:
         return _hardware(path, data)
     if driver != "sim":
         raise FormatError(f'{path}: driver {driver!r} is unknown; use driver = "sim" or "hardware"')
-    overrides: dict[str, Any] = {}
-    _flatten("", data.get("overrides", {}), overrides)
-    preset = str(data.get("preset", "thesis"))
-    return {
-        "driver": "sim",
-        "preset": preset,
-        "seed": int(data.get("seed", 0)),
-        "overrides": overrides,
-    }
+    return _sim(path, data)
 
 
+# The file's syntax: types and known keys. No defaults here: a key the file leaves out is
+# left out of the spec's arguments, and the spec supplies its default.
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class _Sim(_Strict):
+    driver: str
+    preset: str | None = None
+    seed: int | None = None
+    overrides: dict[str, Any] | None = None
 
 
 class _Manipulator(_Strict):
@@ -87,11 +122,11 @@ class _Manipulator(_Strict):
     limits_um: dict[str, tuple[float, float]]
     # smaract-mcs2
     address: str | None = None
-    port: int = 55551
+    port: int | None = None
     channels: dict[str, int] | None = None
-    timeout_s: float = Field(default=2.0, gt=0)
-    reconnects: int = Field(default=2, ge=0)
-    speed_um_s: float | None = Field(default=None, gt=0)
+    timeout_s: float | None = None
+    reconnects: int | None = None
+    speed_um_s: float | None = None
     # micromanager
     xy_stage: str | None = None
     focus: str | None = None
@@ -99,7 +134,7 @@ class _Manipulator(_Strict):
     @field_validator("kind")
     @classmethod
     def _kind(cls, value: str) -> str:
-        if value not in ("smaract-mcs2", "micromanager"):
+        if value not in _MANIPULATORS:
             raise ValueError(f"expected 'smaract-mcs2' or 'micromanager', got {value!r}")
         return value
 
@@ -108,16 +143,16 @@ class _Camera(_Strict):
     kind: str
     address: str | None = None  # aravis
     device: str | None = None  # micromanager
-    exposure_ms: float | None = Field(default=None, gt=0)
-    pixel_format: str = "Mono8"
+    exposure_ms: float | None = None
+    pixel_format: str | None = None
     region_px: tuple[int, int, int, int] | None = None
-    timeout_s: float = Field(default=2.0, gt=0)
-    pixel_size_um: float = Field(default=3.45, gt=0)
+    timeout_s: float | None = None
+    pixel_size_um: float | None = None
 
     @field_validator("kind")
     @classmethod
     def _kind(cls, value: str) -> str:
-        if value not in ("aravis", "micromanager"):
+        if value not in _CAMERAS:
             raise ValueError(f"expected 'aravis' or 'micromanager', got {value!r}")
         return value
 
@@ -129,50 +164,88 @@ class _MicroManager(_Strict):
 
 class _Hardware(_Strict):
     driver: str
-    board: str = "chessboard:4x3:400"
+    board: str | None = None
     manipulator: _Manipulator
     cameras: dict[str, _Camera]
     micromanager: _MicroManager | None = None
 
 
-def _hardware(path: Path, data: dict[str, Any]) -> dict[str, Any]:
+_MANIPULATORS: dict[str, type[ManipulatorSpec]] = {
+    "smaract-mcs2": MCS2Spec,
+    "micromanager": MMStageSpec,
+}
+_CAMERAS: dict[str, type[CameraSpec]] = {"aravis": AravisCameraSpec, "micromanager": MMCameraSpec}
+
+
+def _given(model: BaseModel) -> dict[str, Any]:
+    """The keys the file sets (TOML has no null: unset and absent are the same)."""
+    return model.model_dump(exclude_unset=True)
+
+
+def _build(path: Path, where: str, cls: type[Any], given: dict[str, Any]) -> Any:
+    """``cls(**given)`` for the table ``where`` (a kind's spec class and the keys the file
+    sets), with one-line errors naming the table and the key."""
+    kind = given.pop("kind", None)
+    fields = dataclasses.fields(cls)
+    names = [f.name for f in fields]
+    unknown = [k for k in given if k not in names]
+    if unknown:
+        raise FormatError(
+            f"{path}: {where}.{unknown[0]}: not a setting of kind {kind!r} "
+            f"(its settings: {', '.join(names)})"
+        )
+    required = [
+        f.name
+        for f in fields
+        if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+    ]
+    missing = [name for name in required if name not in given]
+    if missing:
+        needs = " and ".join(repr(name) for name in missing)
+        raise FormatError(f"{path}: {where}: {kind} needs {needs}")
+    try:
+        return cls(**given)
+    except InputError as exc:
+        raise FormatError(f"{path}: {where}.{exc}") from None
+
+
+def _sim(path: Path, data: dict[str, Any]) -> SimRigSpec:
+    try:
+        rig = _Sim.model_validate(data)
+    except ValidationError as exc:
+        raise FormatError(f"{path}: {validation_message(exc)}") from None
+    given = _given(rig)
+    given.pop("driver")
+    overrides: dict[str, Any] = {}
+    _flatten("", given.pop("overrides", {}), overrides)
+    try:
+        return SimRigSpec(**given, overrides=overrides)
+    except InputError as exc:
+        raise FormatError(f"{path}: {exc}") from None
+
+
+def _hardware(path: Path, data: dict[str, Any]) -> HardwareRigSpec:
     try:
         rig = _Hardware.model_validate(data)
     except ValidationError as exc:
         raise FormatError(f"{path}: {validation_message(exc)}") from None
     m = rig.manipulator
-    if m.kind == "smaract-mcs2" and (m.address is None or m.channels is None):
-        raise FormatError(f"{path}: manipulator: smaract-mcs2 needs 'address' and 'channels'")
-    if m.kind == "micromanager" and (m.xy_stage is None or m.focus is None):
-        raise FormatError(f"{path}: manipulator: micromanager needs 'xy_stage' and 'focus'")
-    axes = list(m.channels) if m.channels is not None else ["x", "y", "z"]
-    if sorted(m.limits_um) != sorted(axes):
-        raise FormatError(
-            f"{path}: manipulator.limits_um: expected a [low, high] for each of {axes}, "
-            f"got {sorted(m.limits_um)}"
-        )
-    for name, cam in rig.cameras.items():
-        if cam.kind == "aravis" and cam.address is None:
-            raise FormatError(f"{path}: cameras.{name}: aravis needs 'address'")
-        if cam.kind == "micromanager" and cam.device is None:
-            raise FormatError(f"{path}: cameras.{name}: micromanager needs 'device'")
-    if len(rig.cameras) != 2:
-        raise FormatError(
-            f"{path}: cameras: expected two cameras (e.g. [cameras.top], [cameras.side]), "
-            f"got {len(rig.cameras)}"
-        )
-    uses_mm = m.kind == "micromanager" or any(
-        c.kind == "micromanager" for c in rig.cameras.values()
-    )
-    if uses_mm:
-        mm = rig.micromanager
-        if mm is None or (mm.config is None) == (mm.python_devices is None):
-            raise FormatError(
-                f"{path}: micromanager: give exactly one of 'config' (a .cfg file) or "
-                f"'python_devices' (module:function)"
-            )
-        if mm.config is not None and not Path(mm.config).is_absolute():
-            mm.config = str((path.parent / mm.config).resolve())
-    out = rig.model_dump(exclude_none=True)
-    out["manipulator"]["limits_um"] = {k: list(v) for k, v in m.limits_um.items()}
-    return out
+    manipulator = _build(path, "manipulator", _MANIPULATORS[m.kind], _given(m))
+    cameras = {
+        name: _build(path, f"cameras.{name}", _CAMERAS[cam.kind], _given(cam))
+        for name, cam in rig.cameras.items()
+    }
+    micromanager = None
+    if rig.micromanager is not None:
+        mm = _given(rig.micromanager)
+        if mm.get("config") is not None and not Path(mm["config"]).is_absolute():
+            mm["config"] = str((path.parent / mm["config"]).resolve())
+        try:
+            micromanager = MicroManagerSpec(**mm)
+        except InputError as exc:
+            raise FormatError(f"{path}: {exc}") from None
+    given = {"board": rig.board} if rig.board is not None else {}
+    try:
+        return HardwareRigSpec(manipulator, cameras, micromanager=micromanager, **given)
+    except InputError as exc:
+        raise FormatError(f"{path}: {exc}") from None

@@ -16,17 +16,19 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import math
+import numbers
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal, get_args
 
 import numpy as np
 from numpy.typing import NDArray
 
 from .._validation import FloatArray
 from ..devices.base import Camera, Clock, Manipulator
-from ..errors import DeviceError, DeviceTimeoutError, FrameError, MicrocalError
+from ..errors import DeviceError, DeviceTimeoutError, FrameError, InputError, MicrocalError
 from ..vision.detect import detect
 from ..vision.roi import RoiPredictor, box_around
 from ..vision.targets import Target
@@ -34,6 +36,8 @@ from ..vision.targets import Target
 __all__ = ["AcquisitionConfig", "RunStoppedError", "acquire", "grab_retrying"]
 
 Frame = NDArray[np.generic]
+#: How a pose settles: the vision check, or a fixed wait.
+Settle = Literal["vision", "fixed"]
 Store = Callable[[int, dict[str, list[Frame]], dict[str, Any]], None]
 
 
@@ -72,7 +76,7 @@ class AcquisitionConfig:
         the offset goes to the record. A camera whose board is not found keeps full frames.
     """
 
-    settle: str = "vision"
+    settle: Settle = "vision"
     fixed_s: float = 30.0
     frames_per_pose: int = 5
     block: int = 6
@@ -84,6 +88,18 @@ class AcquisitionConfig:
     creep_learn_poses: int = 5
     store_roi: bool = False
     roi_margin_squares: float = 3.0
+
+    def __post_init__(self) -> None:
+        if self.settle not in get_args(Settle):
+            raise InputError(f"settle: expected 'vision' or 'fixed', got {self.settle!r}")
+        if (
+            isinstance(self.fixed_s, bool)
+            or not isinstance(self.fixed_s, numbers.Real)
+            or not (math.isfinite(self.fixed_s) and self.fixed_s >= 0)
+        ):
+            raise InputError(
+                f"fixed_s: expected a finite number of seconds >= 0, got {self.fixed_s!r}"
+            )
 
 
 def _retry(what: Callable[[], Any], retries: int) -> Any:
@@ -168,7 +184,10 @@ class CreepEstimator:
     def wait_s(self, step_um: float) -> float:
         """Time after "stopped" until the fitted creep of this move is below the target."""
         if self.tau_s is None or self.amplitude_px_per_um is None:
-            raise RuntimeError("wait_s: the creep is not learned yet")
+            raise DeviceError(
+                f"wait_s: the creep is not learned yet ({len(self._tracks)} of "
+                f"{self.learn_poses} poses watched); ask only once learning is False"
+            )
         scale = float(np.median(self._px_per_um)) if self._px_per_um else 0.05
         start_px = self.amplitude_px_per_um * step_um
         target_px = self.target_um * scale

@@ -201,7 +201,10 @@ class SimCamera(Camera):
                     0, 360, value, -1)  # fmt: skip
         truth.spoiled = kind
 
-    def grab(self) -> NDArray[np.unsignedinteger]:
+    def _close(self) -> None:
+        pass  # nothing to release: closing only marks the device closed
+
+    def _grab(self) -> NDArray[np.unsignedinteger]:
         f = self.faults
         if f.timeout_rate and self.rng.random() < f.timeout_rate:
             self.clock.sleep(1.0)

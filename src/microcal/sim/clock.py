@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 from ..devices.base import Clock
-from ..errors import InputError
 
 __all__ = ["SimClock"]
 
 
 class SimClock(Clock):
-    """Simulated time in seconds, starting at ``start_s``."""
+    """Simulated time in seconds, starting at ``start_s``.
+
+    :meth:`sleep` refuses negative and non-finite durations like every clock
+    (:class:`~microcal.devices.base.Clock`).
+    """
 
     def __init__(self, start_s: float = 0.0) -> None:
         self._t = float(start_s)
@@ -17,7 +20,5 @@ class SimClock(Clock):
     def now_s(self) -> float:
         return self._t
 
-    def sleep(self, duration_s: float) -> None:
-        if duration_s < 0:
-            raise InputError(f"sleep: expected a duration >= 0 s, got {duration_s}")
-        self._t += float(duration_s)
+    def _sleep(self, duration_s: float) -> None:
+        self._t += duration_s

@@ -108,22 +108,25 @@ class SimManipulator(Manipulator):
         self._step = step
         self._t_arrive = now + float(np.abs(step).max()) / self.speed_um_s
 
-    def position_um(self) -> FloatArray:
+    def _position_um(self) -> FloatArray:
         self._fault("the position query")
         d = self.joints_um(self.clock.now_s())
         out: FloatArray = d + self.rng.normal(0.0, self.sensor_noise_um, 3)
         return out
 
-    def is_moving(self) -> bool:
+    def _is_moving(self) -> bool:
         self._fault("the status query")
         return self.clock.now_s() < self._t_arrive + self.loop_settle_s
 
-    def stop(self) -> None:
+    def _stop(self) -> None:
         now = self.clock.now_s()
         current = self.joints_um(now)
         self._step = current - self._start
         self._start = self._target = current
         self._t0 = self._t_arrive = now
+
+    def _close(self) -> None:
+        pass  # nothing to release: closing only marks the device closed
 
     # --- ground truth (tests and benchmarks only) ---------------------------------------
     def joints_um(self, t_s: float) -> FloatArray:
