@@ -17,7 +17,6 @@ from __future__ import annotations
 import contextlib
 import functools
 import math
-import numbers
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -92,14 +91,17 @@ class AcquisitionConfig:
     def __post_init__(self) -> None:
         if self.settle not in get_args(Settle):
             raise InputError(f"settle: expected 'vision' or 'fixed', got {self.settle!r}")
-        if (
-            isinstance(self.fixed_s, bool)
-            or not isinstance(self.fixed_s, numbers.Real)
-            or not (math.isfinite(self.fixed_s) and self.fixed_s >= 0)
-        ):
+        if not _is_wait_s(self.fixed_s):
             raise InputError(
                 f"fixed_s: expected a finite number of seconds >= 0, got {self.fixed_s!r}"
             )
+
+
+def _is_wait_s(value: object) -> bool:
+    """A finite real number >= 0 (not a bool, not text)."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        return False
+    return math.isfinite(value) and float(value) >= 0
 
 
 def _retry(what: Callable[[], Any], retries: int) -> Any:
