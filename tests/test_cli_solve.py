@@ -44,7 +44,7 @@ def test_negative_values_after_double_dash_and_extrapolation_note(calibration):
         (["3000", "2000", "1300", "--limits", "0:8000,0:8000,0:1000"], "outside the soft limits"),
         (["3000", "2000", "1300", "--limits", "0:8000"], "--limits: expected LOW:HIGH for each joint"),
         (["1", "2", "3", "--manipulator", "m9"], "manipulator 'm9' is not calibrated"),
-        (["1", "2", "3", "--temperature", "22"], "--temperature: the model of .m1. has no temperature input"),
+        (["1", "2", "3", "--temperature", "22"], "--temperature: the model of 'm1' has no temperature input"),
     ],
 )  # fmt: skip
 def test_user_errors(calibration, args, message):

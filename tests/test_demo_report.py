@@ -13,7 +13,8 @@ import pytest
 from typer.testing import CliRunner
 
 from microcal import load_calibration
-from microcal.cli import _clear_demo_dir, app
+from microcal.cli import app
+from microcal.formats.run_manifest import clear_demo_dir as _clear_demo_dir
 from microcal.report import load_run
 
 runner = CliRunner()

@@ -61,7 +61,7 @@ def evaluate(
         parts = run_evaluation(
             opened.manipulator, opened.clock, opened.cameras, models, opened.board, m,
             tests=test.value, poses=poses.value, cycles=cycles, frames=frames, settle_s=settle_s,
-            truth=opened.truth, temperature=opened.temperature, progress=progress,
+            truth=opened.truth, sensors=opened.sensors, progress=progress,
         )  # fmt: skip
     update_results(out, parts)
     thesis = spec.to_dict().get("preset") == "thesis" and poses == PoseChoice.table

@@ -66,6 +66,11 @@ class Rig:
     _closed: bool = field(default=False, init=False, repr=False)
 
     @property
+    def sensors(self) -> dict[str, Callable[[], float]]:
+        """The rig's sensors of a model's extra inputs, by registry name."""
+        return {} if self.temperature is None else {"temperature": self.temperature}
+
+    @property
     def closed(self) -> bool:
         """True once :meth:`close` has been called."""
         return self._closed

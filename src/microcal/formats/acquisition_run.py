@@ -123,7 +123,7 @@ def acquire_remaining(
         with bar:
             run_acquisition(opened.manipulator, opened.cameras, opened.clock, d, todo,
                             opened.board, writer.store, config=config,
-                            should_stop=lambda: stop["requested"], temperature=opened.temperature,
+                            should_stop=lambda: stop["requested"], sensors=opened.sensors,
                             progress=progress)  # fmt: skip
     except RunStoppedError as exc:
         raise InputError(f"run stopped ({exc}); {len(writer.done)} of {len(pose_ids)} poses "

@@ -28,6 +28,7 @@ from numpy.typing import NDArray
 from .._validation import FloatArray
 from ..devices.base import Camera, Clock, Manipulator
 from ..errors import DeviceError, DeviceTimeoutError, FrameError, InputError, MicrocalError
+from ..kinematics.extra_inputs import extra_input
 from ..vision.detect import detect
 from ..vision.roi import RoiPredictor, box_around
 from ..vision.targets import Target
@@ -263,7 +264,7 @@ def acquire(
     store: Store,
     *,
     config: AcquisitionConfig | None = None,
-    temperature: Callable[[], float] | None = None,
+    sensors: Mapping[str, Callable[[], float]] | None = None,
     should_stop: Callable[[], bool] = lambda: False,
     progress: Callable[[int, int, dict[str, Any]], None] | None = None,
 ) -> int:
@@ -277,6 +278,9 @@ def acquire(
         The poses still to do (1-based), in order.
     store : callable (pose, frames per camera, record)
         Persists one pose; the record is the journal line.
+    sensors : mapping of name -> callable () -> float, optional
+        The rig's sensors of extra inputs (:mod:`microcal.kinematics.extra_inputs`, e.g.
+        ``{"temperature": read}``); each pose's journal line records each under its column.
 
     Raises
     ------
@@ -360,8 +364,8 @@ def acquire(
             "settle_s": round(settle_s, 6),
             "residual_px": None if not np.isfinite(change) else round(change, 6),
         }
-        if temperature is not None:
-            record["temperature_c"] = float(temperature())
+        for name, read in (sensors or {}).items():  # the model's extra inputs, by registry
+            record[extra_input(name).column] = float(read())
         if creep.tau_s is not None:
             record["creep_model"] = {
                 "tau_s": round(creep.tau_s, 4),

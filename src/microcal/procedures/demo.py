@@ -189,7 +189,7 @@ def run_demo(
         config=AcquisitionConfig(
             frames_per_pose=frames_per_pose, store_roi=True, creep_learn_poses=creep_learn_poses
         ),
-        temperature=lambda: plat.manipulator.temperature_at(plat.clock.now_s()),
+        sensors={"temperature": lambda: plat.manipulator.temperature_at(plat.clock.now_s())},
         progress=lambda done, total, _record: tick("acquisition (vision settle)", done, total),
     )
 

@@ -27,6 +27,7 @@ from ..control.feedforward import FeedForward
 from ..devices.base import Camera, Clock, Manipulator
 from ..errors import InputError
 from ..geometry import CameraModel
+from ..kinematics.extra_inputs import by_symbol
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..metrics import decoupling_metrics, pose_statistics
 from ..thesis.experiment import DECOUPLING_PATH_UM, TABLE_5_2_POSES_UM
@@ -267,7 +268,7 @@ def run_evaluation(
     frames: int = 5,
     settle_s: float = 5.0,
     truth: Callable[[], FloatArray] | None = None,
-    temperature: Callable[[], float] | None = None,
+    sensors: Mapping[str, Callable[[], float]] | None = None,
     progress: Callable[[str, int, int], None] | None = None,
 ) -> dict[str, Any]:
     """The evaluation tests of a calibrated manipulator on any rig (thesis 5.3).
@@ -288,8 +289,8 @@ def run_evaluation(
     poses : {"table-5-2", "iso-cube"}
         The pose-accuracy test's poses: Table 5-2's, or ISO 9283's cube P1-P5 spanning the
         joint range the model was identified on (the soft limits when not recorded).
-    temperature : callable () -> °C, optional
-        The rig's sensor, for models with a temperature input.
+    sensors : mapping of name -> callable () -> float, optional
+        The rig's sensors of extra inputs by registry name, for models that have some.
 
     Returns
     -------
@@ -299,12 +300,19 @@ def run_evaluation(
     missing = sorted(set(cameras) - set(models))
     if missing:
         raise InputError(f"evaluate: no camera calibration for the rig's camera(s) {missing}")
-    extra = calibration.model.extra_inputs
-    if extra and temperature is None:
-        raise InputError(
-            f"evaluate: the model needs {list(extra)} but the rig has no sensor for it"
-        )
-    read_extra = None if not extra or temperature is None else (lambda: [temperature()])
+    if not np.isfinite(settle_s) or settle_s < 0:
+        raise InputError(f"settle: expected a finite wait >= 0 s, got {settle_s}")
+    read_extra = None
+    if calibration.model.extra_inputs:
+        names = [by_symbol(s).name for s in calibration.model.extra_inputs]
+        missing = [n for n in names if n not in (sensors or {})]
+        if missing:
+            raise InputError(f"evaluate: the model needs {missing} but the rig has no such sensor")
+        read = dict(sensors or {})
+
+        def read_extra() -> FloatArray:
+            return np.array([read[n]() for n in names])
+
     conditions = open_loop_conditions(manipulator, calibration, extra=read_extra)
     probe = VisionProbe({n: cameras[n] for n in models if n in cameras}, models, board, frames)
     kwargs: dict[str, Any] = {"settle_s": settle_s, "truth": truth, "progress": progress}
