@@ -65,4 +65,4 @@ bench: $(STAMP)  ## run the benchmarks; results in benchmarks/results/
 	$(BIN)/python -m benchmarks
 
 clean:  ## remove the virtual environment and caches
-	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache build dist
+	rm -rf $(VENV) .venv-3.13 .pytest_cache .mypy_cache .ruff_cache build dist
