@@ -15,8 +15,8 @@ import pytest
 
 from conftest import run_microcal
 from microcal import DegenerateDataError, LimitError, sim
-from microcal.procedures.acquisition import AcquisitionConfig, acquire
 from microcal.kinematics.designs import check_design, make_design
+from microcal.procedures.acquisition import AcquisitionConfig, acquire
 
 LIMITS = np.array([[-500, 8500], [-500, 8500], [-500, 5300.0]])
 LOW, HIGH = [0, 0, 0], [8000, 8000, 4800]

@@ -71,7 +71,7 @@ def test_demo_writes_the_run_directory(quick_demo):
 
 
 def test_demo_files_hold_the_keys_other_tools_read(quick_demo):
-    """Every key DESIGN.md lists under "The keys other tools read"."""
+    """Every key docs/formats.md lists as read by other tools."""
     out, _ = quick_demo
     cams = json.loads((out / "cameras.json").read_text())
     assert cams["format"] == "microcal.cameras/1"

@@ -150,10 +150,13 @@ def test_fault_rates_are_seeded_rates():
     assert 8 <= spoiled <= 35
 
 
-def test_overrides_and_toml(tmp_path):
+def test_overrides_from_python_and_a_rig_file(tmp_path):
+    from microcal.formats.rig_file import load_rig
+
     path = tmp_path / "rig.toml"
-    path.write_text("[top.formation]\nread_noise_e = 10.0\n[manipulator]\nspeed_um_s = 500.0\n")
-    over = sim.load_overrides(path)
+    path.write_text('driver = "sim"\n[overrides.top.formation]\nread_noise_e = 10.0\n'
+                    "[overrides.manipulator]\nspeed_um_s = 500.0\n")  # fmt: skip
+    over = dict(load_rig(str(path)).overrides)  # type: ignore[union-attr]
     assert over == {"top.formation.read_noise_e": 10.0, "manipulator.speed_um_s": 500.0}
     plat = sim.platform("thesis", seed=0, overrides=over)
     assert plat.cameras["top"].formation.read_noise_e == 10.0
@@ -166,4 +169,4 @@ def test_overrides_and_toml(tmp_path):
         sim.platform("lab")
     (tmp_path / "bad.toml").write_text("[top\n")
     with pytest.raises(FormatError, match="not valid TOML"):
-        sim.load_overrides(tmp_path / "bad.toml")
+        load_rig(str(tmp_path / "bad.toml"))

@@ -9,7 +9,6 @@ from microcal import InputError
 from microcal.kinematics import (
     JOINTS,
     Term,
-    design_jacobian,
     design_matrix,
     matrix_terms,
     parse_term,
@@ -48,20 +47,6 @@ def test_design_matrix_values():
     X = design_matrix(u, JOINTS, polynomial_terms())
     expected = [[2, 3, 5, 4, 9, 25, 6, 15, 10, 1], [-1, 0.5, 4, 1, 0.25, 16, -0.5, 2, -4, 1]]
     np.testing.assert_array_equal(X, expected)
-
-
-def test_design_jacobian_matches_finite_differences(rng):
-    terms = polynomial_terms(JOINTS, 3, {"T": 2})
-    names = (*JOINTS, "T")
-    u = rng.uniform(-50, 50, size=(20, 4))
-    dX = design_jacobian(u, names, terms, JOINTS)
-    h = 1e-4
-    for b in range(3):
-        du = np.zeros(4)
-        du[b] = h
-        fd = (design_matrix(u + du, names, terms) - design_matrix(u - du, names, terms)) / (2 * h)
-        # Metric: worst-case difference relative to the largest derivative.
-        assert np.abs(dX[:, :, b] - fd).max() <= 1e-8 * np.abs(fd).max()
 
 
 def test_missing_input_is_named():

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from ..errors import FormatError
 from .atomic import write_atomic
 
-__all__ = ["read_frames", "read_image", "write_tiff"]
+__all__ = ["read_frames", "write_tiff"]
 
 _TIFF = (".tif", ".tiff")
 
@@ -41,11 +41,6 @@ def read_frames(path: str | os.PathLike[str]) -> list[NDArray[np.generic]]:
     if image is None:
         raise FormatError(f"{p}: cannot be read as an image (unknown or corrupt format)")
     return [np.asarray(image)]
-
-
-def read_image(path: str | os.PathLike[str]) -> NDArray[np.generic]:
-    """The first frame of an image file."""
-    return read_frames(path)[0]
 
 
 def write_tiff(

@@ -6,7 +6,6 @@ from .stepwise import StepwiseResult, StepwiseStep, stepwise_fit
 from .terms import (
     JOINTS,
     Term,
-    design_jacobian,
     design_matrix,
     matrix_terms,
     parse_term,
@@ -32,7 +31,6 @@ __all__ = [
     "Term",
     "Validation",
     "cross_validate",
-    "design_jacobian",
     "design_matrix",
     "fit_least_squares",
     "fit_matrix_model",

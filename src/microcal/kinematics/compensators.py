@@ -49,9 +49,9 @@ class Compensation:
 
 def _linear_part(model: KinematicModel, extra: FloatArray) -> tuple[FloatArray, FloatArray]:
     """R (3, j) and the offset (N, 3) of the model's terms that are not joint-dependent."""
-    R = model.R
+    R = model.R  # (3, j) by construction
     j = len(model.joints)
-    if R.shape != (3, j) or j != 3:
+    if j != 3:
         raise InputError(f"compensator: expected a model with 3 joints, got {list(model.joints)}")
     cond = np.linalg.cond(R)
     if not np.isfinite(cond) or cond > MAX_CONDITION:
@@ -116,7 +116,7 @@ def _solve3(J: FloatArray, r: FloatArray) -> FloatArray:
 
 
 class Compensator:
-    """A model prepared for repeated inversion: its linear part checked and factored once.
+    """A model prepared for repeated inversion: compiled, and its linear part checked, once.
 
     Parameters
     ----------

@@ -23,7 +23,6 @@ from ..errors import InputError
 __all__ = [
     "JOINTS",
     "Term",
-    "design_jacobian",
     "design_matrix",
     "matrix_terms",
     "parse_term",
@@ -175,42 +174,3 @@ def design_matrix(
         for name, power in t.powers:
             X[:, col] *= u[:, index[name]] ** power
     return X
-
-
-def design_jacobian(
-    inputs: ArrayLike,
-    input_names: Sequence[str],
-    terms: Iterable[Term],
-    wrt: Sequence[str],
-) -> FloatArray:
-    """Derivatives of the terms with respect to some inputs (the power rule).
-
-    Parameters
-    ----------
-    inputs : (N, k) float
-    input_names : sequence of k str
-    terms : sequence of m Term
-    wrt : sequence of j str
-        The inputs to differentiate by (the joints).
-
-    Returns
-    -------
-    dX : (N, m, j) float
-        ``dX[n, a, b]`` = d term_a / d wrt_b at sample n.
-    """
-    u, index, term_list = _columns(inputs, input_names, terms)
-    for name in wrt:
-        if name not in index:
-            raise InputError(f"wrt: {name!r} is not one of the inputs {list(index)}")
-    dX = np.zeros((u.shape[0], len(term_list), len(wrt)))
-    for col, t in enumerate(term_list):
-        powers = dict(t.powers)
-        for b, var in enumerate(wrt):
-            if var not in powers:
-                continue
-            value = powers[var] * u[:, index[var]] ** (powers[var] - 1)
-            for name, power in t.powers:
-                if name != var:
-                    value = value * u[:, index[name]] ** power
-            dX[:, col, b] = value
-    return dX

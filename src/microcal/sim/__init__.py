@@ -4,12 +4,11 @@
 """
 
 from .kinematics import TrueKinematics
-from .platforms import PlatformConfig, SimPlatform, load_overrides, platform
+from .platforms import PlatformConfig, SimPlatform, platform
 
 __all__ = [
     "PlatformConfig",
     "SimPlatform",
     "TrueKinematics",
-    "load_overrides",
     "platform",
 ]

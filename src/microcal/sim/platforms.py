@@ -8,21 +8,19 @@ stick-slip manipulator with the true kinematics of
 chessboard (pitch 400 µm) on the gripper, its inner-corner centroid being the end-effector.
 
 Every value can be changed: ``platform(..., overrides={"top.formation.read_noise_e": 30})``
-or a TOML file (:func:`load_overrides`) whose tables mirror those dotted names.
+or a rig file's ``[overrides]`` tables, which mirror those dotted names.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import tomllib
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from .._validation import FloatArray
-from ..errors import FormatError, InputError
+from ..errors import InputError
 from ..geometry.camera_model import CameraModel
 from ..thesis.cameras import thesis_cameras
 from ..vision.targets import Target, parse_target
@@ -31,7 +29,7 @@ from .clock import SimClock
 from .manipulator import ManipulatorFaults, SimManipulator
 from .render import Placement
 
-__all__ = ["PlatformConfig", "Scene", "SimPlatform", "load_overrides", "platform"]
+__all__ = ["PlatformConfig", "Scene", "SimPlatform", "platform"]
 
 
 @dataclass
@@ -110,31 +108,6 @@ def _set_dotted(obj: Any, dotted: str, value: Any, full: str = "") -> Any:
             f"override {full!r}: expected {type(current).__name__}, got {type(value).__name__}"
         )
     return dataclasses.replace(obj, **{head: value})  # type: ignore[type-var]
-
-
-def load_overrides(path: str | Path) -> dict[str, Any]:
-    """Read a TOML file of platform settings into dotted overrides.
-
-    ``[top.formation]\\nread_noise_e = 30`` becomes ``{"top.formation.read_noise_e": 30}``.
-    """
-    try:
-        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise FormatError(f"{path}: no such file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise FormatError(f"{path}: not valid TOML ({exc})") from None
-    out: dict[str, Any] = {}
-
-    def walk(prefix: str, node: dict[str, Any]) -> None:
-        for key, value in node.items():
-            name = f"{prefix}.{key}" if prefix else key
-            if isinstance(value, dict):
-                walk(name, value)
-            else:
-                out[name] = value
-
-    walk("", data)
-    return out
 
 
 class Scene:

@@ -1,7 +1,7 @@
 """A synthetic acquisition run without rendering: true positions seen through the cameras.
 
-Until rendered images and detection are wired in, this gives what a run measures: random
-joint commands (the thesis's uniform design), the true end-effector positions (with
+For the identification tests and benchmarks, without the cost of rendering and detection:
+random joint commands (the thesis's uniform design), the true end-effector positions (with
 hysteresis from the order of the moves), their projections into both cameras perturbed by
 the virtual point's pixel noise (thesis Table 4-1), and the optimal triangulation of those
 pixels with its covariance. Seeded; ground truth included for tests and benchmarks.
