@@ -63,7 +63,8 @@ def _corrupt(tmp_path, calibration, edit):
 @pytest.mark.parametrize(
     ("edit", "match"),
     [
-        (lambda r: r.update(format="microcal.calibration/9"), "expected format 'microcal.calibration/1', got 'microcal.calibration/9'"),
+        (lambda r: r.update(format="microcal.calibration/9"), r"microcal.calibration version '9' is not one this microcal \(.*\) reads; it reads version 1"),
+        (lambda r: r.update(format="microcal.cameras/1"), "expected format 'microcal.calibration/1', got 'microcal.cameras/1'"),
         (lambda r: r.pop("manipulators"), "manipulators: Field required"),
         (lambda r: r["manipulators"]["m1"]["model"].update(kind="spline"), r"manipulators.m1.model.kind: Input should be 'matrix' or 'polynomial'"),
         (lambda r: r["manipulators"]["m1"]["model"]["coefficients"].pop(), r"manipulators.m1.model: expected coefficients \(3, 10\)"),
@@ -84,6 +85,23 @@ def test_not_json_and_missing(tmp_path):
         load_calibration(bad)
     with pytest.raises(FormatError, match="no such file"):
         load_calibration(tmp_path / "none.json")
+
+
+def test_provenance_hashes_each_input(tmp_path):
+    import hashlib
+
+    from microcal.formats.calibration_file import sha256_file
+    from microcal.formats.hashing import sha256_file as the_one
+
+    data = tmp_path / "m.csv"
+    data.write_bytes(b"pose\n" * 300_000)  # more than one read block
+    assert sha256_file is the_one
+    prov = provenance({"measurements": data}, command="fit")
+    assert prov["inputs"]["measurements"] == {
+        "path": str(data),
+        "sha256": hashlib.sha256(data.read_bytes()).hexdigest(),
+    }
+    assert prov["command"] == "fit"
 
 
 def test_write_is_atomic(tmp_path, calibration, monkeypatch):

@@ -7,7 +7,6 @@ added freely. No pickle: plain JSON, lengths in µm.
 from __future__ import annotations
 
 import datetime as _dt
-import hashlib
 import json
 import os
 from collections.abc import Mapping
@@ -16,17 +15,19 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import Field
 
 from .._version import __version__
 from ..errors import FormatError, InputError
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..kinematics.models import KinematicModel
 from .atomic import write_atomic, write_text_atomic
-from .json_file import read_versioned_json, validation_message
+from .hashing import sha256_file
+from .json_file import FileSchema, parse_schema, read_versioned_json
 
 __all__ = [
     "CALIBRATION_FORMAT",
+    "CALIBRATION_FORMATS",
     "Calibration",
     "ManipulatorCalibration",
     "export_mat",
@@ -37,13 +38,10 @@ __all__ = [
 ]
 
 CALIBRATION_FORMAT = "microcal.calibration/1"
+CALIBRATION_FORMATS = (CALIBRATION_FORMAT,)  # the versions this microcal reads
 
 
-class _Open(BaseModel):
-    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
-
-
-class _ModelSchema(_Open):
+class _ModelSchema(FileSchema):
     kind: Literal["matrix", "polynomial"]
     inputs: list[str]
     joints: list[str]
@@ -53,7 +51,7 @@ class _ModelSchema(_Open):
     covariance: list[list[list[float]]]
 
 
-class _ValidationSchema(_Open):
+class _ValidationSchema(FileSchema):
     n_fit: int
     n_validate: int
     mean_um: float
@@ -62,16 +60,16 @@ class _ValidationSchema(_Open):
     rms_um: float
 
 
-class _ManipulatorSchema(_Open):
+class _ManipulatorSchema(FileSchema):
     model: _ModelSchema
     validation: _ValidationSchema | None = None
 
 
-class _CalibrationSchema(_Open):
+class _CalibrationSchema(FileSchema):
     format: Literal["microcal.calibration/1"]
-    cameras: dict[str, Any] = {}
+    cameras: dict[str, Any] = Field(default_factory=dict)
     manipulators: dict[str, _ManipulatorSchema]
-    provenance: dict[str, Any] = {}
+    provenance: dict[str, Any] = Field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -115,15 +113,6 @@ class Calibration:
         }
 
 
-def sha256_file(path: str | os.PathLike[str]) -> str:
-    """Hex SHA-256 of a file's bytes."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def provenance(
     inputs: Mapping[str, str | os.PathLike[str]] | None = None, **extra: Any
 ) -> dict[str, Any]:
@@ -157,11 +146,8 @@ def load_calibration(path: str | os.PathLike[str]) -> Calibration:
         shape; the message names the key.
     """
     p = Path(path)
-    raw = read_versioned_json(p, (CALIBRATION_FORMAT,))
-    try:
-        schema = _CalibrationSchema.model_validate(raw)
-    except ValidationError as exc:
-        raise FormatError(f"{p}: {validation_message(exc)}") from None
+    raw = read_versioned_json(p, CALIBRATION_FORMATS)
+    schema = parse_schema(_CalibrationSchema, raw, p)
     manipulators = {}
     for name in schema.manipulators:
         data = raw["manipulators"][name]

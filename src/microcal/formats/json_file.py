@@ -1,17 +1,46 @@
-"""Reading microcal's versioned JSON files with one-line errors."""
+"""Reading microcal's versioned JSON files with one-line errors, and the base of their schemas.
+
+Every JSON file microcal writes has a ``format`` key, ``NAME/VERSION`` (``microcal.calibration/1``).
+A reader names the versions it reads; a file of the right name but another version fails with
+one message naming the version found and the versions this microcal reads. Each file's schema
+derives from :class:`FileSchema`: unknown keys are kept (files grow by adding keys), NaN and
+infinity are refused, and a malformed key is reported by its path
+(``manipulators.m1.model.kind: Input should be 'matrix' or 'polynomial'``).
+"""
 
 from __future__ import annotations
 
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
-from pydantic import ValidationError
+from pydantic import BaseModel, ConfigDict, ValidationError
 
+from .._version import __version__
 from ..errors import FormatError
 
-__all__ = ["read_versioned_json", "validation_message"]
+__all__ = [
+    "FileSchema",
+    "check_format",
+    "parse_schema",
+    "read_json_object",
+    "read_versioned_json",
+    "validation_message",
+]
+
+
+class FileSchema(BaseModel):
+    """The base of every file schema: unknown keys are kept, NaN and infinity refused.
+
+    Subclasses name the keys they read; any other key of the file stays in the model's
+    extras (``model_extra``) and is written back by ``model_dump``.
+    """
+
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+
+
+S = TypeVar("S", bound=BaseModel)
 
 
 def validation_message(exc: ValidationError) -> str:
@@ -21,15 +50,21 @@ def validation_message(exc: ValidationError) -> str:
     return f"{loc}: {err['msg']}"
 
 
-def read_versioned_json(
-    path: str | os.PathLike[str], formats: tuple[str, ...], missing_hint: str = ""
-) -> dict[str, Any]:
-    """A JSON object whose ``format`` is one of ``formats``.
+def parse_schema(schema: type[S], raw: object, where: str | os.PathLike[str]) -> S:
+    """``raw`` validated by ``schema``; FormatError ``WHERE: key.path: message`` otherwise."""
+    try:
+        return schema.model_validate(raw)
+    except ValidationError as exc:
+        raise FormatError(f"{where}: {validation_message(exc)}") from None
+
+
+def read_json_object(path: str | os.PathLike[str], missing_hint: str = "") -> dict[str, Any]:
+    """A file's JSON object.
 
     Raises
     ------
     FormatError
-        No such file (with ``missing_hint``), not JSON, or another format.
+        No such file (with ``missing_hint``), not UTF-8 JSON, or not an object.
     """
     p = Path(path)
     try:
@@ -38,7 +73,48 @@ def read_versioned_json(
         raise FormatError(f"{p}: no such file{missing_hint}") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise FormatError(f"{p}: not a JSON file ({exc})") from None
-    if not isinstance(raw, dict) or raw.get("format") not in formats:
-        found = raw.get("format") if isinstance(raw, dict) else type(raw).__name__
-        raise FormatError(f"{p}: expected format {formats[0]!r}, got {found!r}")
+    if not isinstance(raw, dict):
+        raise FormatError(f"{p}: expected a JSON object, got {type(raw).__name__}")
+    return raw
+
+
+def _name_and_version(fmt: str) -> tuple[str, str]:
+    name, _, version = fmt.rpartition("/")
+    return (name, version) if name else (fmt, "")
+
+
+def check_format(path: str | os.PathLike[str], found: object, formats: tuple[str, ...]) -> None:
+    """Refuse a ``format`` value that is not one of ``formats`` (all versions of one name).
+
+    A file of the right name but an unknown version gets its own message, naming the version
+    found and the versions this microcal reads.
+    """
+    if found in formats:
+        return
+    name, _ = _name_and_version(formats[0])
+    if isinstance(found, str):
+        found_name, found_version = _name_and_version(found)
+        if found_name == name:
+            known = ", ".join(_name_and_version(f)[1] for f in formats)
+            raise FormatError(
+                f"{path}: {name} version {found_version!r} is not one this microcal "
+                f"({__version__}) reads; it reads version {known} (a newer microcal may have "
+                f"written this file)"
+            )
+    raise FormatError(f"{path}: expected format {formats[0]!r}, got {found!r}")
+
+
+def read_versioned_json(
+    path: str | os.PathLike[str], formats: tuple[str, ...], missing_hint: str = ""
+) -> dict[str, Any]:
+    """A JSON object whose ``format`` is one of ``formats`` (the versions this microcal reads).
+
+    Raises
+    ------
+    FormatError
+        No such file (with ``missing_hint``), not JSON, another format, or a version of the
+        format that this microcal does not read.
+    """
+    raw = read_json_object(path, missing_hint)
+    check_format(Path(path), raw.get("format"), formats)
     return raw

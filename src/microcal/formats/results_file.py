@@ -1,4 +1,8 @@
-"""``results.json``: the figures of evaluation runs (and of the demo), merged as they come."""
+"""``results.json``: the figures of evaluation runs (and of the demo), merged as they come.
+
+Its schema is :class:`~microcal.formats.records.Results`: every section optional, any other
+key kept. NaN is written as null (JSON has no NaN).
+"""
 
 from __future__ import annotations
 
@@ -10,11 +14,10 @@ from typing import Any
 import numpy as np
 
 from .atomic import write_text_atomic
-from .json_file import read_versioned_json
+from .json_file import parse_schema, read_versioned_json
+from .records import RESULTS_FORMAT, RESULTS_FORMATS, Results
 
-__all__ = ["RESULTS_FORMAT", "load_results", "update_results"]
-
-RESULTS_FORMAT = "microcal.results/1"
+__all__ = ["RESULTS_FORMAT", "Results", "load_results", "read_results", "update_results"]
 
 
 def _plain(value: Any) -> Any:
@@ -32,10 +35,24 @@ def _plain(value: Any) -> Any:
     return value
 
 
+def read_results(path: str | os.PathLike[str]) -> Results:
+    """Read and validate results.json as a typed document.
+
+    Raises
+    ------
+    FormatError
+        Missing file, not JSON, an unknown format version, or a section of the wrong shape
+        (the message names the key).
+    """
+    raw = read_versioned_json(path, RESULTS_FORMATS)
+    return parse_schema(Results, raw, Path(path))
+
+
 def load_results(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """Read results.json; FormatError if it is not one."""
-    data = read_versioned_json(path, (RESULTS_FORMAT,))
-    return data
+    """Read results.json, validated, as the JSON object; FormatError if it is not one."""
+    raw = read_versioned_json(path, RESULTS_FORMATS)
+    parse_schema(Results, raw, Path(path))
+    return raw
 
 
 def update_results(path: str | os.PathLike[str], parts: dict[str, Any]) -> Path:

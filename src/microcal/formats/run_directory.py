@@ -1,118 +1,317 @@
-"""The run directory of an acquisition: commands, images, and what is derived from them.
+"""The run directory of an acquisition: commands, images, journal, and what is derived from them.
 
 ```
-RUN_DIR/run.json              manifest (target spec, cameras, rig, software, created)
+RUN_DIR/run.json              manifest (target spec, cameras, rig, design, software, created)
 RUN_DIR/commands.csv          pose, dx_um, dy_um, dz_um
+RUN_DIR/journal.jsonl         one line per pose acquired (append-only)
 RUN_DIR/images/top_0001.tiff  one file per camera and pose (several pages = several frames)
 RUN_DIR/measurements.csv      written by `microcal measure`
+RUN_DIR/cameras.json          the cameras (the demo; --out of stereo-calibrate)
+RUN_DIR/calibration.json      the models (the demo; --out of fit)
+RUN_DIR/results.json          the test figures (the demo; --out of evaluate)
+RUN_DIR/report.html           written by `microcal report` (and the demo)
 ```
+
+:class:`RunDirectory` reads a run (:meth:`RunDirectory.open`); :class:`RunWriter` writes one
+so that a crash loses at most the pose in progress (:meth:`RunDirectory.create`,
+:meth:`RunDirectory.resume`).
 """
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .._validation import FloatArray
-from ..errors import FormatError
+from ..errors import FormatError, InputError
 from .atomic import write_text_atomic
+from .commands_csv import read_joint_csv, write_joint_csv
+from .hashing import sha256_file
+from .json_file import parse_schema, read_versioned_json
+from .records import RUN_FORMAT, RUN_FORMATS, ImageRecord, JournalLine, RoiRecord, RunManifest
+
+if TYPE_CHECKING:
+    from collections.abc import Sequence
+
+    from numpy.typing import NDArray
+
+    from ..procedures.measurement import PoseMeasurement
 
 __all__ = [
+    "RUN_FILE_NAMES",
+    "RUN_FORMAT",
+    "RunDirectory",
     "RunWriter",
-    "find_image",
     "read_commands",
-    "read_journal",
-    "read_manifest",
     "write_commands",
 ]
 
+MANIFEST = "run.json"
+COMMANDS = "commands.csv"
+JOURNAL = "journal.jsonl"
+IMAGES = "images"
+MEASUREMENTS = "measurements.csv"
+#: What a run directory may hold, in the order a run produces it ("images" is a folder).
+RUN_FILE_NAMES = (
+    MANIFEST,
+    COMMANDS,
+    JOURNAL,
+    IMAGES,
+    MEASUREMENTS,
+    "cameras.json",
+    "calibration.json",
+    "results.json",
+    "report.html",
+)
 IMAGE_SUFFIXES = (".tiff", ".tif", ".png", ".jpg", ".jpeg")
 
 
+class RunDirectory:
+    """The files of one run directory, read on demand (each may be missing).
+
+    ``RunDirectory(path)`` takes a directory as it is (the report reads whatever it holds);
+    :meth:`open` requires a run (a directory with ``commands.csv``).
+    """
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = Path(path)
+        self._manifest: RunManifest | None = None
+        self._manifest_read = False
+        self._journal: dict[int, JournalLine] | None = None
+
+    def __repr__(self) -> str:
+        return f"RunDirectory({str(self.path)!r})"
+
+    # --- opening, creating, resuming -----------------------------------------------------
+    @classmethod
+    def open(cls, path: str | os.PathLike[str], *, require_commands: bool = True) -> RunDirectory:
+        """An existing run.
+
+        ``require_commands=False`` defers the check for ``commands.csv`` to
+        :meth:`commands` (same message), for a caller that checks its other inputs first.
+
+        Raises
+        ------
+        InputError
+            ``path`` is not a directory.
+        FormatError
+            It holds no ``commands.csv``.
+        """
+        p = Path(path)
+        if not p.is_dir():
+            raise InputError(f"{p}: not a directory (expected a run directory)")
+        if require_commands and not (p / COMMANDS).is_file():
+            raise FormatError(f"{p / COMMANDS}: no such file (is {p} a run directory?)")
+        return cls(p)
+
+    @classmethod
+    def create(
+        cls,
+        path: str | os.PathLike[str],
+        manifest: RunManifest | dict[str, Any],
+        d_um: FloatArray,
+    ) -> RunWriter:
+        """Start a new run: writes commands.csv and run.json (see :meth:`RunWriter.create`)."""
+        return RunWriter.create(path, manifest, d_um)
+
+    @classmethod
+    def resume(cls, path: str | os.PathLike[str], rig: dict[str, Any]) -> RunWriter:
+        """Continue a run made with ``rig`` (see :meth:`RunWriter.resume`)."""
+        return RunWriter.resume(path, rig)
+
+    # --- what it holds ---------------------------------------------------------------------
+    @property
+    def manifest(self) -> RunManifest | None:
+        """``run.json``, or None when the run has none."""
+        if not self._manifest_read:
+            path = self.path / MANIFEST
+            if path.exists():
+                raw = read_versioned_json(path, RUN_FORMATS)
+                self._manifest = parse_schema(RunManifest, raw, path)
+            self._manifest_read = True
+        return self._manifest
+
+    @property
+    def target_spec(self) -> str | None:
+        """The end-effector board's spec that run.json records (``chessboard:4x3:400``)."""
+        manifest = self.manifest
+        return manifest.target if manifest is not None else None
+
+    @property
+    def measurements_path(self) -> Path:
+        """Where ``measurements.csv`` is (or goes)."""
+        return self.path / MEASUREMENTS
+
+    def commands(self) -> tuple[list[int], FloatArray]:
+        """Pose numbers and joint commands (N, 3) µm from ``commands.csv``.
+
+        Raises
+        ------
+        FormatError
+            No such file, or a malformed one (the message names the line).
+        """
+        path = self.path / COMMANDS
+        if not path.is_file():
+            raise FormatError(f"{path}: no such file (is {self.path} a run directory?)")
+        poses, d = read_joint_csv(path, pose_column=True, error=FormatError)
+        assert poses is not None
+        return poses, d
+
+    def journal(self) -> dict[int, JournalLine]:
+        """The journal's lines by pose, in the order acquired ({} without a journal).
+
+        A last line cut by a crash is ignored.
+
+        Raises
+        ------
+        FormatError
+            A line that is not a journal line, or a pose that appears twice.
+        """
+        if self._journal is None:
+            self._journal = _read_journal(self.path / JOURNAL)[0]
+        return self._journal
+
+    def image_path(self, camera: str, pose: int) -> Path | None:
+        """The image file of a camera at a pose (``images/CAMERA_0001.tiff``), if present."""
+        stem = self.path / IMAGES / f"{camera}_{pose:04d}"
+        for suffix in IMAGE_SUFFIXES:
+            candidate = stem.with_suffix(suffix)
+            if candidate.is_file():
+                return candidate
+        return None
+
+    def frames(self, pose: int, camera: str) -> list[NDArray[np.generic]]:
+        """The frames of one camera at one pose, each of the camera's full size.
+
+        A stored region is pasted back into a full frame (filled with the region's median
+        grey level) where the journal records one.
+
+        Raises
+        ------
+        FormatError
+            ``acquisition failed: REASON`` for a pose whose acquisition failed, ``no image
+            images/CAMERA_NNNN.tiff`` when the file is missing, or an unreadable file.
+        """
+        from ..vision.roi import frames_from_region
+        from .images import read_frames
+
+        line = self.journal().get(pose)
+        if line is not None and line.failed:
+            raise FormatError(f"acquisition failed: {line.reason or ''}")
+        path = self.image_path(camera, pose)
+        if path is None:
+            raise FormatError(f"no image {IMAGES}/{camera}_{pose:04d}.tiff")
+        frames = read_frames(path)
+        image = line.images.get(camera) if line is not None else None
+        if image is not None and image.roi is not None:
+            frames = frames_from_region(frames, image.roi.offset_px, image.roi.full_size_px)
+        return frames
+
+    def journaled(self, key: str, poses: Sequence[int]) -> FloatArray | None:
+        """A number each pose's journal line records under ``key``, (N,); NaN where a pose has
+        none, None when no pose has one.
+
+        Raises
+        ------
+        FormatError
+            A value that is not a number.
+        """
+        journal = self.journal()
+        out = np.full(len(poses), np.nan)
+        for k, pose in enumerate(poses):
+            line = journal.get(pose)
+            value = line.get(key) if line is not None else None
+            if value is None:
+                continue
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise FormatError(
+                    f"{self.path / JOURNAL}: pose {pose}: {key} = {value!r} is not a number"
+                )
+            out[k] = float(value)
+        return out if np.isfinite(out).any() else None
+
+    def temperature_c(self, poses: Sequence[int]) -> FloatArray | None:
+        """The journaled ambient temperature of each pose, °C, (N,): NaN where a pose has
+        none, None when no pose has one."""
+        return self.journaled("temperature_c", poses)
+
+    def extra_inputs(self, poses: Sequence[int]) -> dict[str, FloatArray]:
+        """Every extra input of the registry (:mod:`microcal.kinematics.extra_inputs`) that
+        the journal records at some pose, by registry name, (N,) each, NaN where not recorded.
+        """
+        from ..kinematics.extra_inputs import EXTRA_INPUTS
+
+        out = {}
+        for name, entry in EXTRA_INPUTS.items():
+            values = self.journaled(entry.column, poses)
+            if values is not None:
+                out[name] = values
+        return out
+
+    def write_measurements(
+        self, poses: Sequence[int], d_um: FloatArray, results: Sequence[PoseMeasurement]
+    ) -> Path:
+        """Write ``measurements.csv`` from measured poses, with the journaled extra inputs
+        (the temperature, when the rig recorded it); returns its path."""
+        from .measurements import write_measurements
+
+        return write_measurements(
+            self.measurements_path,
+            np.asarray(d_um, dtype=np.float64),
+            np.array([r.p_um for r in results]).reshape(len(results), 3),
+            std_um=np.array([r.std_um for r in results]).reshape(len(results), 3),
+            status=[r.status for r in results],
+            reason=[r.reason for r in results],
+            extra=self.extra_inputs(poses),
+            pose=list(poses),
+        )
+
+    def files(self) -> list[Path]:
+        """The run's known files that exist, in the order a run produces them (images sorted)."""
+        out: list[Path] = []
+        for name in RUN_FILE_NAMES:
+            path = self.path / name
+            if name == IMAGES:
+                if path.is_dir():
+                    out += sorted(f for f in path.iterdir() if f.is_file())
+            elif path.is_file():
+                out.append(path)
+        return out
+
+
 def read_commands(run_dir: str | os.PathLike[str]) -> tuple[list[int], FloatArray]:
-    """Pose numbers and joint commands (N, 3) µm from ``commands.csv``."""
-    path = Path(run_dir) / "commands.csv"
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise FormatError(f"{path}: no such file (is {run_dir} a run directory?)") from None
-    reader = csv.DictReader(io.StringIO(text))
-    need = ["pose", "dx_um", "dy_um", "dz_um"]
-    missing = [c for c in need if c not in (reader.fieldnames or [])]
-    if missing:
-        raise FormatError(f"{path}: missing column(s) {missing}; expected {need}")
-    poses, rows = [], []
-    for line, row in enumerate(reader, start=2):
-        try:
-            poses.append(int(row["pose"]))
-            rows.append([float(row[c]) for c in need[1:]])
-        except (TypeError, ValueError):
-            raise FormatError(
-                f"{path}, line {line}: expected a pose number and three numbers"
-            ) from None
-    if not rows:
-        raise FormatError(f"{path}: no commands")
-    if len(set(poses)) != len(poses):
-        raise FormatError(f"{path}: a pose number appears twice")
-    d = np.array(rows)
-    if not np.all(np.isfinite(d)):
-        raise FormatError(f"{path}: non-finite command")
-    return poses, d
+    """Pose numbers and joint commands (N, 3) µm of a run: ``RunDirectory(run_dir).commands()``."""
+    return RunDirectory(run_dir).commands()
 
 
 def write_commands(run_dir: str | os.PathLike[str], d_um: FloatArray) -> Path:
     """Write ``commands.csv`` (poses numbered from 1) atomically."""
-    out = io.StringIO()
-    w = csv.writer(out, lineterminator="\n")
-    w.writerow(["pose", "dx_um", "dy_um", "dz_um"])
-    for i, row in enumerate(np.asarray(d_um, dtype=np.float64), start=1):
-        w.writerow([i, *(f"{v:.4f}" for v in row)])
-    return write_text_atomic(Path(run_dir) / "commands.csv", out.getvalue())
+    return write_joint_csv(Path(run_dir) / COMMANDS, d_um)
 
 
-def find_image(run_dir: str | os.PathLike[str], camera: str, pose: int) -> Path | None:
-    """The image file of a camera at a pose (``images/CAMERA_0001.tiff``), if present."""
-    stem = Path(run_dir) / "images" / f"{camera}_{pose:04d}"
-    for suffix in IMAGE_SUFFIXES:
-        candidate = stem.with_suffix(suffix)
-        if candidate.is_file():
-            return candidate
-    return None
-
-
-def read_manifest(run_dir: str | os.PathLike[str]) -> dict[str, object]:
-    """``run.json`` as a dict, or {} when the run has none."""
-    path = Path(run_dir) / "run.json"
+def _read_journal(path: Path) -> tuple[dict[int, JournalLine], list[bytes]]:
+    """The journal's lines by pose and their bytes; a line cut by a crash ends it."""
     if not path.exists():
-        return {}
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise FormatError(f"{path}: not a JSON file ({exc})") from None
-    if not isinstance(data, dict):
-        raise FormatError(f"{path}: expected a JSON object")
-    return data
-
-
-JOURNAL = "journal.jsonl"
-MANIFEST = "run.json"
-RUN_FORMAT = "microcal.run/1"
-
-
-def _sha256(path: Path) -> str:
-    import hashlib
-
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
+        return {}, []
+    lines: dict[int, JournalLine] = {}
+    good: list[bytes] = []
+    for number, raw in enumerate(path.read_bytes().split(b"\n"), start=1):
+        if not raw.strip():
+            continue
+        try:
+            record = json.loads(raw)
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            break  # cut by a crash: everything after it is lost anyway
+        line = parse_schema(JournalLine, record, f"{path}, line {number}")
+        if line.pose in lines:
+            raise FormatError(f"{path}: pose {line.pose} appears twice; the journal was edited")
+        lines[line.pose] = line
+        good.append(raw)
+    return lines, good
 
 
 class RunWriter:
@@ -124,44 +323,62 @@ class RunWriter:
     is checked against its SHA-256.
     """
 
-    def __init__(self, run_dir: Path, manifest: dict[str, object]) -> None:
+    def __init__(self, run_dir: str | os.PathLike[str], manifest: RunManifest) -> None:
         self.run_dir = Path(run_dir)
         self.manifest = manifest
-        self.done: dict[int, dict[str, object]] = {}
+        self.done: dict[int, JournalLine] = {}
 
     # --- creating and resuming ---------------------------------------------------------
     @classmethod
     def create(
-        cls, run_dir: str | os.PathLike[str], manifest: dict[str, object], d_um: FloatArray
+        cls,
+        run_dir: str | os.PathLike[str],
+        manifest: RunManifest | dict[str, Any],
+        d_um: FloatArray,
     ) -> RunWriter:
-        """A new run: refuses a directory that already holds one."""
+        """A new run: writes commands.csv, then run.json with the commands' SHA-256.
+
+        Raises
+        ------
+        FormatError
+            The directory already holds a run, or the manifest is malformed.
+        """
         path = Path(run_dir)
         if (path / MANIFEST).exists() or (path / JOURNAL).exists():
             raise FormatError(
                 f"{path}: already holds a run; use --resume to continue it or choose another --out"
             )
-        (path / "images").mkdir(parents=True, exist_ok=True)
+        body = manifest.to_json() if isinstance(manifest, RunManifest) else dict(manifest)
+        body.pop("format", None)
+        body.pop("commands_sha256", None)
+        parse_schema(RunManifest, {"format": RUN_FORMAT, **body}, f"{path / MANIFEST} (manifest)")
+        (path / IMAGES).mkdir(parents=True, exist_ok=True)
         write_commands(path, d_um)
-        full = {"format": RUN_FORMAT, **manifest, "commands_sha256": _sha256(path / "commands.csv")}
+        full = {"format": RUN_FORMAT, **body, "commands_sha256": sha256_file(path / COMMANDS)}
         write_text_atomic(path / MANIFEST, json.dumps(full, indent=1) + "\n")
-        return cls(path, full)
+        return cls(path, RunManifest.model_validate(full))
 
     @classmethod
-    def resume(cls, run_dir: str | os.PathLike[str], rig: dict[str, object]) -> RunWriter:
-        """Continue a run: it must come from the same rig and be unedited."""
+    def resume(cls, run_dir: str | os.PathLike[str], rig: dict[str, Any]) -> RunWriter:
+        """Continue a run: it must come from the same rig and be unedited.
+
+        Raises
+        ------
+        FormatError
+            No run, another rig, commands.csv edited, or a recorded image missing or changed.
+        """
         path = Path(run_dir)
-        manifest = read_manifest(path)
-        if manifest.get("format") != RUN_FORMAT:
+        manifest = RunDirectory(path).manifest
+        if manifest is None:
             raise FormatError(f"{path}: not a run directory of microcal (no {MANIFEST})")
-        if manifest.get("rig") != rig:
+        if manifest.rig != rig:
             raise FormatError(
-                f"{path}: this run was made with another rig ({manifest.get('rig')}); "
+                f"{path}: this run was made with another rig ({manifest.rig}); "
                 f"resume it with that rig"
             )
-        if _sha256(path / "commands.csv") != manifest.get("commands_sha256"):
-            raise FormatError(
-                f"{path}/commands.csv was edited since the run began; refusing to resume"
-            )
+        commands = path / COMMANDS
+        if not commands.is_file() or sha256_file(commands) != manifest.commands_sha256:
+            raise FormatError(f"{commands} was edited since the run began; refusing to resume")
         writer = cls(path, manifest)
         writer._read_journal()
         return writer
@@ -170,54 +387,46 @@ class RunWriter:
         path = self.run_dir / JOURNAL
         if not path.exists():
             return
-        lines = path.read_bytes().split(b"\n")
-        good: list[bytes] = []
-        for line in lines:
-            if not line.strip():
-                continue
-            try:
-                record = json.loads(line)
-            except json.JSONDecodeError:
-                break  # cut by a crash: everything after it is lost anyway
-            pose = int(record["pose"])
-            if pose in self.done:
-                raise FormatError(f"{path}: pose {pose} appears twice; the journal was edited")
-            for cam, image in (record.get("images") or {}).items():
-                file = self.run_dir / image["file"]
-                if not file.is_file() or _sha256(file) != image["sha256"]:
+        lines, good = _read_journal(path)
+        for pose, line in lines.items():
+            for cam, image in line.images.items():
+                file = self.run_dir / image.file
+                if not file.is_file() or sha256_file(file) != image.sha256:
                     raise FormatError(
                         f"{file}: missing or changed since it was recorded "
                         f"(camera {cam}, pose {pose})"
                     )
-            self.done[pose] = record
-            good.append(line)
+        self.done = lines
         # Rewrite the journal without a cut last line, so appends stay well-formed.
         write_text_atomic(path, "".join(g.decode() + "\n" for g in good))
 
     # --- writing -------------------------------------------------------------------------
     def store(self, pose: int, frames: dict[str, list[Any]], record: dict[str, Any]) -> None:
-        """Write a pose's images, then append its journal line (synced)."""
+        """Write a pose's images, then append its journal line (synced).
+
+        ``record`` is the journal line without its images; its ``roi_px`` (per camera
+        ``[x0, y0, w, h]`` or a :class:`RoiRecord`: the region's offset and the full frame's
+        size) is taken out of it and recorded with each image instead.
+        """
         from .images import write_tiff
 
-        images = {}
         rois = record.pop("roi_px", {})
+        images: dict[str, ImageRecord] = {}
         for cam, cam_frames in frames.items():
-            rel = f"images/{cam}_{pose:04d}.tiff"
+            rel = f"{IMAGES}/{cam}_{pose:04d}.tiff"
             write_tiff(self.run_dir / rel, cam_frames)
-            images[cam] = {
-                "file": rel,
-                "sha256": _sha256(self.run_dir / rel),
-                "frames": len(cam_frames),
-            }
-            if cam in rois:
-                x0, y0, w, h = rois[cam]
-                images[cam] |= {"offset_px": [x0, y0], "full_size_px": [w, h]}
-        line = json.dumps({**record, "images": images}, allow_nan=False)
+            roi = RoiRecord.from_roi_px(rois[cam]) if cam in rois else None
+            images[cam] = ImageRecord(
+                file=rel, sha256=sha256_file(self.run_dir / rel), frames=len(cam_frames), roi=roi
+            )
+        data = {**record, "images": {cam: image.to_json() for cam, image in images.items()}}
+        line = json.dumps(data, allow_nan=False)
+        journal_line = parse_schema(JournalLine, data, f"journal line of pose {pose}")
         with open(self.run_dir / JOURNAL, "a", encoding="utf-8") as fh:
             fh.write(line + "\n")
             fh.flush()
             os.fsync(fh.fileno())
-        self.done[pose] = record
+        self.done[pose] = journal_line
 
     def remaining(self, poses: list[int]) -> list[int]:
         """The poses not yet in the journal, in order."""
@@ -226,19 +435,3 @@ class RunWriter:
     def size_bytes(self) -> int:
         """Bytes the run's files take."""
         return sum(f.stat().st_size for f in self.run_dir.rglob("*") if f.is_file())
-
-
-def read_journal(run_dir: str | os.PathLike[str]) -> list[dict[str, Any]]:
-    """The journal's records (a line cut by a crash is ignored)."""
-    path = Path(run_dir) / JOURNAL
-    if not path.exists():
-        return []
-    out = []
-    for line in path.read_text(encoding="utf-8").splitlines():
-        if not line.strip():
-            continue
-        try:
-            out.append(json.loads(line))
-        except json.JSONDecodeError:
-            break
-    return out

@@ -15,21 +15,14 @@ from ..formats.calibration_file import Calibration, load_calibration
 from ..formats.json_file import read_versioned_json
 from ..formats.measurements import Measurements, read_measurements
 from ..formats.results_file import load_results
-from ..formats.run_directory import read_commands, read_journal, read_manifest
+from ..formats.run_directory import RUN_FILE_NAMES, RunDirectory
 from ..kinematics.models import KinematicModel
 
 __all__ = ["ModelErrors", "RunData", "load_run"]
 
-#: The files a report reads, in the order a run produces them.
-RUN_FILES = (
-    "run.json",
-    "commands.csv",
-    "journal.jsonl",
-    "measurements.csv",
-    "cameras.json",
-    "calibration.json",
-    "results.json",
-)
+#: The files a report reads, in the order a run produces them (the run directory's files
+#: but its images and the report itself).
+RUN_FILES = tuple(name for name in RUN_FILE_NAMES if name not in ("images", "report.html"))
 
 
 @dataclass
@@ -119,20 +112,21 @@ def load_run(run_dir: str | os.PathLike[str]) -> RunData:
     root = Path(run_dir)
     if not root.is_dir():
         raise InputError(f"{root}: not a directory (expected a run directory)")
-    present = [name for name in RUN_FILES if (root / name).exists()]
+    run = RunDirectory(root)
+    present = {path.name for path in run.files() if path.parent == root} & set(RUN_FILES)
     if not present:
         raise InputError(
             f"{root}: holds none of {', '.join(RUN_FILES)}; is this a microcal run directory?"
         )
     data = RunData(root)
-    if (root / "run.json").exists():
-        data.manifest = dict(read_manifest(root))
-    if (root / "commands.csv").exists():
-        data.commands_um = read_commands(root)[1]
-    if (root / "journal.jsonl").exists():
-        data.journal = read_journal(root)
-    if (root / "measurements.csv").exists():
-        data.measurements = read_measurements(root / "measurements.csv")
+    manifest = run.manifest
+    if manifest is not None:
+        data.manifest = manifest.to_json()
+    if "commands.csv" in present:
+        data.commands_um = run.commands()[1]
+    data.journal = [line.to_json() for line in run.journal().values()]
+    if "measurements.csv" in present:
+        data.measurements = read_measurements(run.measurements_path)
     data.cameras = _cameras(root / "cameras.json")
     if (root / "calibration.json").exists():
         data.calibration = load_calibration(root / "calibration.json")

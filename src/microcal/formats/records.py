@@ -1,0 +1,247 @@
+"""Typed records of what crosses modules through files: run.json, a journal line, results.json.
+
+Each is a :class:`~microcal.formats.json_file.FileSchema`: the keys microcal reads are typed
+and validated (a malformed key is reported by its path), any other key is kept and written
+back, so files written by a newer microcal (or with keys added by hand) load and round-trip.
+
+The region of interest of a stored image is one record, :class:`RoiRecord`, whatever carries
+it: acquisition hands the run writer ``[x0, y0, w, h]`` (the region's offset and the size of
+the full frame), the journal stores ``offset_px`` and ``full_size_px`` beside the image's
+file, and the reader pastes the region back into a full frame from it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Final, Literal
+
+from pydantic import Field, model_validator
+
+from .json_file import FileSchema
+
+__all__ = [
+    "RESULTS_FORMAT",
+    "RESULTS_FORMATS",
+    "RUN_FORMAT",
+    "RUN_FORMATS",
+    "AcquisitionResult",
+    "DecouplingResult",
+    "DesignRecord",
+    "FailedPose",
+    "ImageRecord",
+    "JournalLine",
+    "MeasurementResult",
+    "ModelResult",
+    "PoseAccuracyResult",
+    "Results",
+    "RoiRecord",
+    "RunManifest",
+    "StereoResult",
+]
+
+RUN_FORMAT: Final = "microcal.run/1"
+RUN_FORMATS = (RUN_FORMAT,)  # the versions of run.json this microcal reads
+RESULTS_FORMAT: Final = "microcal.results/1"
+RESULTS_FORMATS = (RESULTS_FORMAT,)
+
+
+# --- the journal ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class RoiRecord:
+    """Where a stored image region lies in the camera's full frame.
+
+    Attributes
+    ----------
+    offset_px : (x0, y0) int
+        The region's top-left pixel in the full frame.
+    full_size_px : (w, h) int
+        Width and height of the full frame (not of the region).
+    """
+
+    offset_px: tuple[int, int]
+    full_size_px: tuple[int, int]
+
+    @classmethod
+    def from_roi_px(cls, roi_px: Sequence[int] | RoiRecord) -> RoiRecord:
+        """From acquisition's ``[x0, y0, w, h]``: offset x0, y0 and the FULL frame's w, h."""
+        if isinstance(roi_px, RoiRecord):
+            return roi_px
+        x0, y0, w, h = (int(v) for v in roi_px)
+        return cls((x0, y0), (w, h))
+
+    def journal_keys(self) -> dict[str, list[int]]:
+        """The keys of an image entry in the journal: ``offset_px`` and ``full_size_px``."""
+        return {"offset_px": list(self.offset_px), "full_size_px": list(self.full_size_px)}
+
+
+class ImageRecord(FileSchema):
+    """One camera's image file of one pose, as the journal records it.
+
+    In the journal the region sits flat beside the file (``offset_px``, ``full_size_px``);
+    here it is :attr:`roi`, None for a full frame.
+    """
+
+    file: str  # relative to the run directory
+    sha256: str
+    frames: int | None = None  # pages of the file
+    roi: RoiRecord | None = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _roi_from_journal(cls, data: Any) -> Any:
+        if isinstance(data, dict) and ("offset_px" in data or "full_size_px" in data):
+            data = dict(data)
+            offset, full = data.pop("offset_px", None), data.pop("full_size_px", None)
+            if offset is None or full is None:
+                raise ValueError("offset_px and full_size_px go together (a stored region)")
+            data["roi"] = {"offset_px": offset, "full_size_px": full}
+        return data
+
+    def to_json(self) -> dict[str, Any]:
+        """The journal's object: ``file``, ``sha256``, ``frames``, the region's keys, extras."""
+        out: dict[str, Any] = {"file": self.file, "sha256": self.sha256}
+        if self.frames is not None:
+            out["frames"] = self.frames
+        if self.roi is not None:
+            out |= self.roi.journal_keys()
+        return out | dict(self.model_extra or {})
+
+
+class JournalLine(FileSchema):
+    """One line of ``journal.jsonl``: one pose of an acquisition.
+
+    Other keys of the line (``commanded_um``, ``reported_um``, ``time``, ``move_s``,
+    ``residual_px``, ``creep_model``, ...) are kept as extras; :meth:`get` reads any key.
+    """
+
+    pose: int  # 1-based, as in the image names
+    status: str  # "ok" or "failed"
+    reason: str | None = None  # when failed
+    settle_s: float | None = None
+    temperature_c: float | None = None  # when the rig has a thermometer
+    images: dict[str, ImageRecord] = Field(default_factory=dict)
+
+    @property
+    def failed(self) -> bool:
+        """The acquisition of this pose failed (nothing to measure)."""
+        return self.status == "failed"
+
+    def get(self, key: str, default: Any = None) -> Any:
+        """A key of the line, typed or extra (``default`` when absent or null)."""
+        if key in type(self).model_fields:
+            value = getattr(self, key)
+        else:
+            value = (self.model_extra or {}).get(key)
+        return default if value is None else value
+
+    def to_json(self) -> dict[str, Any]:
+        """The journal's object (the keys the line was read with)."""
+        out = self.model_dump(exclude={"images"}, exclude_unset=True)
+        return out | {"images": {cam: image.to_json() for cam, image in self.images.items()}}
+
+
+# --- run.json ------------------------------------------------------------------------------
+class DesignRecord(FileSchema):
+    """How a run's commands were made: enough to draw them again.
+
+    ``kind`` is a design's name (``random``, ``sobol``...), an evaluation trajectory
+    (``table-5-2``...) or ``file``; extras such as ``low_um``, ``high_um`` are kept.
+    """
+
+    kind: str
+    poses: int
+    seed: int | None = None
+
+
+class RunManifest(FileSchema):
+    """``run.json``: what a run was made with (every key but ``format`` is optional on read)."""
+
+    format: Literal["microcal.run/1"] = RUN_FORMAT
+    rig: dict[str, Any] | None = None  # the rig as recorded; a resume must name the same
+    target: str | None = None  # the end-effector board's spec
+    cameras: list[str] = Field(default_factory=list)
+    design: DesignRecord | None = None
+    settle: str | None = None  # "vision" or "fixed:SECONDS"
+    frames_per_pose: int | None = None
+    store: str | None = None  # "full" frames or "roi"
+    provenance: dict[str, Any] = Field(default_factory=dict)
+    commands_sha256: str | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """The object of run.json: ``format`` first, then the keys that were given."""
+        return {"format": self.format, **self.model_dump(exclude={"format"}, exclude_unset=True)}
+
+
+# --- results.json --------------------------------------------------------------------------
+class StereoResult(FileSchema):
+    """``stereo.NAME``: one camera's calibration figures."""
+
+    rms_px: float | None = None
+    model: str | None = None
+
+
+class MeasurementResult(FileSchema):
+    """``measurement``: the 3D measurement against ground truth (simulator only)."""
+
+    rms_error_um: float | None = None
+
+
+class ModelResult(FileSchema):
+    """``models.KIND``: an identified model's validation figures (as in calibration.json)."""
+
+    validation: dict[str, Any] = Field(default_factory=dict)
+
+
+class FailedPose(FileSchema):
+    """``acquisition.failed[i]``."""
+
+    pose: int
+    reason: str = ""
+
+
+class AcquisitionResult(FileSchema):
+    """``acquisition``: how the run's acquisition went."""
+
+    poses: int
+    stored: int
+    mean_settle_s: float | None = None
+    failed: list[FailedPose] = Field(default_factory=list)
+
+
+class PoseAccuracyResult(FileSchema):
+    """``pose_accuracy.SOURCE.CONDITION``: ISO 9283 pose accuracy of one condition."""
+
+    mean_ap_p_um: float | None = None
+    max_ap_p_um: float | None = None
+    poses: list[dict[str, Any]] = Field(default_factory=list)
+
+
+class DecouplingResult(FileSchema):
+    """``decoupling.SOURCE.CONDITION``: undesired displacement ranges and Ω per axis."""
+
+    undesired_um: dict[str, list[float | None]] = Field(default_factory=dict)
+    omega: dict[str, float | None] = Field(default_factory=dict)
+
+
+class Results(FileSchema):
+    """``results.json``: every section optional (``evaluate`` writes the parts it ran).
+
+    Keys not named here (``devices``, future sections) are kept. NaN is stored as null, so
+    figures may be None.
+    """
+
+    format: Literal["microcal.results/1"] = RESULTS_FORMAT
+    stereo: dict[str, StereoResult] | None = None
+    measurement: MeasurementResult | None = None
+    models: dict[str, ModelResult] | None = None
+    oracle: dict[str, float | None] | None = None
+    acquisition: AcquisitionResult | None = None
+    pose_accuracy: dict[str, dict[str, PoseAccuracyResult]] | None = None
+    decoupling: dict[str, dict[str, DecouplingResult]] | None = None
+    timing: dict[str, Any] | None = None
+    provenance: dict[str, Any] | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """The object of results.json (the keys that were given)."""
+        return {"format": self.format, **self.model_dump(exclude={"format"}, exclude_unset=True)}
