@@ -44,7 +44,9 @@ def test_designs_that_cannot_identify_are_refused():
         check_design(together, LIMITS)
     outside = d.copy()
     outside[7, 0] = 9000.0
-    with pytest.raises(LimitError, match="command 8: axis x = 9000.000 µm is outside the soft limits"):
+    with pytest.raises(
+        LimitError, match=r"command 8: axis x = 9000\.000 µm is outside the soft limits"
+    ):
         check_design(outside, LIMITS)
 
 

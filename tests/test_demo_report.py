@@ -9,6 +9,7 @@ import subprocess
 from html.parser import HTMLParser
 from pathlib import Path
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -323,3 +324,15 @@ def test_report_opens_in_headless_chromium(quick_demo, tmp_path):
     assert snap.returncode == 0, snap.stderr[-2000:]
     assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert shot.stat().st_size > 50_000  # a page of tables and plots, not a blank one
+
+
+def test_the_demos_manifest_reproduces_its_commands(quick_demo):
+    # run.json's design, drawn again by make_design, gives commands.csv (written to 4 decimals).
+    from microcal.formats.run_directory import RunDirectory
+    from microcal.kinematics.designs import make_design
+
+    run = RunDirectory.open(quick_demo[0])
+    design = json.loads((run.path / "run.json").read_text())["design"]
+    d = make_design(design["kind"], design["poses"], design["low_um"], design["high_um"],
+                    design["seed"])  # fmt: skip
+    np.testing.assert_allclose(run.commands()[1], d, atol=5e-5, rtol=0)

@@ -123,13 +123,22 @@ def test_evaluate_command(demo, tmp_path):
     for src in ("vision", "truth"):
         assert set(data["pose_accuracy"][src]) == {"uncalibrated", "matrix", "optimal"}
     assert "Pose accuracy" in res.stdout
+    assert "thesis" in res.stdout  # the thesis's poses on its preset: its figures beside ours
+    # The same through a rig file (evaluate opens any rig as acquire does), on another seed.
+    rig = tmp_path / "rig.toml"
+    rig.write_text('driver = "sim"\npreset = "thesis"\nseed = 3\n')
+    res = run_microcal("evaluate", "--rig", rig, "--calibration", cal_path, "--test", "decoupling",
+                       "--frames", "1", "--out", tmp_path / "rig-results.json")  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    data = json.loads((tmp_path / "rig-results.json").read_text())
+    assert set(data["decoupling"]["vision"]) == {"uncalibrated", "matrix", "optimal"}
     # A calibration without cameras, a foreign rig, an unknown manipulator: one line, exit 2.
     bare = write_calibration(tmp_path / "bare.json", Calibration({"m1": entry}))
     for args, message in (
         (["--calibration", bare], "holds no cameras"),
         (
             ["--calibration", cal_path, "--rig", "lab.toml"],
-            "this version drives the simulated rig 'sim' only",
+            "--rig lab.toml: no such file",
         ),
         (["--calibration", cal_path, "--manipulator", "m2"], "manipulator 'm2' is not calibrated"),
     ):

@@ -29,7 +29,8 @@ def measure(run_dir: _RunDir, cameras: _Cameras, target: _Target = None) -> None
     from ..report.text_tables import measurement_lines
     from ..vision.targets import parse_target
 
-    run, models = RunDirectory.open(run_dir), load_cameras(cameras)
+    run = RunDirectory.open(run_dir, require_commands=False)
+    models = load_cameras(cameras)
     poses, d = run.commands()
     board = parse_target(target or run.target_spec or "chessboard:4x3:400")
     with staged_progress() as progress:

@@ -90,7 +90,7 @@ def acquire_remaining(
 
     Raises
     ------
-    InputError
+    RunStoppedError
         The run was stopped (a signal, a device that stopped answering): how many poses are
         stored and the command that resumes it.
     """
@@ -126,8 +126,8 @@ def acquire_remaining(
                             should_stop=lambda: stop["requested"], sensors=opened.sensors,
                             progress=progress)  # fmt: skip
     except RunStoppedError as exc:
-        raise InputError(f"run stopped ({exc}); {len(writer.done)} of {len(pose_ids)} poses "
-                         f"stored; resume with: {resume_hint}") from None  # fmt: skip
+        raise RunStoppedError(f"run stopped ({exc}); {len(writer.done)} of {len(pose_ids)} "
+                              f"poses stored; resume with: {resume_hint}") from None  # fmt: skip
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)

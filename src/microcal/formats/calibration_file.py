@@ -1,6 +1,6 @@
 """``calibration.json``: cameras and manipulator models, versioned, validated on load.
 
-The keys that other tools read are listed in DESIGN.md and docs/formats.md; more keys may be
+The keys that other tools read are listed in docs/formats.md; more keys may be
 added freely. No pickle: plain JSON, lengths in µm.
 """
 

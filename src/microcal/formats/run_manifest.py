@@ -7,26 +7,15 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+from ..devices.rig_spec import SimRigSpec
 from ..errors import InputError
 from .calibration_file import provenance
-from .run_directory import RunWriter
+from .run_directory import RUN_FILE_NAMES, RunWriter
 
 __all__ = ["DEMO_FILES", "clear_demo_dir", "new_manifest", "start_demo_run"]
 
 #: What a demo writes into its directory (and may replace on the next demo).
-DEMO_FILES = frozenset(
-    {
-        "run.json",
-        "commands.csv",
-        "journal.jsonl",
-        "images",
-        "measurements.csv",
-        "cameras.json",
-        "calibration.json",
-        "results.json",
-        "report.html",
-    }
-)
+DEMO_FILES = frozenset(RUN_FILE_NAMES)
 
 
 def new_manifest(
@@ -105,7 +94,7 @@ def start_demo_run(out: Path, seed: int, poses: int, frames: int) -> tuple[Any, 
     clear_demo_dir(out)
     plat = platform("thesis", seed=seed)
     manifest = new_manifest(
-        rig={"driver": "sim", "preset": "thesis", "seed": seed, "overrides": {}},
+        rig=SimRigSpec(seed=seed).to_dict(),
         target=plat.scene.board.spec,
         cameras=list(plat.cameras),
         design={

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from ..devices.base import Camera, Manipulator
-from ..errors import InputError
+from ..errors import DeviceError
 from ..vision.detect import detect
 from ..vision.targets import Target
 from .acquisition import grab_retrying
@@ -29,10 +29,8 @@ def dry_run(
 
     Raises
     ------
-    InputError
-        A camera whose frames are not the size it reports.
     DeviceError
-        A device that does not answer.
+        A device that does not answer, or a camera whose frames are not the size it reports.
     """
     lines = [f"{what}: {text}" for what, text in (description or {}).items()]
     p = manipulator.position_um()
@@ -45,7 +43,7 @@ def dry_run(
         frame = grab_retrying(cam, retries=2)
         h, w = frame.shape[:2]
         if (w, h) != tuple(cam.sensor_size_px):
-            raise InputError(
+            raise DeviceError(
                 f"camera {name}: frame is {w} x {h} px but the camera reports "
                 f"{cam.sensor_size_px[0]} x {cam.sensor_size_px[1]}"
             )
