@@ -149,3 +149,23 @@ def test_measurements_csv_round_trip_and_errors(tmp_path):
     path.write_text("pose,status,dx_um,dy_um,dz_um,x_um,y_um,z_um\n1,ok,1,2,x,4,5,6\n")
     with pytest.raises(FormatError, match="line 2: dz_um = 'x' is not a number"):
         read_measurements(path)
+
+
+def test_cameras_are_typed_models_and_a_malformed_one_fails_on_load(tmp_path, calibration):
+    from dataclasses import replace
+
+    from microcal.thesis.cameras import thesis_cameras
+
+    top, side = thesis_cameras()
+    cams = {c.name: {"model": "pinhole", "image_size_px": list(c.image_size_px), "K": c.K.tolist(),
+                     "dist": c.dist.tolist(), "R": c.R.tolist(), "t_um": c.t_um.tolist()}
+            for c in (top, side)}  # fmt: skip
+    path = write_calibration(tmp_path / "calibration.json", replace(calibration, cameras=cams))
+    models = load_calibration(path).camera_models()
+    assert set(models) == {"top", "side"}
+    np.testing.assert_array_equal(models["top"].P, top.P)
+    raw = json.loads(path.read_text())
+    raw["cameras"]["side"]["K"] = [[1.0, 0.0]]
+    path.write_text(json.dumps(raw))
+    with pytest.raises(FormatError, match=r"calibration.json.*side"):
+        load_calibration(path)

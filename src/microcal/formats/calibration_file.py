@@ -12,7 +12,7 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from pydantic import Field
@@ -24,6 +24,9 @@ from ..kinematics.models import KinematicModel
 from .atomic import write_atomic, write_text_atomic
 from .hashing import sha256_file
 from .json_file import FileSchema, parse_schema, read_versioned_json
+
+if TYPE_CHECKING:
+    from ..geometry.camera_model import CameraModel
 
 __all__ = [
     "CALIBRATION_FORMAT",
@@ -80,6 +83,15 @@ class Calibration:
     cameras: dict[str, Any] = field(default_factory=dict)
     provenance: dict[str, Any] = field(default_factory=dict)
     path: Path | None = None
+
+    def camera_models(self) -> dict[str, CameraModel]:
+        """The cameras as typed models (validated when the file was loaded); {} for none."""
+        if not self.cameras:
+            return {}
+        from .cameras_file import CAMERAS_FORMAT, models_from_dict
+
+        where = str(self.path) if self.path else "calibration"
+        return models_from_dict({"format": CAMERAS_FORMAT, "cameras": self.cameras}, where)
 
     def manipulator(self, name: str | None = None) -> ManipulatorCalibration:
         """One manipulator's calibration; ``name`` may be omitted when there is only one."""
@@ -158,7 +170,9 @@ def load_calibration(path: str | os.PathLike[str]) -> Calibration:
         extra = {k: v for k, v in data.items() if k not in ("model", "validation")}
         validation = data.get("validation") or {}
         manipulators[name] = ManipulatorCalibration(name, model, validation, extra)
-    return Calibration(manipulators, raw.get("cameras", {}), raw.get("provenance", {}), p)
+    calibration = Calibration(manipulators, raw.get("cameras", {}), raw.get("provenance", {}), p)
+    calibration.camera_models()  # a malformed camera fails here, naming the file
+    return calibration
 
 
 def export_mat(path: str | os.PathLike[str], calibration: Calibration) -> Path:

@@ -9,7 +9,7 @@ from ..errors import InputError
 from ..geometry import CameraModel
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from .calibration_file import Calibration, load_calibration, provenance, write_calibration
-from .cameras_file import CAMERAS_FORMAT, models_from_dict, read_cameras
+from .cameras_file import read_cameras
 
 __all__ = ["add_manipulator", "camera_models"]
 
@@ -49,9 +49,9 @@ def camera_models(calibration: Calibration) -> dict[str, CameraModel]:
     InputError
         A calibration without cameras, saying how to add them.
     """
-    where = str(calibration.path) if calibration.path else "calibration"
     if not calibration.cameras:
+        where = str(calibration.path) if calibration.path else "calibration"
         raise InputError(
             f"{where}: holds no cameras; run 'microcal fit ... --cameras cameras.json'"
         )
-    return models_from_dict({"format": CAMERAS_FORMAT, "cameras": calibration.cameras}, where)
+    return calibration.camera_models()
