@@ -53,10 +53,11 @@ def fit(
     meas = read_measurements(path)
     names = [*(extra or []), *(["temperature"] if temperature else [])]
     inputs = meas.extra_inputs(list(dict.fromkeys(names)), path)
-    entry, result = calibrate_manipulator(
+    entry, fits = calibrate_manipulator(
         manipulator, meas.d_um, meas.p_um, model.value, train=train, select=select.value,
         penter=penter, premove=premove, folds=folds, seed=seed, extra_inputs=inputs,
     )  # fmt: skip
+    result = fits[model.value]
     calibration = add_manipulator(out, entry, cameras, {"measurements": path}, model.value)
     if mat is not None:
         export_mat(mat, calibration)

@@ -11,6 +11,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..errors import InputError
+
 if TYPE_CHECKING:
     from ..procedures.demo import DemoResult
 
@@ -30,32 +32,20 @@ def write_demo_outputs(out: Path, result: DemoResult, wall_s: float) -> None:
         Wall-clock seconds the demo took (``timing.wall_s`` of results.json).
     """
     from ..report import write_report
-    from .calibration_file import (
-        Calibration,
-        ManipulatorCalibration,
-        provenance,
-        write_calibration,
-    )
+    from .calibration_file import Calibration, provenance, write_calibration
     from .cameras_file import cameras_to_dict, write_cameras
-    from .measurements import write_measurements
     from .results_file import update_results
+    from .run_directory import RunDirectory
 
     out.mkdir(parents=True, exist_ok=True)
-    ms = result.measurements
-    write_measurements(
-        out / "measurements.csv",
-        result.d_um,
-        np.array([m.p_um for m in ms]),
-        std_um=np.array([m.std_um for m in ms]),
-        status=[m.status for m in ms],
-        reason=[m.reason for m in ms],
-    )
+    poses = list(range(1, len(result.d_um) + 1))
+    RunDirectory(out).write_measurements(poses, result.d_um, result.measurements)
     prov = provenance(command="demo", seed=result.seed)
     cameras = cameras_to_dict(result.calibration, prov)
     write_cameras(out / "cameras.json", cameras)
-    poly, matrix = result.models["polynomial"], result.models["matrix"]
-    extra = {"matrix_model": matrix.model.to_dict(), "matrix_validation": matrix.validation}
-    entry = ManipulatorCalibration("m1", poly.model, poly.validation, extra)
+    if result.manipulator is None:
+        raise InputError("demo: nothing was identified; no calibration to write")
+    entry = result.manipulator
     write_calibration(
         out / "calibration.json", Calibration({"m1": entry}, cameras["cameras"], prov)
     )

@@ -16,15 +16,16 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from .._validation import FloatArray
-from ..control.feedforward import FeedForward
+from ..control.conditions import open_loop_conditions
 from ..errors import FormatError
 from ..kinematics.designs import make_design
+from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..metrics.error_summary import summarize_errors
 from ..sim import SimPlatform, platform
 from ..sim.render import Placement
@@ -35,7 +36,7 @@ from ..vision.stereo_calibration import StereoCalibration, calibrate_known_displ
 from ..vision.targets import Target, parse_target
 from .acquisition import AcquisitionConfig, Store, acquire
 from .evaluation import VisionProbe, run_decoupling, run_pose_accuracy
-from .identification import Identification, default_train, identify
+from .identification import Identification, calibrate_manipulator, default_train
 from .measurement import PoseMeasurement, measure_poses
 
 __all__ = ["DemoResult", "calibrate_on_platform", "demo_design", "demo_design_seed", "run_demo"]
@@ -54,7 +55,8 @@ class DemoResult:
     d_um: FloatArray
     measurements: list[PoseMeasurement]
     truth_um: FloatArray
-    models: dict[str, Identification] = field(default_factory=dict)
+    models: dict[str, Identification] = field(default_factory=dict)  # matrix, polynomial
+    manipulator: ManipulatorCalibration | None = None  # what calibration.json holds
     oracle: dict[str, float] = field(default_factory=dict)
     evaluation: dict[str, Any] = field(default_factory=dict)  # pose_accuracy, decoupling
     records: list[dict[str, Any]] = field(default_factory=list)  # the acquisition's journal
@@ -226,17 +228,13 @@ def run_demo(
     p = np.array([m.p_um for m in measurements])[ok]
     d_ok = d[ok]
     n_fit = default_train(len(d_ok))
-    kinds: tuple[Literal["matrix"], Literal["polynomial"]] = ("matrix", "polynomial")
-    for kind in kinds:
-        result.models[kind] = identify(d_ok, p, kind, train=n_fit)
+    result.manipulator, result.models = calibrate_manipulator(
+        "m1", d_ok, p, "polynomial", train=n_fit
+    )
     oracle = summarize_errors(np.linalg.norm(p[n_fit:] - result.truth_um[ok][n_fit:], axis=1))
     result.oracle = {"mean": oracle.mean, "std": oracle.std, "max": oracle.max}
     if evaluate:
-        conditions: dict[str, FeedForward | None] = {
-            "uncalibrated": None,
-            "matrix": FeedForward(plat.manipulator, result.models["matrix"].model, "matrix"),
-            "optimal": FeedForward(plat.manipulator, result.models["polynomial"].model, "optimal"),
-        }
+        conditions = open_loop_conditions(plat.manipulator, result.manipulator)
         probe = VisionProbe(plat.cameras, cal.models(), board, frames=frames_per_pose)
         kwargs: dict[str, Any] = {
             "settle_s": settle_s,

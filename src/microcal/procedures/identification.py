@@ -128,7 +128,7 @@ def calibrate_manipulator(
     *,
     train: int | None = None,
     **options: Any,
-) -> tuple[ManipulatorCalibration, Identification]:
+) -> tuple[ManipulatorCalibration, dict[str, Identification]]:
     """The whole calibration of one manipulator: its model, validation and what goes with it.
 
     Identifies ``model`` as :func:`identify` does (``options`` are its keywords); a polynomial
@@ -139,16 +139,19 @@ def calibrate_manipulator(
     -------
     calibration : ManipulatorCalibration
         What calibration.json holds for this manipulator.
-    identification : Identification
-        The fit itself (the data used, the split and cross-validation).
+    identifications : dict of kind -> Identification
+        The fits themselves (the data used, the split and cross-validation): ``model``'s,
+        and for a polynomial model also the matrix model's.
     """
     result = identify(d_um, p_um, model, train=train, **options)
     d = np.asarray(d_um, dtype=np.float64)
     extra: dict[str, Any] = {
         "joint_range_um": np.column_stack([d.min(axis=0), d.max(axis=0)]).tolist()
     }
+    fits: dict[str, Identification] = {model: result}
     if model == "polynomial":
         matrix = identify(d_um, p_um, "matrix", train=train)
         extra["matrix_model"] = matrix.model.to_dict()
         extra["matrix_validation"] = matrix.validation
-    return ManipulatorCalibration(name, result.model, result.validation, extra), result
+        fits = {"matrix": matrix, "polynomial": result}
+    return ManipulatorCalibration(name, result.model, result.validation, extra), fits
