@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 
 from microcal import sim
-from microcal.procedures.measurement import measure_poses
+from microcal.vision.measurement import measure_poses
 from microcal.vision.targets import parse_target
 
 from .bench_triangulation import thesis_appendix_b_loop

@@ -13,9 +13,9 @@ from microcal import CameraModel, FormatError, InputError, project_points
 from microcal.formats import cameras_file
 from microcal.formats.cameras_file import cameras_to_dict, load_cameras, write_cameras
 from microcal.geometry import CameraModelProtocol, check_camera_model, triangulate_cameras
-from microcal.procedures.measurement import PoseMeasurement, _triangulate
 from microcal.sim.synthetic_geometry import random_points
 from microcal.thesis.cameras import thesis_cameras
+from microcal.vision.measurement import PoseMeasurement, _triangulate
 from microcal.vision.stereo_calibration import CameraCalibration, StereoCalibration
 
 # The simulator's lens distortion of the thesis cameras (sim/platforms.py), and a strong one.

@@ -13,7 +13,7 @@ from microcal import FormatError, InputError
 from microcal.formats.commands_csv import read_joint_csv
 from microcal.formats.records import JournalLine, RoiRecord, RunManifest
 from microcal.formats.run_directory import RunDirectory, RunWriter, read_commands
-from microcal.procedures.measurement import PoseMeasurement
+from microcal.vision.measurement import PoseMeasurement
 
 RIG = {"driver": "sim", "preset": "thesis", "seed": 0, "overrides": {}}
 FULL_H, FULL_W = 40, 60

@@ -8,9 +8,9 @@ import pytest
 
 from microcal import sim
 from microcal.procedures.demo import calibrate_on_platform
-from microcal.procedures.measurement import measure_poses
 from microcal.sim.render import Placement
 from microcal.vision.detect import detect
+from microcal.vision.measurement import measure_poses
 from microcal.vision.stereo_calibration import (
     calibrate_unknown_poses,
 )

@@ -25,8 +25,8 @@ def measure(run_dir: _RunDir, cameras: _Cameras, target: _Target = None) -> None
     """
     from ..formats.cameras_file import load_cameras
     from ..formats.run_directory import RunDirectory
-    from ..procedures.measurement import measure_poses
     from ..report.text_tables import measurement_lines
+    from ..vision.measurement import measure_poses
     from ..vision.targets import parse_target
 
     run = RunDirectory.open(run_dir, require_commands=False)

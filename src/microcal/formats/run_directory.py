@@ -39,7 +39,7 @@ if TYPE_CHECKING:
 
     from numpy.typing import NDArray
 
-    from ..procedures.measurement import PoseMeasurement
+    from ..vision.measurement import PoseMeasurement
 
 __all__ = [
     "RUN_FILE_NAMES",

@@ -31,13 +31,14 @@ from ..sim import SimPlatform, platform
 from ..sim.render import Placement
 from ..thesis.experiment import WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
 from ..vision.detect import Detection, detect
+from ..vision.measurement import PoseMeasurement, measure_poses
+from ..vision.probe import VisionProbe
 from ..vision.roi import frames_from_region
 from ..vision.stereo_calibration import StereoCalibration, calibrate_known_displacements
 from ..vision.targets import Target, parse_target
 from .acquisition import AcquisitionConfig, Store, acquire
-from .evaluation import VisionProbe, run_decoupling, run_pose_accuracy
+from .evaluation import run_decoupling, run_pose_accuracy
 from .identification import Identification, calibrate_manipulator, default_train
-from .measurement import PoseMeasurement, measure_poses
 
 __all__ = ["DemoResult", "calibrate_on_platform", "demo_design", "demo_design_seed", "run_demo"]
 

@@ -15,7 +15,6 @@ from the same side.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -31,12 +30,10 @@ from ..kinematics.extra_inputs import by_symbol
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..metrics import decoupling_metrics, pose_statistics
 from ..thesis.experiment import DECOUPLING_PATH_UM, TABLE_5_2_POSES_UM
-from ..vision.roi import RoiPredictor
+from ..vision.probe import VisionProbe
 from ..vision.targets import Target
-from .measurement import measure_one
 
 __all__ = [
-    "VisionProbe",
     "decoupling_path",
     "iso_cube_poses",
     "run_decoupling",
@@ -76,31 +73,6 @@ def decoupling_path(
             points.append(current.copy())
             segment.append(axis)
     return np.array(points), np.array(segment)
-
-
-@dataclass
-class VisionProbe:
-    """Measures the end-effector now: grabs frames from every camera, triangulates."""
-
-    cameras: Mapping[str, Camera]
-    models: dict[str, CameraModel]
-    target: Target
-    frames: int = 5
-    frame_cov_px2: dict[str, FloatArray] | None = None
-    _predictors: dict[str, RoiPredictor] = field(default_factory=dict)
-
-    def measure(self, d_um: FloatArray) -> FloatArray:
-        """Position in {G} (3,) µm; NaN when the board is not found."""
-        frames = {n: [cam.grab() for _ in range(self.frames)] for n, cam in self.cameras.items()}
-        rois = {
-            n: self._predictors.setdefault(n, RoiPredictor()).predict(d_um) for n in self.cameras
-        }
-        m = measure_one(frames, self.models, self.target, rois, self.frame_cov_px2)
-        if m.status != "ok":
-            return np.full(3, np.nan)
-        for n in self.cameras:
-            self._predictors[n].add(d_um, m.corners_px[n])
-        return m.p_um
 
 
 Command = Callable[[FloatArray], FloatArray]  # displacement from home -> joints commanded

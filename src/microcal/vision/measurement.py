@@ -22,10 +22,10 @@ from numpy.typing import NDArray
 from .._validation import FloatArray
 from ..errors import DetectionError
 from ..geometry import CameraModel, CameraModelProtocol, triangulate_cameras
-from ..vision.detect import detect
-from ..vision.roi import RoiPredictor, box_around
-from ..vision.targets import Target
-from ..vision.virtual_point import virtual_point
+from .detect import detect
+from .roi import RoiPredictor, box_around
+from .targets import Target
+from .virtual_point import virtual_point
 
 __all__ = ["PoseMeasurement", "measure_one", "measure_poses"]
 

@@ -1,0 +1,55 @@
+"""The vision probe: where the end-effector is now, measured from fresh frames of every camera."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .._validation import FloatArray
+from ..geometry import CameraModel
+from .measurement import measure_one
+from .roi import RoiPredictor
+from .targets import Target
+
+__all__ = ["FrameSource", "VisionProbe"]
+
+
+class FrameSource(Protocol):
+    """Anything that gives a frame on request (every camera of ``microcal.devices``)."""
+
+    def grab(self) -> NDArray[np.generic]:
+        """One frame, (h, w)."""
+        ...
+
+
+@dataclass
+class VisionProbe:
+    """Measures the end-effector now: grabs frames from every camera, triangulates.
+
+    The board's region in each image is predicted from the joints of the poses measured
+    before (:class:`~microcal.vision.roi.RoiPredictor`), as the acquisition does.
+    """
+
+    cameras: Mapping[str, FrameSource]
+    models: dict[str, CameraModel]
+    target: Target
+    frames: int = 5
+    frame_cov_px2: dict[str, FloatArray] | None = None
+    _predictors: dict[str, RoiPredictor] = field(default_factory=dict)
+
+    def measure(self, d_um: FloatArray) -> FloatArray:
+        """Position in {G} (3,) µm; NaN when the board is not found."""
+        frames = {n: [cam.grab() for _ in range(self.frames)] for n, cam in self.cameras.items()}
+        rois = {
+            n: self._predictors.setdefault(n, RoiPredictor()).predict(d_um) for n in self.cameras
+        }
+        m = measure_one(frames, self.models, self.target, rois, self.frame_cov_px2)
+        if m.status != "ok":
+            return np.full(3, np.nan)
+        for n in self.cameras:
+            self._predictors[n].add(d_um, m.corners_px[n])
+        return m.p_um
