@@ -60,6 +60,24 @@ def test_temperature_terms(run_dir, tmp_path):
     )
     assert result.exit_code == 0, result.output
     assert "T^2" in [t.name for t in load_calibration(out).manipulator().model.terms]
+    # --extra names the same input through the registry; the report recomputes the model's
+    # validation errors with the temperature column.
+    out2 = tmp_path / "run" / "calibration.json"
+    out2.parent.mkdir()
+    (out2.parent / "measurements.csv").write_bytes((run_dir / "measurements.csv").read_bytes())
+    result = runner.invoke(app, ["fit", str(out2.parent), "-o", str(out2), "--extra", "temperature",
+                                 "--select", "all"])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    from microcal.report import load_run
+
+    errors = load_run(out2.parent).model_errors()
+    poly = next(e for e in errors if e.kind == "polynomial")
+    assert poly.model.extra_inputs == ("T",)
+    v = load_calibration(out2).manipulator().validation
+    assert abs(float(poly.errors_um.mean()) - v["mean_um"]) < 1e-6
+    result = runner.invoke(app, ["fit", str(out2.parent), "--extra", "humidity"])
+    assert result.exit_code == 2
+    assert "extra input: expected one of ['temperature'], got 'humidity'" in result.output
 
 
 def _write(path, rows):

@@ -15,13 +15,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import ValidationError
 
 from ..errors import FormatError, InputError
 from ..geometry.camera_model import CameraModel
 from ..vision.stereo_calibration import StereoCalibration
 from .atomic import write_text_atomic
-from .json_file import read_versioned_json, validation_message
+from .json_file import FileSchema, read_versioned_json, validation_message
 
 __all__ = [
     "CAMERAS_FORMAT",
@@ -47,8 +47,7 @@ DEFAULT_CAMERA_MODEL = "pinhole"
 CameraLoader = Callable[[Mapping[str, Any], str], CameraModel]
 
 
-class _PinholeCamera(BaseModel):
-    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+class _PinholeCamera(FileSchema):
     image_size_px: tuple[int, int]
     K: list[list[float]]
     dist: list[float]
@@ -56,8 +55,7 @@ class _PinholeCamera(BaseModel):
     t_um: list[float]
 
 
-class _Cameras(BaseModel):
-    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+class _Cameras(FileSchema):
     format: str
     cameras: dict[str, dict[str, Any]]
 

@@ -16,6 +16,7 @@ from ..formats.json_file import read_versioned_json
 from ..formats.measurements import Measurements, read_measurements
 from ..formats.results_file import load_results
 from ..formats.run_directory import RUN_FILE_NAMES, RunDirectory
+from ..kinematics.extra_inputs import by_symbol
 from ..kinematics.models import KinematicModel
 
 __all__ = ["ModelErrors", "RunData", "load_run"]
@@ -83,11 +84,10 @@ class RunData:
             n_fit = int(validation.get("n_fit", 0))
             if not 0 < n_fit < len(m.pose):
                 continue
-            u = m.d_um
-            if len(model.inputs) > 3:
-                if m.temperature_c is None:
-                    continue
-                u = np.hstack([u, m.temperature_c[:, None]])
+            names = [by_symbol(s).name for s in model.extra_inputs]
+            if any(n not in m.extra for n in names):
+                continue  # an input the measurements do not have
+            u = np.column_stack([m.d_um, *(m.extra[n] for n in names)])
             err = np.linalg.norm(m.p_um[n_fit:] - model.predict_um(u[n_fit:]), axis=1)
             out.append(ModelErrors(kind, model, validation, m.pose[n_fit:], err))
         return out
