@@ -40,7 +40,8 @@ def compare(a: Any, b: Any, path: str, rtol: float, out: dict[str, list[str]]) -
         if len(a) != len(b):
             out["differ"].append(f"{path}: {len(a)} items vs {len(b)}")
             return 0
-        return sum(compare(x, y, f"{path}[{i}]", rtol, out) for i, (x, y) in enumerate(zip(a, b)))
+        pairs = enumerate(zip(a, b, strict=True))
+        return sum(compare(x, y, f"{path}[{i}]", rtol, out) for i, (x, y) in pairs)
     if isinstance(a, bool) or isinstance(b, bool) or isinstance(a, str) or isinstance(b, str):
         if a != b:
             out["differ"].append(f"{path}: {a!r} vs {b!r}")

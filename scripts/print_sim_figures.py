@@ -101,8 +101,8 @@ print("stepwise exact selections", exact, "/100; within 3 se", round(np.mean(w3)
 
 # Issue 4: calibration (method a) then 100 poses x 5 frames measured, against ground truth.
 import test_vision_measurement as vision_tests  # noqa: E402
-from microcal.procedures.measurement import measure_poses  # noqa: E402
 from microcal.vision.detect import detect  # noqa: E402
+from microcal.vision.measurement import measure_poses  # noqa: E402
 from microcal.vision.virtual_point import virtual_point  # noqa: E402
 
 plat_cal, cal = vision_tests.known_calibration.__wrapped__()
