@@ -79,3 +79,26 @@ def test_a_camera_with_the_wrong_frame_size_is_a_device_error():
     plan = plan_run("random", 20, 0, plat.manipulator.limits_um)
     with pytest.raises(DeviceError, match=r"camera top: frame is 1600 x 1198 px but the camera"):
         dry_run(plat.manipulator, plat.cameras, plat.scene.board, plan)
+
+
+def test_the_iso_cube_design_lies_in_the_rigs_box():
+    # ISO 9283's P1 is the centre of the box the limits span, wherever the box starts.
+    from microcal.procedures.planning import plan_run
+
+    limits = np.array([[-4000.0, 4000.0], [-500.0, 8500.0], [1000.0, 5800.0]])
+    plan = plan_run("iso-cube", 5, 0, limits)
+    np.testing.assert_allclose(plan.d_um[0], limits.mean(axis=1))
+    assert np.all(plan.d_um >= limits[:, 0])
+    assert np.all(plan.d_um <= limits[:, 1])
+
+
+def test_acquire_into_a_file_is_one_line(tmp_path):
+    target = tmp_path / "notes.txt"
+    target.write_text("mine")
+    out = run_microcal("acquire", "--rig", "sim", "--out", target, "--poses", "20")
+    assert out.returncode == 2
+    assert (
+        out.stderr.strip()
+        == f"microcal: error: --out {target}: is a file; choose a directory for the run"
+    )
+    assert target.read_text() == "mine"

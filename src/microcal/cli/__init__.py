@@ -1,8 +1,7 @@
 """The command line: ``microcal --help``.
 
-A shell around the procedures: each command parses its options, calls one procedure or
-formats function and prints. Every user error ends with one line on stderr and exit code 2,
-never a traceback. One module per command (or pair of related commands).
+A shell: each command (one module per command or pair) parses, calls one procedure or
+formats function and prints; a user error ends with one line on stderr and exit code 2.
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ _Out = Annotated[Path, Option("--out", "-o", help="Run directory to create (or r
 _Rig = Annotated[str, Option(help="'sim' or a rig TOML file.")]
 _Design = Annotated[str, Option(help="A design (see above) or a CSV of dx_um,dy_um,dz_um.")]
 _Poses = Annotated[int, Option(min=2, help="Poses of a generated design (the thesis: 170).")]
-_Seed = Annotated[int, Option(help="Seed of the design.")]
+_Seed = Annotated[int, Option(min=0, help="Seed of the design.")]
 _Resume = Annotated[bool, Option(help="Continue a run that stopped.")]
 _Settle = Annotated[str, Option(help="'vision' or 'fixed:SECONDS' (the thesis: fixed:30).")]
 _Frames = Annotated[int, Option(min=1, help="Frames stored per camera and pose.")]

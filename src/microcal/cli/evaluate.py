@@ -26,7 +26,7 @@ _Cycles = Annotated[int, Option(min=1, help="ISO 9283 cycles per pose (the stand
 _Poses = Annotated[PoseChoice, Option(help="Test poses: Table 5-2, or ISO 9283's cube P1-P5.")]
 _Frames = Annotated[int, Option(min=1, help="Frames measured per pose.")]
 _Settle = Annotated[float, Option(min=0.0, help="Wait after the device reports it stopped, s.")]
-_Seed = Annotated[int | None, Option(help="Seed of the simulated rig 'sim'.")]
+_Seed = Annotated[int | None, Option(min=0, help="Seed of the simulated rig 'sim'.")]
 _Out = Annotated[Path, Option("--out", "-o", help="results.json to write or update.")]
 
 

@@ -24,8 +24,8 @@ from typing import Self
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._validation import FloatArray, as_array
-from ..errors import DeviceError, DeviceTimeoutError, InputError, LimitError
+from .._validation import FloatArray, as_array, check_limits
+from ..errors import DeviceError, DeviceTimeoutError, InputError
 
 __all__ = ["Camera", "Clock", "Device", "Manipulator", "RealClock"]
 
@@ -155,15 +155,7 @@ class Manipulator(Device):
     def check_limits(self, d_um: ArrayLike) -> FloatArray:
         """Validate a joint command, (n_axes,) µm: shape, finiteness and the soft limits."""
         d = as_array(d_um, "d_um", (self.n_axes,))
-        lo, hi = self.limits_um[:, 0], self.limits_um[:, 1]
-        outside = np.flatnonzero((d < lo) | (d > hi))
-        if outside.size:
-            k = int(outside[0])
-            raise LimitError(
-                f"{self.name}: axis {self.axes[k]} = {d[k]:.3f} µm is outside the soft limits "
-                f"[{lo[k]:g}, {hi[k]:g}] µm; nothing was moved"
-            )
-        return d
+        return check_limits(d, self.limits_um, axes=self.axes, owner=self.name)
 
     def move_to_um(self, d_um: ArrayLike) -> None:
         """Start an absolute move of every joint, (n_axes,) µm (returns at once).

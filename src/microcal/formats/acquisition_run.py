@@ -23,6 +23,8 @@ __all__ = ["acquire_remaining", "check_out", "open_run", "plan_for"]
 
 def check_out(out: Path, resume: bool, dry_run: bool) -> None:
     """Refuse, before any device is opened, a run directory that does not fit the request."""
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out}: is a file; choose a directory for the run")
     holds_run = (out / "run.json").exists() or (out / "journal.jsonl").exists()
     if not resume and not dry_run and holds_run:
         raise InputError(

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .._validation import FloatArray
+from .._validation import FloatArray, check_limits
 from ..control.conditions import open_loop_conditions
 from ..control.feedforward import FeedForward
 from ..devices.base import Camera, Clock, Manipulator
@@ -286,15 +286,21 @@ def run_evaluation(
             return np.array([read[n]() for n in names])
 
     conditions = open_loop_conditions(manipulator, calibration, extra=read_extra)
-    probe = VisionProbe({n: cameras[n] for n in models if n in cameras}, models, board, frames)
+    used = {n: models[n] for n in cameras}  # a calibrated camera the rig lacks is not used
+    probe = VisionProbe({n: cameras[n] for n in used}, used, board, frames)
     kwargs: dict[str, Any] = {"settle_s": settle_s, "truth": truth, "progress": progress}
     parts: dict[str, Any] = {}
+    rng = calibration.joint_range_um
+    lim = manipulator.limits_um if rng is None else rng
+    poses_um = TABLE_5_2_POSES_UM if poses == "table-5-2" else iso_cube_poses(*lim.T) + lim[:, 0]
+    # Home is the zero joints; the uncompensated commands are the displacements themselves:
+    # all must lie within the soft limits, checked before anything moves.
+    planned = [np.zeros((1, 3))]
+    planned += [poses_um] if tests in ("all", "pose-accuracy") else []
+    planned += [decoupling_path()[0]] if tests in ("all", "decoupling") else []
+    check_limits(np.vstack(planned), manipulator.limits_um, row="test command",
+                 owner=f"evaluate on {manipulator.name}")  # fmt: skip
     if tests in ("all", "pose-accuracy"):
-        rng = calibration.joint_range_um
-        lim = manipulator.limits_um if rng is None else rng
-        poses_um = (
-            TABLE_5_2_POSES_UM if poses == "table-5-2" else iso_cube_poses(lim[:, 0], lim[:, 1])
-        )
         parts["pose_accuracy"] = run_pose_accuracy(
             manipulator, clock, probe, conditions, cycles=cycles, poses_um=poses_um, **kwargs
         )

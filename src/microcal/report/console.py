@@ -30,7 +30,7 @@ def print_parts(console: Console, parts: list[TextTable | str]) -> None:
         if isinstance(part, TextTable):
             print_table(console, part)
         else:
-            console.print(part, markup=False, highlight=False, soft_wrap=True)
+            console.print(part, markup=False, highlight=False, emoji=False, soft_wrap=True)
 
 
 @contextmanager
