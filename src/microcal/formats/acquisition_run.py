@@ -15,7 +15,7 @@ from ..errors import InputError
 from ..procedures.acquisition import AcquisitionConfig, RunStoppedError
 from ..procedures.acquisition import acquire as run_acquisition
 from ..procedures.planning import DESIGN_CHOICES, RunPlan, plan_run
-from .run_directory import RunWriter, read_commands
+from .run_directory import HOLDS_A_RUN, RunDirectory, RunWriter, holds_run
 from .run_manifest import new_manifest
 
 __all__ = ["acquire_remaining", "check_out", "open_run", "plan_for"]
@@ -25,11 +25,8 @@ def check_out(out: Path, resume: bool, dry_run: bool) -> None:
     """Refuse, before any device is opened, a run directory that does not fit the request."""
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: is a file; choose a directory for the run")
-    holds_run = (out / "run.json").exists() or (out / "journal.jsonl").exists()
-    if not resume and not dry_run and holds_run:
-        raise InputError(
-            f"{out}: already holds a run; use --resume to continue it or choose another --out"
-        )
+    if not resume and not dry_run and holds_run(out):
+        raise InputError(f"{out}: {HOLDS_A_RUN}")
     if resume and not (out / "run.json").exists():
         raise InputError(f"{out}: no run to resume (no run.json); start it without --resume")
 
@@ -59,8 +56,8 @@ def open_run(
     """The writer of the run, its pose numbers and commands: a new run from ``plan``, or the
     run in ``out`` resumed (it must come from the same rig and be unedited)."""
     if resume or plan is None:
-        writer = RunWriter.resume(out, rig.to_dict())
-        pose_ids, d = read_commands(out)
+        writer = RunDirectory.resume(out, rig.to_dict())
+        pose_ids, d = RunDirectory.open(out).commands()
         return writer, pose_ids, d
     manifest = new_manifest(
         rig=rig.to_dict(),
@@ -72,7 +69,7 @@ def open_run(
         store=store,
         command="acquire",
     )
-    writer = RunWriter.create(out, manifest, plan.d_um)
+    writer = RunDirectory.create(out, manifest, plan.d_um)
     return writer, list(range(1, plan.poses + 1)), plan.d_um
 
 

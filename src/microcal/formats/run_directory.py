@@ -42,10 +42,12 @@ if TYPE_CHECKING:
     from ..vision.measurement import PoseMeasurement
 
 __all__ = [
+    "HOLDS_A_RUN",
     "RUN_FILE_NAMES",
     "RUN_FORMAT",
     "RunDirectory",
     "RunWriter",
+    "holds_run",
     "read_commands",
     "write_commands",
 ]
@@ -283,6 +285,16 @@ class RunDirectory:
         return out
 
 
+#: Why a new run cannot go where a run already is (the same words before and after devices open).
+HOLDS_A_RUN = "already holds a run; use --resume to continue it or choose another --out"
+
+
+def holds_run(run_dir: str | os.PathLike[str]) -> bool:
+    """True if the directory holds a run (its manifest or journal) that a new run would replace."""
+    path = Path(run_dir)
+    return (path / MANIFEST).exists() or (path / JOURNAL).exists()
+
+
 def read_commands(run_dir: str | os.PathLike[str]) -> tuple[list[int], FloatArray]:
     """Pose numbers and joint commands (N, 3) µm of a run: ``RunDirectory(run_dir).commands()``."""
     return RunDirectory(run_dir).commands()
@@ -344,10 +356,8 @@ class RunWriter:
             The directory already holds a run, or the manifest is malformed.
         """
         path = Path(run_dir)
-        if (path / MANIFEST).exists() or (path / JOURNAL).exists():
-            raise FormatError(
-                f"{path}: already holds a run; use --resume to continue it or choose another --out"
-            )
+        if holds_run(path):
+            raise FormatError(f"{path}: {HOLDS_A_RUN}")
         body = manifest.to_json() if isinstance(manifest, RunManifest) else dict(manifest)
         body.pop("format", None)
         body.pop("commands_sha256", None)

@@ -10,7 +10,7 @@ from typing import Any
 from ..devices.rig_spec import SimRigSpec
 from ..errors import InputError
 from .calibration_file import provenance
-from .run_directory import RUN_FILE_NAMES, RunWriter
+from .run_directory import RUN_FILE_NAMES, RunDirectory, RunWriter
 
 __all__ = ["DEMO_FILES", "clear_demo_dir", "new_manifest", "start_demo_run"]
 
@@ -110,4 +110,4 @@ def start_demo_run(out: Path, seed: int, poses: int, frames: int) -> tuple[Any, 
         command="demo",
         seed=seed,
     )
-    return plat, RunWriter.create(out, manifest, demo_design(seed, poses))
+    return plat, RunDirectory.create(out, manifest, demo_design(seed, poses))
