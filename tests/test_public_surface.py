@@ -40,6 +40,14 @@ def test_import_microcal_loads_no_heavy_module(tmp_path):
     assert not _heavy(loaded), f"import microcal loads {_heavy(loaded)}"
 
 
+def test_the_command_line_starts_without_the_report_and_file_readers(tmp_path):
+    # `microcal --help` and every command's parsing: typer and rich, not what the work needs.
+    loaded = _modules_after("import microcal.cli", tmp_path)
+    slow = sorted({m.split(".")[0] for m in loaded} & {"pydantic", "matplotlib", "jinja2", "cv2",
+                                                        "scipy", "tifffile"})  # fmt: skip
+    assert not slow, f"import microcal.cli loads {slow}"
+
+
 def test_a_lazy_name_loads_what_it_needs_on_first_use(tmp_path):
     loaded = _modules_after("import microcal\nmicrocal.load_calibration", tmp_path)
     assert "pydantic" in loaded

@@ -9,11 +9,10 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..kinematics.models import KinematicModel
 from ..thesis.figures import (
     CLAIMED_ACCURACY_UM,
     DECOUPLING_UM,
@@ -22,6 +21,9 @@ from ..thesis.figures import (
     REPROJECTION_ERROR_TOP_PX,
     VALIDATION_UM,
 )
+
+if TYPE_CHECKING:
+    from ..kinematics.models import KinematicModel
 
 __all__ = [
     "TextTable",
