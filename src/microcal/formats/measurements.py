@@ -53,10 +53,14 @@ class Measurements:
     d_um: FloatArray  # (N, 3) joint commands
     p_um: FloatArray  # (N, 3) measured positions in {G}
     std_um: FloatArray | None  # (N, 3)
-    temperature_c: FloatArray | None  # (N,)
     n_failed: int
     failed_reasons: dict[int, str]
     extra: dict[str, FloatArray] = field(default_factory=dict)  # registry name -> (N,)
+
+    @property
+    def temperature_c(self) -> FloatArray | None:
+        """(N,) the ambient temperature, °C, if recorded (the registry's ``temperature``)."""
+        return self.extra.get("temperature")
 
     def extra_inputs(self, names: list[str], path: str | os.PathLike[str]) -> dict[str, FloatArray]:
         """Values of extra inputs by registry name, each recorded at every pose used.
@@ -141,9 +145,8 @@ def read_measurements(path: str | os.PathLike[str]) -> Measurements:
     std = a[:, col : col + 3] if has_std else None
     ex = np.asarray(extra_rows, dtype=np.float64).reshape(len(rows), len(extra_names))
     extra = {n: ex[:, k] for k, n in enumerate(extra_names)}
-    temp = extra.get("temperature")
     pose_ids = a[:, 0].astype(int)
-    return Measurements(pose_ids, a[:, 1:4], a[:, 4:7], std, temp, n_failed, reasons, extra)
+    return Measurements(pose_ids, a[:, 1:4], a[:, 4:7], std, n_failed, reasons, extra)
 
 
 def _extra_value(path: Path, line: int, row: dict[str, str], column: str) -> float:

@@ -43,7 +43,7 @@ __all__ = [
 
 
 def iso_cube_poses(low_um: ArrayLike, high_um: ArrayLike) -> FloatArray:
-    """The five test poses of ISO 9283's cube, as displacements from ``low_um`` (5, 3) µm.
+    """The five test poses of ISO 9283's cube in the box [low, high], (5, 3) µm.
 
     The cube is the largest one with edges along the axes, centred in the box [low, high].
     P1 is its centre; P2 to P5 lie on the diagonals of the plane through two opposite edges
@@ -58,7 +58,7 @@ def iso_cube_poses(low_um: ArrayLike, high_um: ArrayLike) -> FloatArray:
     corners = np.array([[x0, y0, z0], [x1, y0, z0], [x1, y1, z1], [x0, y1, z1]])
     centre = corners.mean(axis=0)
     pts = [centre] + [c + 0.1 * (centre - c) * 2 for c in corners]
-    return np.array(pts) - low
+    return np.array(pts)
 
 
 def decoupling_path(
@@ -292,7 +292,7 @@ def run_evaluation(
     parts: dict[str, Any] = {}
     rng = calibration.joint_range_um
     lim = manipulator.limits_um if rng is None else rng
-    poses_um = TABLE_5_2_POSES_UM if poses == "table-5-2" else iso_cube_poses(*lim.T) + lim[:, 0]
+    poses_um = TABLE_5_2_POSES_UM if poses == "table-5-2" else iso_cube_poses(*lim.T)
     # Home is the zero joints; the uncompensated commands are the displacements themselves:
     # all must lie within the soft limits, checked before anything moves.
     planned = [np.zeros((1, 3))]

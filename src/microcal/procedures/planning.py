@@ -75,7 +75,7 @@ def trajectory(name: str, limits_um: ArrayLike) -> FloatArray:
     if name == "decoupling":
         return decoupling_path()[0]
     if name == "iso-cube":
-        return iso_cube_poses(lim[:, 0], lim[:, 1]) + lim[:, 0]  # absolute joints
+        return iso_cube_poses(lim[:, 0], lim[:, 1])
     raise InputError(f"design: expected one of {list(DESIGN_CHOICES)}, got {name!r}")
 
 
