@@ -18,7 +18,7 @@ def print_table(console: Console, table: TextTable) -> None:
     """Print a :class:`~microcal.report.text_tables.TextTable`."""
     out = Table(title=table.title)
     for i, col in enumerate(table.columns):
-        out.add_column(col, justify="left" if i == 0 and col == "term" else "right")
+        out.add_column(col, justify="left" if i == 0 and table.first_left else "right")
     for row in table.rows:
         out.add_row(*row)
     console.print(out)

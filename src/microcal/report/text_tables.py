@@ -47,11 +47,12 @@ __all__ = [
 
 @dataclass
 class TextTable:
-    """A table to print: a title, column headings (all but the first right-aligned), rows."""
+    """A table to print: a title, column headings and rows (numbers right-aligned)."""
 
     title: str
     columns: list[str]
     rows: list[list[str]] = field(default_factory=list)
+    first_left: bool = False  # the first column is text (term names), read left-aligned
 
 
 def stereo_table(calibration: Any, digits: int = 4) -> TextTable:
@@ -150,6 +151,7 @@ def terms_table(model: KinematicModel) -> TextTable:
     table = TextTable(
         "Selected terms: coefficient ± standard error (µm per unit of the term)",
         ["term", "x (µm)", "y (µm)", "z (µm)"],
+        first_left=True,
     )
     for a, t in enumerate(model.terms):
         if not model.selected[:, a].any():
