@@ -52,7 +52,7 @@ def evaluate(
     from ..formats.results_file import update_results
     from ..formats.rig_file import load_rig
     from ..procedures.evaluation import run_evaluation
-    from ..report.text_tables import evaluation_tables
+    from ..report.text_tables import evaluation_tables, is_thesis_rig
 
     cal = load_calibration(calibration)
     m, models = cal.manipulator(manipulator), camera_models(cal)
@@ -64,5 +64,5 @@ def evaluate(
             truth=opened.truth, sensors=opened.sensors, progress=progress,
         )  # fmt: skip
     update_results(out, parts)
-    thesis = spec.to_dict().get("preset") == "thesis" and poses == PoseChoice.table
+    thesis = is_thesis_rig(spec.to_dict()) and poses == PoseChoice.table
     print_parts(Console(), [*evaluation_tables(parts, poses.value, thesis=thesis), f"wrote {out}"])

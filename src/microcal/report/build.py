@@ -25,6 +25,7 @@ from ..thesis.figures import (
 )
 from . import figures
 from .data import RunData, load_run
+from .text_tables import is_thesis_rig
 
 __all__ = ["build_report", "compares_with_thesis", "write_report"]
 
@@ -39,8 +40,7 @@ def compares_with_thesis(data: RunData) -> bool:
     its figures are comparable; a hardware rig, another preset or a run whose rig is not
     recorded (no run.json) is reported on its own.
     """
-    rig = data.rig or {}
-    return rig.get("driver") == "sim" and rig.get("preset") == "thesis"
+    return is_thesis_rig(data.rig)
 
 
 def _rig_text(data: RunData) -> str:

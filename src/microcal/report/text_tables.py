@@ -35,6 +35,7 @@ __all__ = [
     "evaluation_tables",
     "fit_lines",
     "identification_table",
+    "is_thesis_rig",
     "measurement_lines",
     "pose_accuracy_table",
     "solution_lines",
@@ -43,6 +44,16 @@ __all__ = [
     "terms_table",
     "validation_lines",
 ]
+
+
+def is_thesis_rig(rig: Mapping[str, Any] | None) -> bool:
+    """Whether a rig's record (run.json's ``rig``, a spec's ``to_dict()``) is the thesis's.
+
+    Only the simulator's ``thesis`` preset reproduces the thesis's platform, so only its
+    figures are comparable with the thesis's; any other rig is reported on its own.
+    """
+    rig = rig or {}
+    return rig.get("driver") == "sim" and rig.get("preset") == "thesis"
 
 
 @dataclass
