@@ -72,6 +72,7 @@ BAD_INVOCATIONS = [
     (["acquire", "--out", "{tmp}/r", "--rig", "{tmp}/rig.toml"], "no such file"),
     (["acquire", "--out", "{tmp}/r", "--rig", "{bad}"], "not valid TOML"),
     (["acquire", "--out", "{tmp}/r", "--design", "{tmp}/none.csv"], "none.csv"),
+    (["acquire", "--out", "{tmp}/r", "--design", "rnadom"], "not a design (random, sobol,"),
     (["acquire", "--out", "{tmp}/r", "--settle", "soon"], "--settle"),
     (["acquire", "--out", "{tmp}/r", "--store", "some"], "--store"),
     (["acquire", "--out", "{tmp}/r", "--poses", "1"], "Invalid value for '--poses'"),

@@ -39,6 +39,10 @@ def plan_for(
         return plan_run(design, poses, seed, limits_um, axes=axes)
     from .commands_csv import read_joint_csv
 
+    if not Path(design).exists():
+        raise InputError(
+            f"--design {design}: not a design ({', '.join(DESIGN_CHOICES)}) and no such file"
+        )
     commands = read_joint_csv(Path(design), what="--design")[1]
     return plan_run("file", poses, seed, limits_um, axes=axes, commands_um=commands)
 
