@@ -264,3 +264,32 @@ def test_a_new_model_kind_is_one_loader_entry(tmp_path, monkeypatch):
     models = load_cameras(write_cameras(tmp_path / "cameras.json", data))
     assert [m.kind for m in models.values()] == ["pinhole", "pinhole", "affine"]
     np.testing.assert_array_equal(models["tele"].P, tele.P)
+
+
+@pytest.mark.parametrize("n_coef", [8, 12, 14])
+def test_cameras_json_keeps_every_opencv_distortion_model(tmp_path, n_coef):
+    """A camera calibrated with OpenCV's rational, thin-prism or tilted model keeps them all."""
+    dist = np.array([-0.37, 0.24, 5e-4, -5e-4, -0.13, 0.012, -0.008, 0.004,
+                     1.2e-3, -8e-4, -1.1e-3, 6e-4, 0.012, -0.009])[:n_coef]  # fmt: skip
+    cams = {
+        c.name: CameraCalibration(c, 0.05, {"v1": 0.05}, 1, residuals_px={"v1": np.zeros((3, 4))})
+        for c in thesis_cameras(dist, DIST_SIDE)
+    }
+    cal = StereoCalibration("known-displacements", cams, 0.06, 123456.0)
+    path = write_cameras(tmp_path / "cameras.json", cameras_to_dict(cal, {}))
+    assert len(json.loads(path.read_text())["cameras"]["top"]["dist"]) == n_coef
+    models = load_cameras(path)
+    assert_same_models(models, cal.models())
+    assert models["top"].dist.shape == (n_coef,)
+    assert models["side"].dist.shape == (5,)
+    p = random_points(np.random.default_rng(n_coef), 100)
+    np.testing.assert_array_equal(models["top"].project(p), cal.models()["top"].project(p))
+
+
+def test_cameras_json_refuses_a_distortion_of_another_length(tmp_path):
+    data = cameras_to_dict(stereo_calibration(), {})
+    data["cameras"]["top"]["dist"] = [0.1] * 6
+    with pytest.raises(
+        FormatError, match=r"cameras\.top: dist: expected 4, 5, 8, 12 or 14 coefficients .*, got 6$"
+    ):
+        load_cameras(write_cameras(tmp_path / "cameras.json", data))

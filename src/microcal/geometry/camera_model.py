@@ -1,10 +1,23 @@
 """The pinhole camera with lens distortion of thesis Eq 3.3-3.6.
 
 A point ``p`` in the world frame (µm) goes to the camera frame by ``c = R p + t``, to
-normalised image coordinates ``(x, y) = (c_x / c_z, c_y / c_z)``, through the lens distortion
-(radial k1, k2, k3 and tangential p1, p2, the model OpenCV uses), and to pixels by the
-intrinsic matrix ``K = [[fx, s, cx], [0, fy, cy], [0, 0, 1]]``. Without distortion this is
-``q ~ P [p; 1]`` with ``P = K [R | t]`` (Eq 3.6).
+normalised image coordinates ``(x, y) = (c_x / c_z, c_y / c_z)``, through the lens distortion,
+and to pixels by the intrinsic matrix ``K = [[fx, s, cx], [0, fy, cy], [0, 0, 1]]``. Without
+distortion this is ``q ~ P [p; 1]`` with ``P = K [R | t]`` (Eq 3.6).
+
+The lens distortion is OpenCV's, with its coefficients in its order
+``k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2, s3, s4[, tau_x, tau_y]]]]`` (4, 5, 8, 12 or 14 of
+them). With ``r2 = x^2 + y^2``:
+
+- radial (rational with 8 or more): ``(1 + k1 r2 + k2 r4 + k3 r6) / (1 + k4 r2 + k5 r4 + k6 r6)``
+  multiplies ``(x, y)``;
+- tangential: ``x += 2 p1 x y + p2 (r2 + 2 x^2)``, ``y += p1 (r2 + 2 y^2) + 2 p2 x y``;
+- thin prism (12 or more): ``x += s1 r2 + s2 r4``, ``y += s3 r2 + s4 r4``;
+- tilted sensor (14): the distorted point goes through the homography of OpenCV's
+  ``computeTiltProjectionMatrix`` (rotations about x by tau_x and about y by tau_y, then the
+  projection matrix OpenCV builds from their product) before K.
+
+The thesis's cameras use the first five (the thesis's Eq 3.3-3.5).
 """
 
 from __future__ import annotations
@@ -18,9 +31,69 @@ from numpy.typing import ArrayLike
 from .._validation import FloatArray, as_array, as_rows
 from ..errors import InputError
 
-__all__ = ["CameraModel", "distort_normalized", "undistort_normalized"]
+__all__ = [
+    "DIST_LENGTHS",
+    "CameraModel",
+    "distort_normalized",
+    "tilt_matrix",
+    "undistort_normalized",
+]
 
 _ORTHONORMAL_TOL = 1e-9
+
+#: The numbers of distortion coefficients OpenCV's models have; 4 is stored as 5.
+DIST_LENGTHS = (4, 5, 8, 12, 14)
+_DIST_ORDER = "k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2, s3, s4[, tau_x, tau_y]]]]"
+
+
+def _dist_expected(lengths: tuple[int, ...]) -> str:
+    counts = ", ".join(str(n) for n in lengths[:-1]) + f" or {lengths[-1]}"
+    return f"{counts} coefficients ({_DIST_ORDER})"
+
+
+def _as_dist(value: ArrayLike) -> FloatArray:
+    """The distortion coefficients as a float array of an OpenCV length; 4 padded to 5."""
+    try:
+        dist = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(
+            f"dist: expected {_dist_expected(DIST_LENGTHS)}, got {type(value).__name__}"
+        ) from None
+    if dist.ndim != 1 or dist.shape[0] not in DIST_LENGTHS:
+        got = f"{dist.shape[0]}" if dist.ndim == 1 else f"shape {dist.shape}"
+        raise InputError(f"dist: expected {_dist_expected(DIST_LENGTHS)}, got {got}")
+    if dist.shape == (4,):
+        dist = np.append(dist, 0.0)
+    return as_array(dist, "dist", dist.shape)
+
+
+def tilt_matrix(tau_x: float, tau_y: float) -> FloatArray:
+    """The homography of a tilted sensor, as OpenCV's ``computeTiltProjectionMatrix``.
+
+    Parameters
+    ----------
+    tau_x, tau_y : float
+        The sensor's tilt about the x and the y axis, rad.
+
+    Returns
+    -------
+    H : (3, 3) float
+        ``[x_t, y_t, w] = H [x_d, y_d, 1]`` takes a distorted normalised point to the tilted
+        sensor's ``(x_t / w, y_t / w)``; the identity for no tilt.
+    """
+    c_x, s_x = np.cos(tau_x), np.sin(tau_x)
+    c_y, s_y = np.cos(tau_y), np.sin(tau_y)
+    rot_x = np.array([[1.0, 0.0, 0.0], [0.0, c_x, s_x], [0.0, -s_x, c_x]])
+    rot_y = np.array([[c_y, 0.0, -s_y], [0.0, 1.0, 0.0], [s_y, 0.0, c_y]])
+    rot_xy = rot_y @ rot_x
+    proj_z = np.array(
+        [
+            [rot_xy[2, 2], 0.0, -rot_xy[0, 2]],
+            [0.0, rot_xy[2, 2], -rot_xy[1, 2]],
+            [0.0, 0.0, 1.0],
+        ]
+    )
+    return np.asarray(proj_z @ rot_xy, dtype=np.float64)
 
 
 def distort_normalized(xy: FloatArray, dist: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -30,23 +103,38 @@ def distort_normalized(xy: FloatArray, dist: FloatArray) -> tuple[FloatArray, Fl
     ----------
     xy : (N, 2) float
         Ideal normalised coordinates (x, y) = (c_x / c_z, c_y / c_z).
-    dist : (5,) float
-        k1, k2, p1, p2, k3.
+    dist : (5,), (8,), (12,) or (14,) float
+        OpenCV's coefficients in its order: k1, k2, p1, p2, k3, then k4, k5, k6 (rational
+        radial), then s1, s2, s3, s4 (thin prism), then tau_x, tau_y (tilted sensor, rad).
 
     Returns
     -------
     xy_d : (N, 2) float
-        Distorted normalised coordinates.
+        Distorted normalised coordinates (on the tilted sensor with 14 coefficients).
     jac : (N, 2, 2) float
         d xy_d / d xy.
+
+    Raises
+    ------
+    InputError
+        ``dist`` has another number of coefficients.
     """
-    k1, k2, p1, p2, k3 = dist
+    n_coef = len(dist)
+    if n_coef not in DIST_LENGTHS[1:]:
+        raise InputError(f"dist: expected {_dist_expected(DIST_LENGTHS[1:])}, got {n_coef}")
+    k1, k2, p1, p2, k3 = dist[:5]
     x = xy[:, 0]
     y = xy[:, 1]
     xx, yy, xy_ = x * x, y * y, x * y
     r2 = xx + yy
     radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
     dradial = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d radial / d r2
+    if n_coef >= 8:  # rational radial: divide by 1 + k4 r2 + k5 r4 + k6 r6
+        k4, k5, k6 = dist[5:8]
+        den = 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))
+        dden = k4 + r2 * (2.0 * k5 + 3.0 * k6 * r2)
+        radial = radial / den
+        dradial = (dradial - radial * dden) / den
     out = np.empty_like(xy)
     out[:, 0] = x * radial + 2.0 * p1 * xy_ + p2 * (r2 + 2.0 * xx)
     out[:, 1] = y * radial + p1 * (r2 + 2.0 * yy) + 2.0 * p2 * xy_
@@ -56,6 +144,29 @@ def distort_normalized(xy: FloatArray, dist: FloatArray) -> tuple[FloatArray, Fl
     jac[:, 0, 1] = cross
     jac[:, 1, 0] = cross
     jac[:, 1, 1] = radial + 2.0 * yy * dradial + 6.0 * p1 * y + 2.0 * p2 * x
+    if n_coef >= 12:  # thin prism
+        s1, s2, s3, s4 = dist[8:12]
+        r4 = r2 * r2
+        out[:, 0] += s1 * r2 + s2 * r4
+        out[:, 1] += s3 * r2 + s4 * r4
+        gx = 2.0 * (s1 + 2.0 * s2 * r2)  # d (s1 r2 + s2 r4) / d r2, times 2
+        gy = 2.0 * (s3 + 2.0 * s4 * r2)
+        jac[:, 0, 0] += gx * x
+        jac[:, 0, 1] += gx * y
+        jac[:, 1, 0] += gy * x
+        jac[:, 1, 1] += gy * y
+    if n_coef == 14:  # tilted sensor: the homography of OpenCV's computeTiltProjectionMatrix
+        H = tilt_matrix(float(dist[12]), float(dist[13]))
+        xd0 = out[:, 0].copy()
+        yd0 = out[:, 1].copy()
+        inv_w = 1.0 / (H[2, 0] * xd0 + H[2, 1] * yd0 + H[2, 2])
+        out[:, 0] = (H[0, 0] * xd0 + H[0, 1] * yd0 + H[0, 2]) * inv_w
+        out[:, 1] = (H[1, 0] * xd0 + H[1, 1] * yd0 + H[1, 2]) * inv_w
+        tilt = np.empty_like(jac)  # d out / d (xd0, yd0)
+        for i in range(2):
+            for j in range(2):
+                tilt[:, i, j] = (H[i, j] - out[:, i] * H[2, j]) * inv_w
+        jac = tilt @ jac
     return out, jac
 
 
@@ -73,8 +184,8 @@ def undistort_normalized(
     ----------
     xy_d : (N, 2) float
         Distorted normalised coordinates.
-    dist : (5,) float
-        k1, k2, p1, p2, k3.
+    dist : (5,), (8,), (12,) or (14,) float
+        The coefficients of :func:`distort_normalized`.
     scale_px : (2, 2) float
         The linear part of K (``[[fx, s], [0, fy]]``): the convergence test is done in pixels.
     tol_px : float
@@ -127,8 +238,10 @@ class CameraModel:
     ----------
     K : (3, 3) float
         Intrinsic matrix ``[[fx, s, cx], [0, fy, cy], [0, 0, 1]]`` in pixels; fx, fy > 0.
-    dist : (4,) or (5,) float
-        Distortion k1, k2, p1, p2 and optionally k3 (OpenCV's order); stored as (5,).
+    dist : (4,), (5,), (8,), (12,) or (14,) float
+        Distortion in OpenCV's order, k1, k2, p1, p2[, k3[, k4, k5, k6[, s1, s2, s3, s4[,
+        tau_x, tau_y]]]] (see :func:`distort_normalized`); 4 are stored as 5 (k3 = 0), the
+        other lengths as given.
     R : (3, 3) float
         Rotation from the world frame {G} into the camera frame; orthonormal, det +1.
     t_um : (3,) float
@@ -162,10 +275,7 @@ class CameraModel:
             )
         if not (K[0, 0] > 0 and K[1, 1] > 0):
             raise InputError(f"K: expected fx > 0 and fy > 0, got fx={K[0, 0]}, fy={K[1, 1]}")
-        dist = np.asarray(self.dist, dtype=np.float64)
-        if dist.shape == (4,):
-            dist = np.append(dist, 0.0)
-        dist = as_array(dist, "dist", (5,))
+        dist = _as_dist(self.dist)
         R = as_array(self.R, "R", (3, 3))
         ortho = float(np.abs(R @ R.T - np.eye(3)).max())
         if ortho > _ORTHONORMAL_TOL or np.linalg.det(R) < 0:
@@ -201,8 +311,8 @@ class CameraModel:
             Projection matrix, any scale and sign.
         image_size_px : (int, int)
             Width and height.
-        dist : (4,) or (5,) float, optional
-            Distortion; zero by default.
+        dist : (4,), (5,), (8,), (12,) or (14,) float, optional
+            Distortion in OpenCV's order, as the class takes it; five zeros by default.
         """
         from .projection_matrix import decompose_projection_matrix
 
