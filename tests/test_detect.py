@@ -77,3 +77,14 @@ def test_no_target_is_a_result_with_a_reason():
     assert not det.found
     assert "expected 100" in det.reason
     assert not detect(blank, target, roi=(900, 900, 1000, 1000)).found
+
+
+@pytest.mark.parametrize("turn_deg", [0.0, 90.0, 180.0, 270.0])
+def test_odd_by_even_chessboard_is_numbered_from_its_own_origin_however_turned(turn_deg):
+    # 5 x 4 inner corners: the squares' colours tell every turn apart.
+    R, _ = cv2.Rodrigues(np.deg2rad([0.0, 0.0, turn_deg]))
+    target, image, truth = view("chessboard:5x4:500", R=R, t=(5000.0, 4500.0, 1500.0))
+    det = detect(image, target)
+    assert det.found, det.reason
+    # Metric: worst distance of each numbered corner to the true projection of that corner.
+    assert np.linalg.norm(det.q_px - truth[det.ids], axis=1).max() < 0.6

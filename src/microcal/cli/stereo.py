@@ -16,24 +16,25 @@ _Images = Annotated[list[str], Option(help="CAMERA=GLOB, once per camera; views 
 _Out = Annotated[Path, Option("--out", "-o", help="cameras.json to write.")]
 _Steps = Annotated[Path | None, Option(help="CSV dx_um,dy_um,dz_um: steps per view (method a).")]
 _Reference = Annotated[int, Option(help="Method b: the view that defines {V}.")]
+_Lens = Annotated[str, Option(help="Method b: auto (by held-out error) or radial1 ... tilted.")]
 
 
 @app.command("stereo-calibrate", short_help="Calibrate two cameras from images of a target.")
 def stereo_calibrate(
     target: _Target, images: _Images, out: _Out = Path("cameras.json"),
-    known_displacements: _Steps = None, reference_view: _Reference = 0,
+    known_displacements: _Steps = None, reference_view: _Reference = 0, lens_model: _Lens = "auto",
 ) -> None:  # fmt: skip
     """Calibrate two cameras from images of a target.
 
     With --known-displacements the thesis's method (target at known positions, DLT per
     camera, refined with distortion); without, unknown target poses (per-camera then stereo
-    calibration). Multi-page TIFFs are averaged per view.
+    calibration, each camera's lens model chosen by held-out error). Multi-page TIFFs are
+    averaged per view.
 
     Example: microcal stereo-calibrate --target dotgrid:40x30:250 --images top='cal/top_*.tiff'
     --images side='cal/side_*.tiff' --known-displacements cal/steps.csv --out cameras.json
     """
-    from ..formats.calibration_file import provenance
-    from ..formats.cameras_file import cameras_to_dict, write_cameras
+    from ..formats.cameras_file import save_stereo_calibration
     from ..formats.commands_csv import read_joint_csv
     from ..formats.images import read_frames
     from ..formats.options import parse_images
@@ -47,13 +48,9 @@ def stereo_calibrate(
     disp = None
     if known_displacements is not None:
         disp = read_joint_csv(known_displacements, what="--known-displacements", rows=n_views)[1]
-    with Console(stderr=True).status("detecting the target ..."):
+    with Console(stderr=True).status("detecting the target and calibrating ..."):
         cal = calibrate_views({cam: [f.name for f in fs] for cam, fs in files.items()},
-                              lambda cam, i: read_frames(files[cam][i]), tgt,
-                              displacements_um=disp, reference_view=reference_view)  # fmt: skip
-    inputs = {f"{cam}/{f.name}": f for cam, fs in files.items() for f in fs}
-    if known_displacements:
-        inputs["displacements"] = known_displacements
-    prov = provenance(inputs, command="stereo-calibrate", target=tgt.spec)
-    write_cameras(out, cameras_to_dict(cal, prov))
+                              lambda cam, i: read_frames(files[cam][i]), tgt, displacements_um=disp,
+                              reference_view=reference_view, lens_model=lens_model)  # fmt: skip
+    save_stereo_calibration(out, cal, files, known_displacements, tgt.spec)
     print_parts(Console(), stereo_lines(cal, out))

@@ -19,6 +19,7 @@ from pydantic import ValidationError
 
 from ..errors import FormatError, InputError
 from ..geometry.camera_model import CameraModel
+from ..vision.calibration_diagnostics import CameraDiagnostics
 from ..vision.stereo_calibration import StereoCalibration
 from .atomic import write_text_atomic
 from .json_file import FileSchema, read_versioned_json, validation_message
@@ -32,6 +33,7 @@ __all__ = [
     "load_cameras",
     "models_from_dict",
     "read_cameras",
+    "save_stereo_calibration",
     "write_cameras",
 ]
 
@@ -89,17 +91,71 @@ def cameras_to_dict(cal: StereoCalibration, provenance: dict[str, Any]) -> dict[
             "std": c.std,
             "residuals_px": {view: np.round(r, 4).tolist() for view, r in c.residuals_px.items()},
         }
+        if c.lens_model:
+            cameras[name]["lens_model"] = c.lens_model
+        if c.diagnostics is not None:
+            cameras[name]["diagnostics"] = _diagnostics_to_dict(c.diagnostics)
     return {
         "format": CAMERAS_FORMAT,
         "cameras": cameras,
-        "stereo": {"method": cal.method, "rms_px": cal.rms_px, "baseline_um": cal.baseline_um},
+        "stereo": {
+            "method": cal.method,
+            "rms_px": cal.rms_px,
+            "baseline_um": cal.baseline_um,
+            "angle_deg": cal.angle_deg,
+            "turned_views": cal.turned_views,
+            "views_rejected": cal.views_rejected,
+            "notes": cal.notes,
+        },
         "provenance": provenance,
+    }
+
+
+def _finite(value: float) -> float | None:
+    return float(value) if np.isfinite(value) else None
+
+
+def _diagnostics_to_dict(d: CameraDiagnostics) -> dict[str, Any]:
+    half = d.split_half
+    return {
+        "std_intrinsics": d.std_intrinsics,
+        "uncertainty_px": d.uncertainty_px,
+        "uncertainty_map_px": np.round(d.uncertainty_map_px, 4).tolist(),
+        "split_half": None
+        if half is None
+        else {
+            "rms_diff_px": half.rms_diff_px,
+            "max_diff_px": half.max_diff_px,
+            "observed_rms_diff_px": half.observed_rms_diff_px,
+            "predicted_px": half.predicted_px,
+            "ratio": _finite(half.ratio),
+            "flags": half.flags,
+        },
+        "coverage": d.coverage,
+        "verdict": d.verdict,
     }
 
 
 def write_cameras(path: str | os.PathLike[str], data: dict[str, Any]) -> Path:
     """Write cameras.json atomically."""
     return write_text_atomic(path, json.dumps(data, indent=1, allow_nan=False) + "\n")
+
+
+def save_stereo_calibration(
+    path: str | os.PathLike[str],
+    cal: StereoCalibration,
+    images: Mapping[str, list[Path]],
+    displacements: Path | None,
+    target_spec: str,
+) -> Path:
+    """Write a stereo calibration to cameras.json with its provenance (each image's hash)."""
+    from .calibration_file import provenance
+
+    inputs: dict[str, Path] = {f"{cam}/{f.name}": f for cam, fs in images.items() for f in fs}
+    if displacements is not None:
+        inputs["displacements"] = displacements
+    prov = provenance(inputs, command="stereo-calibrate", target=target_spec)
+    return write_cameras(path, cameras_to_dict(cal, prov))
 
 
 def models_from_dict(data: dict[str, Any], where: str = "cameras") -> dict[str, CameraModel]:

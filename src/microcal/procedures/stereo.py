@@ -12,8 +12,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._validation import FloatArray
-from ..errors import FormatError
+from ..errors import FormatError, InputError
 from ..vision.detect import Detection, detect, to_gray
+from ..vision.lens_models import lens_model as named_lens_model
 from ..vision.stereo_calibration import (
     StereoCalibration,
     calibrate_known_displacements,
@@ -33,6 +34,7 @@ def calibrate_views(
     *,
     displacements_um: FloatArray | None = None,
     reference_view: int = 0,
+    lens_model: str = "auto",
     progress: Callable[[int, int], None] | None = None,
 ) -> StereoCalibration:
     """Detect the target in every view of every camera and calibrate.
@@ -47,7 +49,17 @@ def calibrate_views(
         Known displacements: method (a). Without them: method (b).
     reference_view : int
         For method (b): the view whose target frame becomes {V}.
+    lens_model : str
+        For method (b): ``"auto"`` (chosen per camera by held-out error) or a model's name
+        (:data:`~microcal.vision.lens_models.LENS_MODELS`).
     """
+    if lens_model != "auto":
+        named_lens_model(lens_model)  # an unknown name fails before any image is read
+        if displacements_um is not None:
+            raise InputError(
+                "--lens-model: the known-displacement method (a) fixes its own lens model; "
+                "leave --lens-model out or calibrate from tilted views (method b)"
+            )
     detections: dict[str, list[Detection]] = {}
     sizes: dict[str, tuple[int, int]] = {}
     total = sum(len(v) for v in names.values())
@@ -76,4 +88,6 @@ def calibrate_views(
             raise FormatError(f"camera {cam}: none of its images could be read")
     if displacements_um is not None:
         return calibrate_known_displacements(detections, names, target, displacements_um, sizes)
-    return calibrate_unknown_poses(detections, names, target, sizes, reference_view=reference_view)
+    return calibrate_unknown_poses(
+        detections, names, target, sizes, reference_view=reference_view, lens_model=lens_model
+    )

@@ -67,15 +67,31 @@ class TextTable:
 
 
 def stereo_table(calibration: Any, digits: int = 4) -> TextTable:
-    """Per camera: RMS, views used and rejected, focal lengths (a ``StereoCalibration``)."""
+    """Per camera: RMS, views used and rejected, focal lengths, lens model and its held-out
+    RMS, projection uncertainty (a ``StereoCalibration``)."""
     table = TextTable(
         f"Stereo calibration ({calibration.method})",
-        ["camera", "RMS px", "views used", "rejected", "fx px", "fy px"],
+        [
+            "camera",
+            "RMS px",
+            "views used",
+            "rejected",
+            "fx px",
+            "fy px",
+            "lens model",
+            "held-out px",
+            "uncertainty px",
+        ],
     )
     for name, c in calibration.cameras.items():
+        lens = c.lens_model.get("name", "") if c.lens_model else ""
+        chosen = [d for d in c.lens_model.get("candidates", []) if d["name"] == lens]
+        h = chosen[0]["held_out_rms_px"] if chosen else None
+        held = "" if h is None else f"{h:.{digits}f}"
+        sigma = f"{c.diagnostics.uncertainty_px['corners']:.3f}" if c.diagnostics else ""
         table.rows.append([name, f"{c.rms_px:.{digits}f}", str(c.views_used),
                            str(len(c.views_rejected)), f"{c.model.K[0, 0]:.1f}",
-                           f"{c.model.K[1, 1]:.1f}"])  # fmt: skip
+                           f"{c.model.K[1, 1]:.1f}", lens or "fixed", held, sigma])  # fmt: skip
     return table
 
 
@@ -287,9 +303,21 @@ def stereo_lines(calibration: Any, out: Path) -> list[TextTable | str]:
     lines: list[TextTable | str] = [stereo_table(calibration)]
     for name, c in calibration.cameras.items():
         lines += [f"rejected {name} {r['image']}: {r['reason']}" for r in c.views_rejected]
+        if c.lens_model:
+            lines.append(f"lens model of {name}: {c.lens_model['reason']}")
+        if c.diagnostics:
+            lines += [f"{name} is limited by: {v}" for v in c.diagnostics.verdict]
+    lines += [
+        f"turned the numbering of {t['camera']} {t['image']} by {t['turn_deg']} deg to agree "
+        "with the other camera (the board looks the same turned)"
+        for t in calibration.turned_views
+    ]
+    lines += [f"left out of the stereo step {r['view']}: {r['reason']}"
+              for r in calibration.views_rejected]  # fmt: skip
+    lines += [f"warning: {n}" for n in calibration.notes]
     lines.append(
-        f"baseline {calibration.baseline_um:.0f} µm; stereo RMS {calibration.rms_px:.4f} px; "
-        f"wrote {out}"
+        f"baseline {calibration.baseline_um:.0f} µm; angle between the cameras "
+        f"{calibration.angle_deg:.2f} deg; stereo RMS {calibration.rms_px:.4f} px; wrote {out}"
     )
     return lines
 

@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 
 from .._validation import FloatArray
 from ..errors import InputError
+from .board_symmetry import turn_ids
 from .targets import Target
 
 __all__ = ["Detection", "detect", "to_gray", "window_px"]
@@ -101,12 +102,43 @@ def _homography_rms(target: Target, ids: NDArray[np.intp], q: FloatArray) -> flo
     return float(np.sqrt(np.mean(np.sum((proj - q) ** 2, axis=1))))
 
 
-def _canonical_order(corners: FloatArray, cols: int, rows: int) -> FloatArray:
-    """Reverse OpenCV's order if the first row runs towards -x in the image."""
-    grid = corners.reshape(rows, cols, 2)
-    if grid[0, -1, 0] - grid[0, 0, 0] < 0:
-        grid = grid[::-1, ::-1]
-    return grid.reshape(-1, 2)
+def _colour_score(gray: NDArray[np.float32], grid: FloatArray) -> float:
+    """Sum of the inner squares' grey levels with alternating signs, square (0, 0) positive.
+
+    Negative when square (0, 0), between corners 0, 1, COLS and COLS + 1, is the dark one:
+    the colour convention of :mod:`microcal.vision.targets`.
+    """
+    centres = 0.25 * (grid[:-1, :-1] + grid[1:, :-1] + grid[:-1, 1:] + grid[1:, 1:])
+    h, w = gray.shape
+    x = np.clip(np.rint(centres[..., 0]).astype(int), 0, w - 1)
+    y = np.clip(np.rint(centres[..., 1]).astype(int), 0, h - 1)
+    levels = gray[y, x].astype(np.float64)
+    b, a = np.indices(levels.shape)
+    return float(np.sum(np.where((a + b) % 2 == 0, 1.0, -1.0) * (levels - levels.mean())))
+
+
+def _orient(gray: NDArray[np.float32], corners: FloatArray, target: Target) -> FloatArray:
+    """Number the corners from the board's own origin, as far as the picture can tell.
+
+    Of the turns that map the grid onto itself, those whose square (0, 0) has the wrong
+    colour are left out (that decides an odd x even board); of the rest (the turns of
+    :func:`~microcal.vision.board_symmetry.ambiguous_turns`), the one whose first row runs
+    most nearly towards +x in the image is taken. Which of those is right is for the
+    stereo geometry to decide (:mod:`microcal.vision.view_consistency`).
+    """
+    cols, rows = target.pattern_size
+    best: tuple[float, FloatArray] | None = None
+    for turn in (0, 90, 180, 270) if cols == rows else (0, 180):
+        q = np.empty_like(corners)
+        q[turn_ids(target, turn)] = corners
+        grid = q.reshape(rows, cols, 2)
+        if _colour_score(gray, grid) > 0:
+            continue
+        direction = grid[0, -1] - grid[0, 0]
+        along_x = float(direction[0] / max(float(np.linalg.norm(direction)), 1e-12))
+        if best is None or along_x > best[0]:
+            best = (along_x, q)
+    return corners if best is None else best[1]
 
 
 def _detect_chessboard(gray: NDArray[np.float32], target: Target) -> Detection:
@@ -121,7 +153,7 @@ def _detect_chessboard(gray: NDArray[np.float32], target: Target) -> Detection:
         if not found:
             return Detection.none(f"no {size[0]}x{size[1]} chessboard found")
     q = corners.reshape(-1, 2).astype(np.float64)
-    q = _canonical_order(q, *size)
+    q = _orient(gray, q, target)
     spacing = np.linalg.norm(np.diff(q.reshape(size[1], size[0], 2), axis=1), axis=2)
     half = window_px(float(np.median(spacing)))
     if method == "classic":

@@ -8,12 +8,18 @@ Two methods, both for any number of cameras seeing the same target:
     non-coplanar points, decomposition (Eq 3.16), then a non-linear refinement of the whole
     camera model with the distortion of Eq 3.3 (OpenCV's solver with the DLT as start).
 (b) :func:`calibrate_unknown_poses`: the target is held in unknown poses. Each camera is
-    calibrated alone (OpenCV, full distortion model), then the cameras are related by stereo
-    calibration with those intrinsics fixed; {V} is the target's frame in a chosen reference
+    calibrated alone, its lens model chosen by held-out error
+    (:mod:`~microcal.vision.lens_models`) and diagnosed
+    (:mod:`~microcal.vision.calibration_diagnostics`); the corner numbering of a board
+    that looks the same turned is made to agree between the cameras by the stereo geometry
+    (:mod:`~microcal.vision.view_consistency`); then the cameras are related by stereo
+    calibration with those intrinsics fixed. {V} is the target's frame in a chosen reference
     view.
 
 Views whose reprojection error stands out (above 3x the median view and 0.15 px) are
-rejected and reported with the reason, and the cameras are calibrated again without them.
+rejected and reported with the reason, and the cameras are calibrated again without them;
+so are view pairs whose relative pose disagrees with the others' and pairs that stand out in
+the stereo solve.
 """
 
 from __future__ import annotations
@@ -28,8 +34,13 @@ import numpy as np
 from .._validation import FloatArray
 from ..errors import DegenerateDataError, InputError
 from ..geometry import CameraModel, decompose_projection_matrix, estimate_projection_matrix
+from .board_symmetry import ambiguous_turns, turn_ids
+from .calibration_diagnostics import CameraDiagnostics, diagnose
 from .detect import Detection
+from .lens_models import LENS_MODELS, LensModelChoice, choose_lens_model
+from .lens_models import lens_model as named_lens_model
 from .targets import Target
+from .view_consistency import resolve_turns
 
 __all__ = [
     "CameraCalibration",
@@ -42,9 +53,8 @@ __all__ = [
 OUTLIER_FACTOR = 3.0
 #: ... and this many pixels.
 OUTLIER_FLOOR_PX = 0.15
-#: Method (b) estimates k1 only: with the narrow field of a microscope, k2, k3 and the
-#: tangential terms trade off against the principal point and are not observable.
-UNKNOWN_POSE_FLAGS = cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST
+#: Common ids a view pair needs to enter the stereo solve.
+MIN_COMMON_POINTS = 6
 
 
 @dataclass
@@ -60,6 +70,11 @@ class CameraCalibration:
     residuals_px: dict[str, FloatArray] = field(default_factory=dict)
     """Per used view, (N, 4): detected x, y and reprojection residual dx, dy (projected
     minus detected), px."""
+    lens_model: dict[str, object] = field(default_factory=dict)
+    """Method (b): ``name``, ``reason``, ``field_of_view_deg`` and the ``candidates`` tried
+    (each with its training and held-out RMS)."""
+    diagnostics: CameraDiagnostics | None = None
+    """Method (b): uncertainty, split-half check, coverage and verdict."""
 
 
 @dataclass
@@ -70,10 +85,26 @@ class StereoCalibration:
     cameras: dict[str, CameraCalibration]
     rms_px: float
     baseline_um: float
+    turned_views: list[dict[str, Any]] = field(default_factory=list)
+    """Images whose corner numbering was turned to agree with the first camera's in the same
+    view (a symmetric board): ``image``, ``camera``, ``turn_deg``."""
+    views_rejected: list[dict[str, str]] = field(default_factory=list)
+    """View pairs left out of the stereo solve: ``view`` (both images) and ``reason``."""
+    notes: list[str] = field(default_factory=list)
+    """Warnings about the calibration as a whole, one sentence each."""
 
     def models(self) -> dict[str, CameraModel]:
         """The camera models by name."""
         return {name: c.model for name, c in self.cameras.items()}
+
+    @property
+    def angle_deg(self) -> float:
+        """Angle between the first two cameras' optical axes' frames (rotation angle), deg."""
+        models = list(self.models().values())
+        if len(models) < 2:
+            return 0.0
+        R = models[1].R @ models[0].R.T
+        return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
 
 
 def _camera_model(
@@ -83,9 +114,10 @@ def _camera_model(
     K = np.asarray(K, dtype=np.float64).copy()
     K[1, 0] = K[2, 0] = K[2, 1] = 0.0
     K[2, 2] = 1.0
-    d = np.zeros(5)
     flat = np.asarray(dist, dtype=np.float64).ravel()
-    d[: min(5, flat.size)] = flat[:5]
+    n = next((k for k in (5, 8, 12, 14) if flat.size <= k), 14)
+    d = np.zeros(n)
+    d[: min(n, flat.size)] = flat[:n]
     # Re-orthonormalise R against rounding in Rodrigues.
     u, _, vt = np.linalg.svd(R)
     return CameraModel(K, d, u @ vt, np.asarray(tvec, dtype=np.float64).ravel(), size, name)
@@ -124,6 +156,87 @@ def _usable(
     return used, rejected
 
 
+def _renumbered(det: Detection, target: Target, turn_deg: int) -> Detection:
+    """The detection with its ids renumbered as the board turned by ``turn_deg``."""
+    if turn_deg == 0:
+        return det
+    ids = turn_ids(target, turn_deg)[det.ids]
+    order = np.argsort(ids)
+    return Detection(True, ids[order], det.q_px[order], det.quality_px, method=det.method)
+
+
+def _align_views(
+    detections: Sequence[Detection], used: Sequence[int], target: Target
+) -> tuple[list[Detection], dict[int, int]]:
+    """Number every view's features as the first used view does (method (a)).
+
+    Between views of known displacements the target only moves, so each view's picture is
+    close to the first's: of the turns its picture cannot tell apart, each view takes the one
+    that puts every feature nearest, after the centroids are matched, to the same feature
+    in the first view.
+    """
+    out = list(detections)
+    turns = ambiguous_turns(target)
+    if len(turns) == 1 or not used:
+        return out, {}
+    ref = detections[used[0]]
+    ref_q = np.full((len(target.points_um()), 2), np.nan)
+    ref_q[ref.ids] = ref.q_px - ref.q_px.mean(axis=0)
+    turned: dict[int, int] = {}
+    for i in used[1:]:
+        cost = {}
+        for t in turns:
+            det = _renumbered(detections[i], target, t)
+            d = det.q_px - det.q_px.mean(axis=0) - ref_q[det.ids]
+            cost[t] = float(np.nanmean(np.sum(d**2, axis=1)))
+        best = min(cost, key=lambda k: cost[k])
+        if best != 0:
+            out[i] = _renumbered(detections[i], target, best)
+            turned[i] = best
+    return out, turned
+
+
+def _turn_by_steps(
+    detections: list[Detection],
+    used: Sequence[int],
+    target: Target,
+    displacements_um: FloatArray,
+    turned: dict[int, int],
+) -> tuple[list[Detection], dict[int, int]]:
+    """Turn a camera's whole numbering to the one its steps across the target's plane fit.
+
+    A numbering turned by 180 degrees sees a step along the target's +x as one along -x: the
+    projection matrix then cannot fit the views. Without such steps nothing changes.
+    """
+    turns = ambiguous_turns(target)
+    if len(turns) == 1 or len(used) < 2 or not _steps_in_plane(target, displacements_um):
+        return detections, turned
+    rms = {}
+    for t in turns:
+        dets = [_renumbered(detections[i], target, t) for i in used]
+        p = np.vstack([target.points_um()[d.ids] + displacements_um[i]
+                       for d, i in zip(dets, used, strict=True)])  # fmt: skip
+        q = np.vstack([d.q_px for d in dets])
+        try:
+            P = estimate_projection_matrix(p, q)
+        except DegenerateDataError:
+            return detections, turned
+        proj = p @ P[:, :3].T + P[:, 3]
+        rms[t] = float(np.sqrt(np.mean(np.sum((proj[:, :2] / proj[:, 2:] - q) ** 2, axis=1))))
+    best = min(rms, key=lambda k: rms[k])
+    if best == 0:
+        return detections, turned
+    out = list(detections)
+    for i in used:
+        out[i] = _renumbered(detections[i], target, best)
+    return out, {i: (turned.get(i, 0) + best) % 360 for i in used}
+
+
+def _steps_in_plane(target: Target, disp: FloatArray) -> bool:
+    """True if the steps move the target across its plane by more than a pitch."""
+    return len(disp) > 0 and float(np.max(np.ptp(disp[:, :2], axis=0))) > target.pitch_um
+
+
 def _calibrate_one_known(
     name: str,
     detections: Sequence[Detection],
@@ -132,8 +245,10 @@ def _calibrate_one_known(
     displacements_um: FloatArray,
     size: tuple[int, int],
     refine: bool,
-) -> CameraCalibration:
+) -> tuple[CameraCalibration, dict[int, int]]:
     used, rejected = _usable(detections, image_names)
+    detections, turned = _align_views(detections, used, target)
+    detections, turned = _turn_by_steps(detections, used, target, displacements_um, turned)
     for _ in range(3):
         if len(used) < 2:
             raise DegenerateDataError(
@@ -193,7 +308,8 @@ def _calibrate_one_known(
         )
         for i in used
     }
-    return CameraCalibration(model, rms_all, rms_views, len(used), rejected, std, residuals)
+    cal = CameraCalibration(model, rms_all, rms_views, len(used), rejected, std, residuals)
+    return cal, turned
 
 
 def _baseline(models: dict[str, CameraModel]) -> float:
@@ -232,14 +348,19 @@ def calibrate_known_displacements(
     if disp.ndim != 2 or disp.shape[1] != 3:
         raise InputError(f"displacements_um: expected shape (V, 3), got {disp.shape}")
     cams = {}
+    turned_views = []
     for name, dets in detections.items():
         if len(dets) != len(disp):
             raise InputError(
                 f"camera {name}: {len(dets)} images but {len(disp)} displacements; one each"
             )
-        cams[name] = _calibrate_one_known(
+        cams[name], turned = _calibrate_one_known(
             name, dets, image_names[name], target, disp, image_size_px[name], refine
         )
+        turned_views += [
+            {"image": image_names[name][i], "camera": name, "turn_deg": t}
+            for i, t in sorted(turned.items())
+        ]
     rms = float(np.sqrt(np.mean([c.rms_px**2 for c in cams.values()])))
     models = {n: c.model for n, c in cams.items()}
     return StereoCalibration(
@@ -247,7 +368,98 @@ def calibrate_known_displacements(
         cams,
         rms,
         _baseline(models),
+        turned_views,
+        notes=_known_displacement_notes(target, disp),
     )
+
+
+def _known_displacement_notes(target: Target, disp: FloatArray) -> list[str]:
+    """Warn when neither the picture nor the steps can tell a symmetric target's turns apart.
+
+    Steps across the target's plane move the features along its own x and y, which only the
+    right numbering fits; steps along its normal fit every turn equally.
+    """
+    turns = ambiguous_turns(target)
+    if len(turns) == 1 or _steps_in_plane(target, disp):
+        return []
+    return [
+        f"the target {target.spec} looks the same turned by "
+        + " or ".join(f"{t} deg" for t in turns[1:])
+        + " and the steps leave its plane only: every camera must see it the same way up "
+        "(or use an odd x even chessboard or a ChArUco board)"
+    ]
+
+
+@dataclass
+class _Mono:
+    calibration: CameraCalibration
+    choice: LensModelChoice
+    used: list[int]
+
+
+def _calibrate_one_unknown(
+    name: str,
+    dets: Sequence[Detection],
+    image_names: Sequence[str],
+    target: Target,
+    size: tuple[int, int],
+    model_name: str,
+) -> _Mono:
+    used, rejected = _usable(dets, image_names)
+    models = LENS_MODELS if model_name == "auto" else (named_lens_model(model_name),)
+    points = target.points_um()
+    for _ in range(3):
+        if len(used) < 3:
+            raise DegenerateDataError(
+                f"camera {name}: the target was found in {len(used)} view(s); at least 3 "
+                f"tilted views are needed"
+            )
+        obj = [points[dets[i].ids] for i in used]
+        img = [dets[i].q_px for i in used]
+        try:
+            choice = choose_lens_model(obj, img, size, models=models)
+        except DegenerateDataError as exc:
+            raise DegenerateDataError(f"camera {name}: {exc}") from None
+        view_rms = {
+            image_names[i]: float(e) for i, e in zip(used, choice.fit.per_view_rms_px, strict=True)
+        }
+        bad = _outliers(view_rms)
+        if not bad:
+            break
+        rejected += [{"image": v, "reason": r} for v, r in bad.items()]
+        used = [i for i in used if image_names[i] not in bad]
+    fit = choice.fit
+    residuals = {}
+    for k, i in enumerate(used):
+        projected, _ = cv2.projectPoints(points[dets[i].ids], fit.rvecs[k], fit.tvecs[k], fit.K,
+                                         fit.dist)  # fmt: skip
+        residuals[image_names[i]] = _residuals(projected.reshape(-1, 2), dets[i].q_px)
+    richest = len(choice.candidates) > 1 and fit.model.name == choice.candidates[-1]["name"]
+    diagnostics = diagnose(fit, obj, img, size, richest_offered=richest)
+    sd = fit.std_intrinsics
+    std = {
+        "fx_fy_cx_cy_px": sd[:4].tolist(),
+        "k1_k2_p1_p2_k3": sd[4:9].tolist(),
+        "dist": sd[4:].tolist(),
+    }
+    cal = CameraCalibration(
+        CameraModel(np.eye(3), np.zeros(5), np.eye(3), np.zeros(3), size, name),
+        fit.rms_px,
+        view_rms,
+        len(used),
+        rejected,
+        std,
+        residuals,
+        {
+            "name": fit.model.name,
+            "terms": list(fit.model.terms),
+            "reason": choice.reason,
+            "field_of_view_deg": choice.field_of_view_deg,
+            "candidates": choice.candidates,
+        },
+        diagnostics,
+    )
+    return _Mono(cal, choice, used)
 
 
 def calibrate_unknown_poses(
@@ -257,8 +469,9 @@ def calibrate_unknown_poses(
     image_size_px: Mapping[str, tuple[int, int]],
     *,
     reference_view: int = 0,
+    lens_model: str = "auto",
 ) -> StereoCalibration:
-    """Method (b): the target in unknown poses; per-camera then stereo calibration (OpenCV).
+    """Method (b): the target in unknown poses; per-camera then stereo calibration.
 
     Parameters
     ----------
@@ -267,7 +480,10 @@ def calibrate_unknown_poses(
     image_names, target, image_size_px
         As for :func:`calibrate_known_displacements`.
     reference_view : int
-        The view whose target frame becomes {V}.
+        The view whose target frame (as the first camera numbers it) becomes {V}.
+    lens_model : str
+        ``"auto"`` (chosen per camera by held-out error) or the name of one of
+        :data:`~microcal.vision.lens_models.LENS_MODELS`.
     """
     names = list(detections)
     if len(names) != 2:
@@ -275,78 +491,85 @@ def calibrate_unknown_poses(
     n_views = len(detections[names[0]])
     if any(len(d) != n_views for d in detections.values()):
         raise InputError("calibrate_unknown_poses: every camera needs one image per view")
-    obj = target.points_um().astype(np.float32)
-    cams: dict[str, CameraCalibration] = {}
-    intr: dict[str, tuple[FloatArray, FloatArray]] = {}
-    poses: dict[str, dict[int, tuple[FloatArray, FloatArray]]] = {}
-    for name in names:
-        dets = detections[name]
-        used, rejected = _usable(dets, image_names[name])
-        for _ in range(3):
-            if len(used) < 3:
-                raise DegenerateDataError(
-                    f"camera {name}: the target was found in {len(used)} view(s); at least 3 "
-                    f"tilted views are needed"
-                )
-            rms, K, dist, rvecs, tvecs, sd_in, _, per_view = cv2.calibrateCameraExtended(
-                [obj[dets[i].ids] for i in used],
-                [dets[i].q_px.astype(np.float32) for i in used],
-                image_size_px[name],
-                None,
-                None,
-                flags=UNKNOWN_POSE_FLAGS,
-            )
-            view_rms = {
-                image_names[name][i]: float(e)
-                for i, e in zip(used, np.ravel(per_view), strict=True)
-            }
-            bad = _outliers(view_rms)
-            if not bad:
-                break
-            rejected += [{"image": v, "reason": r} for v, r in bad.items()]
-            used = [i for i in used if image_names[name][i] not in bad]
-        intr[name] = (K, dist)
-        poses[name] = {i: (rvecs[k], tvecs[k]) for k, i in enumerate(used)}
-        residuals = {}
-        for k, i in enumerate(used):
-            projected, _ = cv2.projectPoints(obj[dets[i].ids], rvecs[k], tvecs[k], K, dist)
-            residuals[image_names[name][i]] = _residuals(projected.reshape(-1, 2), dets[i].q_px)
-        sd = np.asarray(sd_in).ravel()
-        cams[name] = CameraCalibration(
-            CameraModel(np.eye(3), np.zeros(5), np.eye(3), np.zeros(3), image_size_px[name], name),
-            float(rms),
-            view_rms,
-            len(used),
-            rejected,
-            {"fx_fy_cx_cy_px": sd[:4].tolist(), "k1_k2_p1_p2_k3": sd[4:9].tolist()},
-            residuals,
+    mono = {
+        name: _calibrate_one_unknown(
+            name, detections[name], image_names[name], target, image_size_px[name], lens_model
         )
-    common = sorted(set(poses[names[0]]) & set(poses[names[1]]))
+        for name in names
+    }
+    a, b = names
+    view_names = image_names[a]
+    poses = {
+        name: {i: m.choice.fit.rvecs[k] for k, i in enumerate(m.used)} for name, m in mono.items()
+    }
+    tvecs = {
+        name: {i: m.choice.fit.tvecs[k] for k, i in enumerate(m.used)} for name, m in mono.items()
+    }
+    rejected: list[dict[str, str]] = []
+    resolution = resolve_turns(target, poses[a], poses[b])
+    pair = {i: f"{view_names[i]} + {image_names[b][i]}" for i in range(n_views)}
+    rejected += [{"view": pair[i], "reason": r} for i, r in resolution.disagree.items()]
+    det_b = {i: _renumbered(detections[b][i], target, t) for i, t in resolution.turns.items()}
+    turned = [
+        {"image": image_names[b][i], "camera": b, "turn_deg": t}
+        for i, t in sorted(resolution.turns.items())
+        if t != 0
+    ]
+    common = sorted(resolution.turns)
     if reference_view not in common:
         raise DegenerateDataError(
             f"reference view {reference_view} is not usable in both cameras; "
             f"usable in both: {common}"
         )
-    obj_pts, q1, q2 = [], [], []
+    obj = target.points_um()
+    fa, fb = mono[a].choice.fit, mono[b].choice.fit
+    pairs: dict[int, tuple[FloatArray, FloatArray, FloatArray]] = {}
     for i in common:
-        d1, d2 = detections[names[0]][i], detections[names[1]][i]
+        d1, d2 = detections[a][i], det_b[i]
         ids = np.intersect1d(d1.ids, d2.ids)
-        if len(ids) < 6:
+        if len(ids) < MIN_COMMON_POINTS:
+            rejected.append({"view": pair[i], "reason": f"only {len(ids)} points seen by both"})
             continue
-        obj_pts.append(obj[ids])
-        q1.append(d1.q_px[np.searchsorted(d1.ids, ids)].astype(np.float32))
-        q2.append(d2.q_px[np.searchsorted(d2.ids, ids)].astype(np.float32))
-    (K1, D1), (K2, D2) = intr[names[0]], intr[names[1]]
-    rms, *_, R, T, _, _ = cv2.stereoCalibrate(
-        obj_pts, q1, q2, K1, D1, K2, D2, image_size_px[names[0]], flags=cv2.CALIB_FIX_INTRINSIC
-    )
-    rvec, tvec = poses[names[0]][reference_view]
-    m1 = _camera_model(K1, D1, rvec, tvec, image_size_px[names[0]], names[0])
+        pairs[i] = (obj[ids], d1.q_px[np.searchsorted(d1.ids, ids)],
+                    d2.q_px[np.searchsorted(d2.ids, ids)])  # fmt: skip
+    for _ in range(3):
+        if len(pairs) < 1:
+            raise DegenerateDataError("no view is usable in both cameras for the stereo step")
+        keys = sorted(pairs)
+        rms, _, _, _, _, R, T, _, _, _, _, per_view = cv2.stereoCalibrateExtended(
+            [pairs[i][0].astype(np.float32) for i in keys],
+            [pairs[i][1].astype(np.float32) for i in keys],
+            [pairs[i][2].astype(np.float32) for i in keys],
+            fa.K, fa.dist, fb.K, fb.dist, image_size_px[a], None, None,
+            flags=cv2.CALIB_FIX_INTRINSIC,
+        )  # fmt: skip
+        errors = np.asarray(per_view, dtype=np.float64).reshape(len(keys), -1)
+        view_rms = {
+            pair[i]: float(np.sqrt(np.mean(e**2))) for i, e in zip(keys, errors, strict=True)
+        }
+        bad = _outliers(view_rms)
+        if not bad:
+            break
+        rejected += [{"view": v, "reason": "stereo " + r} for v, r in bad.items()]
+        pairs = {i: p for i, p in pairs.items() if pair[i] not in bad}
+    if reference_view not in pairs:
+        raise DegenerateDataError(
+            f"reference view {reference_view} was left out of the stereo step; choose another"
+        )
+    k_ref = mono[a].used.index(reference_view)
+    m1 = _camera_model(fa.K, fa.dist, fa.rvecs[k_ref], tvecs[a][reference_view],
+                       image_size_px[a], a)  # fmt: skip
     R2 = R @ m1.R
     t2 = R @ m1.t_um + np.ravel(T)
     rvec2, _ = cv2.Rodrigues(R2)
-    m2 = _camera_model(K2, D2, rvec2, t2, image_size_px[names[1]], names[1])
-    cams[names[0]].model, cams[names[1]].model = m1, m2
+    m2 = _camera_model(fb.K, fb.dist, rvec2, t2, image_size_px[b], b)
+    cams = {name: m.calibration for name, m in mono.items()}
+    cams[a].model, cams[b].model = m1, m2
     return StereoCalibration(
-        "unknown poses (per-camera + stereo)", cams, float(rms), _baseline({"a": m1, "b": m2})
+        "unknown poses (per-camera + stereo)",
+        cams,
+        float(rms),
+        _baseline({"a": m1, "b": m2}),
+        turned,
+        rejected,
     )

@@ -10,7 +10,10 @@ Target specs are strings:
   (OpenCV's convention), ArUco markers of the 4x4 dictionary (default size 0.7 pitch).
 
 The target frame: x along the columns, y along the rows, z = 0 on the target; the first
-feature (inner corner or dot) is at the origin.
+feature (inner corner or dot) is at the origin. On a chessboard the square between the first
+four inner corners (corners 0, 1, COLS and COLS + 1) is the dark one: that fixes the origin
+of an odd x even board whichever way it is seen (boards symmetric under a turn, see
+:mod:`microcal.vision.board_symmetry`, are numbered as far as the picture can tell).
 """
 
 from __future__ import annotations
