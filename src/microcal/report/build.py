@@ -78,7 +78,7 @@ def _stereo(data: RunData, thesis: bool) -> dict[str, Any] | None:
     if not data.cameras:
         return None
     cams = data.cameras.get("cameras", {})
-    rows, per_view, residuals, sizes = [], {}, {}, {}
+    rows, per_view, residuals, sizes, maps = [], {}, {}, {}, {}
     for name, c in cams.items():
         K = np.asarray(c["K"], dtype=float)
         dist = list(c.get("dist", [0.0] * 5))
@@ -95,8 +95,13 @@ def _stereo(data: RunData, thesis: bool) -> dict[str, Any] | None:
                 "cy": K[1, 2],
                 "k1": dist[0] if dist else 0.0,
                 "size": c.get("image_size_px"),
+                "lens_model": c.get("lens_model"),
+                "diagnostics": c.get("diagnostics"),
             }
         )
+        umap = (c.get("diagnostics") or {}).get("uncertainty_map_px")
+        if umap:
+            maps[name] = np.asarray(umap, dtype=float)
         if c.get("per_view_rms_px"):
             per_view[name] = c["per_view_rms_px"]
         views = c.get("residuals_px") or {}
@@ -111,6 +116,16 @@ def _stereo(data: RunData, thesis: bool) -> dict[str, Any] | None:
         "per_view": figures.per_view_rms(per_view) if per_view else None,
         "residuals": figures.calibration_residuals(residuals) if residuals else None,
         "coverage": figures.calibration_coverage(residuals, sizes) if residuals else None,
+        "field": figures.residual_field(residuals, sizes) if residuals else None,
+        "uncertainty": figures.projection_uncertainty(
+            maps, {n: cams[n]["image_size_px"] for n in maps}
+        )
+        if maps
+        else None,
+        "turned": stereo.get("turned_views", []),
+        "pairs_rejected": stereo.get("views_rejected", []),
+        "notes": stereo.get("notes", []),
+        "angle_deg": stereo.get("angle_deg"),
     }
 
 

@@ -25,6 +25,8 @@ __all__ = [
     "measurement_uncertainty",
     "per_view_rms",
     "prediction_errors",
+    "projection_uncertainty",
+    "residual_field",
     "settle_times",
 ]
 
@@ -102,6 +104,64 @@ def calibration_coverage(
         ax.set_xlabel("u, px")
         ax.set_ylabel("v, px")
         ax.set_title(f"{cam}: target points over the {w} x {h} image", fontsize=9)
+    return _uri(fig)
+
+
+def projection_uncertainty(
+    maps_px: Mapping[str, FloatArray], image_size_px: Mapping[str, Sequence[int]]
+) -> str:
+    """Map of each camera's 1-sigma projection uncertainty over its image.
+
+    Parameters
+    ----------
+    maps_px : {camera: (rows, cols) float}
+        The uncertainty on a grid spanning the image, corners included, px.
+    image_size_px : {camera: (width, height)}
+    """
+    fig = Figure(figsize=(4.3 * len(maps_px), 3.3), layout="constrained")
+    for k, (cam, m) in enumerate(maps_px.items()):
+        w, h = image_size_px[cam]
+        ax = fig.add_subplot(1, len(maps_px), k + 1)
+        im = ax.imshow(m, extent=(0, w, h, 0), cmap="viridis", interpolation="bilinear",
+                       vmin=0.0)  # fmt: skip
+        levels = [v for v in (0.05, 0.1, 0.2, 0.5, 1.0, 2.0) if m.min() < v < m.max()]
+        if levels:
+            gx = np.linspace(0, w, m.shape[1])
+            gy = np.linspace(0, h, m.shape[0])
+            cs = ax.contour(gx, gy, m, levels=levels, colors="white", linewidths=0.6)
+            ax.clabel(cs, fontsize=7, fmt="%g")
+        fig.colorbar(im, ax=ax, label="1-sigma, px")
+        ax.set_xlabel("u, px")
+        ax.set_ylabel("v, px")
+        ax.set_title(f"{cam}: projection uncertainty", fontsize=9)
+    return _uri(fig)
+
+
+def residual_field(
+    residuals_px: Mapping[str, FloatArray], image_size_px: Mapping[str, Sequence[int]]
+) -> str:
+    """Reprojection residuals drawn where they lie in the image, magnified.
+
+    Parameters
+    ----------
+    residuals_px : {camera: (N, 4) float}
+        Detected x, y and residual dx, dy of every target point used.
+    image_size_px : {camera: (width, height)}
+    """
+    fig = Figure(figsize=(4.0 * len(residuals_px), 3.3), layout="constrained")
+    for k, (cam, r) in enumerate(residuals_px.items()):
+        w, h = image_size_px[cam]
+        ax = fig.add_subplot(1, len(residuals_px), k + 1)
+        size = float(np.sqrt(np.mean(np.sum(r[:, 2:] ** 2, axis=1)))) if len(r) else 0.0
+        scale = 0.03 * max(w, h) / size if size > 0 else 1.0
+        ax.quiver(r[:, 0], r[:, 1], r[:, 2] * scale, -r[:, 3] * scale, angles="xy",
+                  scale_units="xy", scale=1.0, width=0.003, color="tab:red")  # fmt: skip
+        ax.set_xlim(0, w)
+        ax.set_ylim(h, 0)
+        ax.set_aspect("equal")
+        ax.set_xlabel("u, px")
+        ax.set_ylabel("v, px")
+        ax.set_title(f"{cam}: residuals over the image (x{scale:.0f})", fontsize=9)
     return _uri(fig)
 
 

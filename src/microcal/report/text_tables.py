@@ -67,31 +67,20 @@ class TextTable:
 
 
 def stereo_table(calibration: Any, digits: int = 4) -> TextTable:
-    """Per camera: RMS, views used and rejected, focal lengths, lens model and its held-out
-    RMS, projection uncertainty (a ``StereoCalibration``)."""
+    """Per camera: RMS, views used, focal lengths, the lens model with its held-out RMS and
+    the projection uncertainty at the worst image corner (a ``StereoCalibration``)."""
     table = TextTable(
         f"Stereo calibration ({calibration.method})",
-        [
-            "camera",
-            "RMS px",
-            "views used",
-            "rejected",
-            "fx px",
-            "fy px",
-            "lens model",
-            "held-out px",
-            "uncertainty px",
-        ],
+        ["camera", "RMS px", "views", "fx px", "fy px", "lens model", "held-out px", "σ corner px"],
     )
     for name, c in calibration.cameras.items():
         lens = c.lens_model.get("name", "") if c.lens_model else ""
         chosen = [d for d in c.lens_model.get("candidates", []) if d["name"] == lens]
         h = chosen[0]["held_out_rms_px"] if chosen else None
-        held = "" if h is None else f"{h:.{digits}f}"
         sigma = f"{c.diagnostics.uncertainty_px['corners']:.3f}" if c.diagnostics else ""
         table.rows.append([name, f"{c.rms_px:.{digits}f}", str(c.views_used),
-                           str(len(c.views_rejected)), f"{c.model.K[0, 0]:.1f}",
-                           f"{c.model.K[1, 1]:.1f}", lens or "fixed", held, sigma])  # fmt: skip
+                           f"{c.model.K[0, 0]:.1f}", f"{c.model.K[1, 1]:.1f}", lens or "fixed",
+                           "" if h is None else f"{h:.{digits}f}", sigma])  # fmt: skip
     return table
 
 
@@ -307,11 +296,13 @@ def stereo_lines(calibration: Any, out: Path) -> list[TextTable | str]:
             lines.append(f"lens model of {name}: {c.lens_model['reason']}")
         if c.diagnostics:
             lines += [f"{name} is limited by: {v}" for v in c.diagnostics.verdict]
-    lines += [
-        f"turned the numbering of {t['camera']} {t['image']} by {t['turn_deg']} deg to agree "
-        "with the other camera (the board looks the same turned)"
-        for t in calibration.turned_views
-    ]
+    for cam in dict.fromkeys(t["camera"] for t in calibration.turned_views):
+        turned = [f"{t['image']} ({t['turn_deg']} deg)" for t in calibration.turned_views
+                  if t["camera"] == cam]  # fmt: skip
+        lines.append(
+            f"turned the corner numbering of camera {cam} in {', '.join(turned)} to agree with "
+            "the other camera's (the board looks the same turned)"
+        )
     lines += [f"left out of the stereo step {r['view']}: {r['reason']}"
               for r in calibration.views_rejected]  # fmt: skip
     lines += [f"warning: {n}" for n in calibration.notes]

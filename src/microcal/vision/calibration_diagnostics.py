@@ -319,8 +319,8 @@ def diagnose(
         verdict.append(
             "too few views near the corners: no target point in the "
             + ", ".join(empty)
-            + " ninth of the image"
-            + ("s" if len(empty) > 1 else "")
+            + (" ninths" if len(empty) > 1 else " ninth")
+            + " of the image"
         )
     half: SplitHalf | None = None
     try:
