@@ -109,7 +109,8 @@ def test_corners_agree_with_opencvs_reference_detection():
 def test_diagnostics_say_what_limits_this_set(calibration):
     for c in calibration.cameras.values():
         d = c.diagnostics
-        assert d is not None and d.verdict
+        assert d is not None
+        assert d.verdict
         # The set has no view reaching some image corners: the verdict must say so.
         empty = [k for k in ("top-left", "top-right", "bottom-left", "bottom-right")
                  if d.coverage[k] == 0]  # fmt: skip
@@ -129,8 +130,8 @@ def test_stereo_calibrate_command_on_the_photographs(tmp_path):
     result = CliRunner().invoke(
         app,
         ["stereo-calibrate", "--target", TARGET, "--images", f"left={DATA}/left*.jpg",
-         "--images", f"right={DATA}/right*.jpg", "--out", str(out)],  # fmt: skip
-    )
+         "--images", f"right={DATA}/right*.jpg", "--out", str(out)],
+    )  # fmt: skip
     assert result.exit_code == 0, result.output
     assert "turned the corner numbering of camera right" in result.output
     assert "lens model of left" in result.output

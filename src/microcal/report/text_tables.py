@@ -71,7 +71,7 @@ def stereo_table(calibration: Any, digits: int = 4) -> TextTable:
     the projection uncertainty at the worst image corner (a ``StereoCalibration``)."""
     table = TextTable(
         f"Stereo calibration ({calibration.method})",
-        ["camera", "RMS px", "views", "fx px", "fy px", "lens model", "held-out px", "σ corner px"],
+        ["camera", "RMS px", "views", "fx px", "fy px", "lens model", "held-out px", "σ corner px"],  # noqa: RUF001,
     )
     for name, c in calibration.cameras.items():
         lens = c.lens_model.get("name", "") if c.lens_model else ""
