@@ -5,10 +5,11 @@ Every detector takes an image of any usual kind (8 or 16 bit, grey or colour) an
 pixel positions with sub-pixel accuracy and a quality figure; or, when there is no target,
 ``found=False`` with the reason. An image without a target is not an error.
 
-- Chessboard: OpenCV's classic detector, refined by ``cornerSubPix`` with a window scaled to
-  the square size in pixels; the sector-based detector (``findChessboardCornersSB``) when the
-  classic one fails. The corner order is made canonical: the first row runs towards +x in
-  the image (OpenCV may return it reversed).
+- Chessboard: OpenCV's classic detector, the sector-based one (``findChessboardCornersSB``)
+  when the classic one fails; corners refined by :mod:`~microcal.vision.corner_refinement`
+  (windows that follow each corner's spacing, then a point-symmetry fit). The corners are
+  numbered from the board's origin as far as the squares' colours tell; a board that looks the
+  same turned is numbered so that its first row runs most nearly towards +x in the image.
 - Dot grid: dots segmented by Otsu's threshold, centres from background-subtracted
   intensity moments in a window, then indexed on the lattice (two lattice vectors from the
   neighbours, grid coordinates by rounding); works for dense grids of thousands of dots.
@@ -30,9 +31,10 @@ from numpy.typing import NDArray
 from .._validation import FloatArray
 from ..errors import InputError
 from .board_symmetry import turn_ids
+from .corner_refinement import refine_corners
 from .targets import Target
 
-__all__ = ["Detection", "detect", "to_gray", "window_px"]
+__all__ = ["Detection", "detect", "to_gray"]
 
 
 @dataclass(frozen=True)
@@ -84,11 +86,6 @@ def _to_uint8(gray: NDArray[np.float32]) -> NDArray[np.uint8]:
         return np.zeros(gray.shape, dtype=np.uint8)
     out: NDArray[np.uint8] = np.clip((gray - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)
     return out
-
-
-def window_px(square_px: float) -> int:
-    """Half-size of the cornerSubPix window for squares of ``square_px`` pixels."""
-    return max(2, round(0.4 * square_px))
 
 
 def _homography_rms(target: Target, ids: NDArray[np.intp], q: FloatArray) -> float:
@@ -154,14 +151,7 @@ def _detect_chessboard(gray: NDArray[np.float32], target: Target) -> Detection:
             return Detection.none(f"no {size[0]}x{size[1]} chessboard found")
     q = corners.reshape(-1, 2).astype(np.float64)
     q = _orient(gray, q, target)
-    spacing = np.linalg.norm(np.diff(q.reshape(size[1], size[0], 2), axis=1), axis=2)
-    half = window_px(float(np.median(spacing)))
-    if method == "classic":
-        crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 1e-3)
-        refined = cv2.cornerSubPix(
-            gray, q.reshape(-1, 1, 2).astype(np.float32), (half, half), (-1, -1), crit
-        )
-        q = np.asarray(refined, dtype=np.float64).reshape(-1, 2)
+    q = refine_corners(gray, q, *size)
     ids = np.arange(len(q), dtype=np.intp)
     return Detection(True, ids, q, _homography_rms(target, ids, q), method=method)
 
