@@ -193,8 +193,9 @@ def test_report_numbers_equal_the_result_files(quick_demo):
                      f"pose_accuracy.{src}.{c}.poses.7.ap_p_um",
                      f"decoupling.{src}.{c}.undesired_um.y.0", f"decoupling.{src}.{c}.omega.z"}  # fmt: skip
     assert must <= checked, must - checked
-    # 3 stereo, design, settle, uncertainty, prediction, 3 decoupling (vision and truth)
-    assert len(parsed.images) == 10
+    # 4 stereo (per view, residuals, residuals over the image, coverage), design, settle,
+    # uncertainty, prediction, 3 decoupling (vision and truth)
+    assert len(parsed.images) == 11
     assert all(src.startswith("data:image/png;base64,") for src in parsed.images)
 
 
@@ -315,7 +316,7 @@ def test_report_opens_in_headless_chromium(quick_demo, tmp_path):
     assert console == []
     match = re.search(r'data-images="(\d+)/(\d+)"', dom.stdout)
     assert match, dom.stdout[:500]
-    assert match.group(1) == match.group(2) == "10"
+    assert match.group(1) == match.group(2) == "11"
     shot = tmp_path / "report.png"
     snap = subprocess.run(
         [*flags, "--window-size=1200,3000", f"--screenshot={shot}", (out / "report.html").as_uri()],

@@ -166,10 +166,13 @@ def test_iso_cube_poses():
 
 def test_identification_through_the_vision_pipeline_reaches_the_oracle(demo):
     # 170 poses rendered, measured (5 frames each) and identified with the thesis's split: the
-    # polynomial model's mean validation error is within 20 % of the oracle's (the true
-    # kinematics predicting the same measurements). Thesis: matrix 4.58, polynomial 2.59 µm.
+    # polynomial model's mean validation error is within 0.35 µm of the oracle's (the true
+    # positions against the same measurements: the measurement's own error). What is left is
+    # the model's: its estimation error and what no static polynomial follows (the
+    # simulator's reversal error and creep, 0.4-0.6 µm). Thesis: matrix 4.58, polynomial
+    # 2.59 µm.
     poly = demo.models["polynomial"].validation["mean_um"]
     matrix = demo.models["matrix"].validation["mean_um"]
-    assert poly == pytest.approx(demo.oracle["mean"], rel=0.20)
+    assert demo.oracle["mean"] <= poly <= demo.oracle["mean"] + 0.35
     assert matrix > poly
     assert demo.measurement_rms_um <= 2.0

@@ -119,8 +119,10 @@ def _diagnostics_to_dict(d: CameraDiagnostics) -> dict[str, Any]:
     half = d.split_half
     return {
         "std_intrinsics": d.std_intrinsics,
-        "uncertainty_px": d.uncertainty_px,
-        "uncertainty_map_px": np.round(d.uncertainty_map_px, 4).tolist(),
+        "uncertainty_px": {k: _finite(v) for k, v in d.uncertainty_px.items()},
+        "uncertainty_map_px": [
+            [_finite(round(float(v), 4)) for v in row] for row in d.uncertainty_map_px
+        ],
         "split_half": None
         if half is None
         else {

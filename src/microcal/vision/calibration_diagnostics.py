@@ -26,9 +26,11 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from .._validation import FloatArray
 from ..errors import DegenerateDataError
+from ..geometry.camera_model import distort_normalized
 from .lens_models import LensModel, MonoFit, fit_camera
 
 __all__ = [
@@ -44,8 +46,10 @@ __all__ = [
 _DIST_INDEX = {name: i for i, name in enumerate(
     ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4", "tau_x", "tau_y")
 )}  # fmt: skip
-#: Halves that disagree by more than this RMS over the whole image (px) flag the calibration.
-SPLIT_HALF_LIMIT_PX = 0.25
+#: The calibration is flagged when the error the halves imply for it (half their RMS
+#: difference over the image: each half has about sqrt(2) times the uncertainty of all the
+#: views together, and the difference of two halves sqrt(2) times that of one) exceeds this, px.
+SPLIT_HALF_LIMIT_PX = 0.2
 #: ... or by more than this many times what their uncertainties predict.
 SPLIT_HALF_RATIO = 3.0
 #: Grid of the uncertainty map and of the split-half comparison, (columns, rows).
@@ -102,6 +106,18 @@ def _rays(q: FloatArray, K: FloatArray, dist: FloatArray) -> FloatArray:
     return np.column_stack([xy, np.ones(len(xy))])
 
 
+def _valid(q: FloatArray, K: FloatArray, dist: FloatArray) -> NDArray[np.bool_]:
+    """Pixels whose ray the lens model gives unambiguously: the undistortion reproduces the
+    pixel, and the distortion is still one-to-one there (a strong radial model folds back
+    beyond some radius, often inside the image's corners)."""
+    rays = _rays(q, K, dist)
+    back, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K, dist)
+    _, jac = distort_normalized(rays[:, :2], np.asarray(dist, dtype=np.float64))
+    det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
+    out: NDArray[np.bool_] = (np.linalg.norm(back.reshape(-1, 2) - q, axis=1) < 0.01) & (det > 0)
+    return out
+
+
 def _projection_jacobians(
     rays: FloatArray, K: FloatArray, dist: FloatArray, model: LensModel
 ) -> tuple[FloatArray, FloatArray]:
@@ -135,11 +151,15 @@ def projection_uncertainty_px(fit: MonoFit, cov: FloatArray, size: tuple[int, in
     Returns
     -------
     sigma_px : (rows, cols) float
-        On a :data:`GRID` of pixels spanning the image, corners included.
+        On a :data:`GRID` of pixels spanning the image, corners included; NaN where the lens
+        model folds back (no unambiguous ray).
     """
     q = _grid(size)
-    blocks = _point_covariances(cov, fit.K, fit.dist, fit.model, q)
-    worst = np.sqrt(np.clip(np.linalg.eigvalsh(blocks)[:, -1], 0.0, None))
+    valid = _valid(q, fit.K, fit.dist)
+    worst = np.full(len(q), np.nan)
+    if valid.any():
+        blocks = _point_covariances(cov, fit.K, fit.dist, fit.model, q[valid])
+        worst[valid] = np.sqrt(np.clip(np.linalg.eigvalsh(blocks)[:, -1], 0.0, None))
     out: FloatArray = worst.reshape(GRID[1], GRID[0])
     return out
 
@@ -151,7 +171,8 @@ class SplitHalf:
     Attributes
     ----------
     rms_diff_px : float
-        RMS over the whole image of how far the two halves project the same ray apart.
+        RMS over the whole image (where both lens models are one-to-one) of how far the two
+        halves project the same ray apart.
     max_diff_px : float
     observed_rms_diff_px : float
         The same over the part of the image the target's points covered.
@@ -202,8 +223,9 @@ def split_half(
         fit = fit_camera(obj, img, size, model, guess=guess)
         fits.append(fit)
         covs.append(intrinsics_covariance(fit, obj, img))
-    q = _grid(size)
     a, b = fits
+    q = _grid(size)
+    q = q[_valid(q, a.K, a.dist) & _valid(q, b.K, b.dist)]
     va = _rays(q, a.K, a.dist)
     vb = _rays(q, b.K, b.dist)
     seen = _inside_hull(q, np.vstack([np.asarray(p, dtype=np.float64) for p in image_points]))
@@ -225,10 +247,11 @@ def split_half(
     predicted = float(np.sqrt(np.mean(pred)))
     ratio = observed / predicted if predicted > 0 else float("inf")
     flags = []
-    if rms > SPLIT_HALF_LIMIT_PX:
+    if rms / 2.0 > SPLIT_HALF_LIMIT_PX:
         flags.append(
             f"too few views, or views not spread over the image: two halves of the views "
-            f"disagree by {rms:.3f} px RMS over the image (more than {SPLIT_HALF_LIMIT_PX:g})"
+            f"disagree by {rms:.3f} px RMS over the image, which puts this calibration about "
+            f"{rms / 2:.2f} px off (more than {SPLIT_HALF_LIMIT_PX:g})"
         )
     if ratio > SPLIT_HALF_RATIO:
         flags.append(
@@ -281,11 +304,17 @@ class CameraDiagnostics:
         """Projection uncertainty at the image centre, worst corner and worst anywhere, px."""
         m = self.uncertainty_map_px
         rows, cols = m.shape
-        corners = [m[0, 0], m[0, -1], m[-1, 0], m[-1, -1]]
+        # The corners of the map, or the nearest points inside where the lens folds back.
+        corners = []
+        for r0, c0 in ((0, 0), (0, cols - 1), (rows - 1, 0), (rows - 1, cols - 1)):
+            rr, cc = np.nonzero(np.isfinite(m))
+            if len(rr):
+                k = int(np.argmin((rr - r0) ** 2 + (cc - c0) ** 2))
+                corners.append(float(m[rr[k], cc[k]]))
         return {
             "centre": float(m[rows // 2, cols // 2]),
-            "corners": float(max(corners)),
-            "max": float(m.max()),
+            "corners": max(corners, default=float("nan")),
+            "max": float(np.nanmax(m)) if np.isfinite(m).any() else float("nan"),
         }
 
 
@@ -334,7 +363,7 @@ def diagnose(
             "lens may need more terms"
         )
     if not verdict:
-        worst = float(umap.max())
+        worst = float(np.nanmax(umap))
         agree = f", two halves of the views agree within {half.rms_diff_px:.3f} px" if half else ""
         verdict.append(
             f"no limit found: projection uncertainty at most {worst:.3f} px over the image{agree}"

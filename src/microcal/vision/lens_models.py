@@ -15,9 +15,15 @@ The models are OpenCV's, nested from the simplest to the richest (:data:`LENS_MO
 A richer model always fits the views it was fitted to at least as well, so the training RMS
 cannot choose. :func:`choose_lens_model` fits each model to all views but a fold and measures
 the held-out views (their board pose solved with the fitted intrinsics, the intrinsics not
-refitted), over interleaved folds; it keeps the simplest model whose held-out RMS is within
-:data:`HELD_OUT_TOLERANCE` of the best. A richer model is therefore never chosen when a
-simpler one predicts the held-out views as well or better.
+refitted), over interleaved folds. Climbing the ladder, a richer model replaces the one kept
+so far only when it predicts the held-out views better beyond chance: the views' paired
+log-ratio of their squared errors exceeds :data:`SIGNIFICANCE` standard errors and
+``log(1 +`` :data:`HELD_OUT_TOLERANCE` ``)`` (log-ratios, so that a view far outside the
+others' reach, which every model extrapolates badly, does not decide). The held-out RMS
+reported is that of a typical view: the square root of the views' geometric mean squared
+error. The climb stops after :data:`STOP_AFTER`
+models in a row that are not better. A richer model is never kept when a simpler one
+predicts the held-out views as well or better.
 
 Narrow-field (microscope) cameras keep the one constraint that makes them well posed: below
 :data:`NARROW_FIELD_DEG` of diagonal field, the terms beyond k1 trade off with the principal
@@ -26,6 +32,7 @@ point and the focal length, and only ``radial1`` is offered.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -107,14 +114,19 @@ LENS_MODELS: tuple[LensModel, ...] = (
     ),
 )
 
-#: A model is as good as the best when its held-out RMS is within this fraction of it.
+#: A richer model must lower the simpler one's held-out squared errors by this fraction at
+#: least (geometric mean over the views), ...
 HELD_OUT_TOLERANCE = 0.02
+#: ... and by this many standard errors of the views' paired differences.
+SIGNIFICANCE = 2.0
 #: Below this diagonal field of view (degrees) a camera is narrow-field: k1 only.
 NARROW_FIELD_DEG = 10.0
 #: Folds of the cross-validation (fewer when there are fewer views).
 FOLDS = 5
 #: Views needed to compare models by held-out error.
 MIN_VIEWS_TO_CHOOSE = 4
+#: The ladder is climbed until this many models in a row are not better than the one kept.
+STOP_AFTER = 2
 
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-9)
 
@@ -238,41 +250,60 @@ def field_of_view_deg(K: FloatArray, size: tuple[int, int]) -> float:
     return float(np.degrees(2.0 * np.arctan(half)))
 
 
-def _held_out_rms(
-    object_points: Sequence[FloatArray],
-    image_points: Sequence[FloatArray],
-    size: tuple[int, int],
-    models: Sequence[LensModel],
-    folds: int,
-) -> list[float]:
-    """Held-out RMS of each model; each fold's fit starts from its fit of the previous model."""
-    n = len(object_points)
-    sq = np.zeros(len(models))
-    count = 0
-    for fold in range(folds):
-        test = [i for i in range(n) if i % folds == fold]
-        train = [i for i in range(n) if i % folds != fold]
-        guess: tuple[FloatArray, FloatArray] | None = None
-        for m, model in enumerate(models):
+class _Folds:
+    """Interleaved cross-validation folds; each fold's fit of a model starts from its fit of
+    the previous model, as the fit to all views does."""
+
+    def __init__(
+        self,
+        object_points: Sequence[FloatArray],
+        image_points: Sequence[FloatArray],
+        size: tuple[int, int],
+        folds: int,
+    ) -> None:
+        n = len(object_points)
+        self.obj, self.img, self.size = object_points, image_points, size
+        self.tests = [[i for i in range(n) if i % folds == f] for f in range(folds)]
+        self.guesses: list[tuple[FloatArray, FloatArray] | None] = [None] * folds
+
+    def held_out(self, model: LensModel) -> FloatArray | None:
+        """Mean squared reprojection error of each view when held out (its pose solved with
+        the intrinsics fitted to the other folds), px^2, (V,); None if a fold fails."""
+        n = len(self.obj)
+        out = np.zeros(n)
+        for f, test in enumerate(self.tests):
+            train = [i for i in range(n) if i not in test]
             try:
-                train_obj = [object_points[i] for i in train]
-                train_img = [image_points[i] for i in train]
-                fit = fit_camera(train_obj, train_img, size, model, guess=guess)
+                fit = fit_camera([self.obj[i] for i in train], [self.img[i] for i in train],
+                                 self.size, model, guess=self.guesses[f])  # fmt: skip
             except DegenerateDataError:
-                sq[m] = np.inf
-                continue
-            guess = (fit.K, fit.dist)
+                return None
+            self.guesses[f] = (fit.K, fit.dist)
             for i in test:
-                obj = np.asarray(object_points[i], dtype=np.float64)
-                q = np.asarray(image_points[i], dtype=np.float64)
+                obj = np.asarray(self.obj[i], dtype=np.float64)
+                q = np.asarray(self.img[i], dtype=np.float64)
                 ok, rvec, tvec = cv2.solvePnP(obj, q, fit.K, fit.dist)
                 if not ok:
-                    sq[m] = np.inf
-                    continue
+                    return None
                 proj, _ = cv2.projectPoints(obj, rvec, tvec, fit.K, fit.dist)
-                sq[m] += float(np.sum((proj.reshape(-1, 2) - q) ** 2))
-        count += sum(len(image_points[i]) for i in test)
-    return [float(v) for v in np.sqrt(sq / max(count, 1))]
+                out[i] = float(np.mean(np.sum((proj.reshape(-1, 2) - q) ** 2, axis=1)))
+        return out
+
+
+def _typical_rms(mse: FloatArray) -> float:
+    """The held-out RMS of a typical view: the square root of the views' geometric mean
+    squared error (one view far outside the others' reach, badly extrapolated by every
+    model, does not swamp it)."""
+    return float(np.sqrt(np.exp(np.mean(np.log(np.maximum(mse, 1e-300))))))
+
+
+def _better(richer: FloatArray, simpler: FloatArray) -> bool:
+    """The richer model predicts the held-out views better, beyond chance: the views' mean
+    log-ratio of squared errors (simpler over richer) exceeds twice its standard error and
+    the log of 1 + :data:`HELD_OUT_TOLERANCE`."""
+    d = np.log(np.maximum(simpler, 1e-300)) - np.log(np.maximum(richer, 1e-300))
+    se = float(np.std(d, ddof=1) / np.sqrt(len(d)))
+    return float(np.mean(d)) > max(SIGNIFICANCE * se, float(np.log1p(HELD_OUT_TOLERANCE)))
 
 
 @dataclass
@@ -334,64 +365,72 @@ def choose_lens_model(
             fit,
             f"narrow field ({fov:.1f} deg diagonal < {NARROW_FIELD_DEG:g}): k1 only, the higher "
             "terms trade off with the principal point",
-            [
-                {
-                    "name": narrow.name,
-                    "n_free": 1,
-                    "train_rms_px": fit.rms_px,
-                    "held_out_rms_px": None,
-                }
-            ],
+            [_candidate(fit, None)],
             fov,
         )
     n = len(object_points)
-    fits: list[MonoFit] = [first]
-    for model in models[1:]:
-        try:
-            prev = fits[-1]
-            fits.append(fit_camera(object_points, image_points, size, model,
-                                   guess=(prev.K, prev.dist)))  # fmt: skip
-        except DegenerateDataError:
-            break
     if n < MIN_VIEWS_TO_CHOOSE:
-        simple = fits[min(1, len(fits) - 1)]
+        simple = first
+        if len(models) > 1:
+            with contextlib.suppress(DegenerateDataError):
+                simple = fit_camera(object_points, image_points, size, models[1],
+                                    guess=(first.K, first.dist))  # fmt: skip
         return LensModelChoice(
             simple,
             f"{n} views are too few to compare lens models by held-out error (at least "
             f"{MIN_VIEWS_TO_CHOOSE}); {simple.model.name} kept",
-            [
-                {
-                    "name": f.model.name,
-                    "n_free": f.model.n_free,
-                    "train_rms_px": f.rms_px,
-                    "held_out_rms_px": None,
-                }
-                for f in fits
-            ],
+            [_candidate(simple, None)],
             fov,
         )
     k = min(folds, n)
-    held = _held_out_rms(object_points, image_points, size, [f.model for f in fits], k)
-    best = min(held)
-    chosen = next(i for i, h in enumerate(held) if h <= best * (1.0 + HELD_OUT_TOLERANCE))
-    candidates: list[dict[str, object]] = [
-        {
-            "name": f.model.name,
-            "n_free": f.model.n_free,
-            "train_rms_px": f.rms_px,
-            "held_out_rms_px": h if np.isfinite(h) else None,
-        }
-        for f, h in zip(fits, held, strict=True)
-    ]
+    cv = _Folds(object_points, image_points, size, k)
+    fits: list[MonoFit] = []
+    errors: list[FloatArray | None] = []
+    chosen, stale = 0, 0
+    for model in models:
+        try:
+            fit = (
+                first
+                if not fits
+                else fit_camera(
+                    object_points, image_points, size, model, guess=(fits[-1].K, fits[-1].dist)
+                )
+            )
+        except DegenerateDataError:
+            break
+        e = cv.held_out(model)
+        fits.append(fit)
+        errors.append(e)
+        best = errors[chosen]
+        if e is not None and (best is None or (len(fits) > 1 and _better(e, best))):
+            chosen, stale = len(fits) - 1, 0
+        elif len(fits) > 1:
+            stale += 1
+            if stale == STOP_AFTER:
+                break
+    held = [float("inf") if e is None else _typical_rms(e) for e in errors]
+    # Never a richer model whose held-out error is worse than a simpler one's.
+    chosen = next(i for i in range(chosen + 1) if held[i] <= held[chosen])
+    candidates = [_candidate(f, h) for f, h in zip(fits, held, strict=True)]
     winner = fits[chosen]
-    if chosen == int(np.argmin(held)):
-        why = f"the lowest held-out RMS, {held[chosen]:.4f} px"
-    else:
-        richest = fits[int(np.argmin(held))].model.name
-        why = (
-            f"held-out RMS {held[chosen]:.4f} px, within {HELD_OUT_TOLERANCE:.0%} of the best "
-            f"({richest}, {best:.4f} px) with fewer terms"
-        )
+    simpler = [f.model.name for f in fits[:chosen]]
+    richer = [f.model.name for f in fits[chosen + 1 :]]
+    why = f"held-out RMS {held[chosen]:.4f} px"
+    if simpler:
+        why += f", better beyond chance than {', '.join(simpler)}"
+    if richer:
+        why += f"; {', '.join(richer)} not better beyond chance"
+    tried = "" if len(fits) == len(models) else "; the ladder stopped there"
     return LensModelChoice(
-        winner, f"{winner.model.name}: {why} ({k}-fold, {n} views)", candidates, fov
+        winner, f"{winner.model.name}: {why} ({k}-fold, {n} views{tried})", candidates, fov
     )
+
+
+def _candidate(fit: MonoFit, held_out_px: float | None) -> dict[str, object]:
+    finite = held_out_px is not None and np.isfinite(held_out_px)
+    return {
+        "name": fit.model.name,
+        "n_free": fit.model.n_free,
+        "train_rms_px": fit.rms_px,
+        "held_out_rms_px": held_out_px if finite else None,
+    }

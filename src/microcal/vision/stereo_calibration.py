@@ -156,6 +156,17 @@ def _usable(
     return used, rejected
 
 
+#: With these flags OpenCV's stereo solve reads all 14 coefficients of each camera (fixed).
+_ALL_TERMS = cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL | cv2.CALIB_TILTED_MODEL
+
+
+def _padded(dist: FloatArray) -> FloatArray:
+    """The distortion vector zero-padded to OpenCV's 14 coefficients."""
+    out = np.zeros(14)
+    out[: len(dist)] = dist
+    return out
+
+
 def _renumbered(det: Detection, target: Target, turn_deg: int) -> Detection:
     """The detection with its ids renumbered as the board turned by ``turn_deg``."""
     if turn_deg == 0:
@@ -540,8 +551,8 @@ def calibrate_unknown_poses(
             [pairs[i][0].astype(np.float32) for i in keys],
             [pairs[i][1].astype(np.float32) for i in keys],
             [pairs[i][2].astype(np.float32) for i in keys],
-            fa.K, fa.dist, fb.K, fb.dist, image_size_px[a], None, None,
-            flags=cv2.CALIB_FIX_INTRINSIC,
+            fa.K, _padded(fa.dist), fb.K, _padded(fb.dist), image_size_px[a], None, None,
+            flags=cv2.CALIB_FIX_INTRINSIC | _ALL_TERMS,
         )  # fmt: skip
         errors = np.asarray(per_view, dtype=np.float64).reshape(len(keys), -1)
         view_rms = {
