@@ -64,19 +64,10 @@ def test_colour_decides_is_what_the_colour_leaves_out(spec):
         assert not any(colour_decides(target, t) for t in (0, 90, 180, 270))
 
 
-_IDENTITY_BUG = pytest.mark.xfail(
-    strict=True,
-    reason="colour_decides(chessboard 7x4 or 4x7, 0) is True: the turn-0 case falls into the "
-    "'turn_deg % 180 == 0' branch and returns (cols + rows) % 2 == 1, though no colour tells "
-    "the board from itself (ambiguous_turns hides it by always keeping 0)",
-)
-
-
 @pytest.mark.parametrize(
     "spec",
-    [pytest.param(s, marks=_IDENTITY_BUG) if EXPECTED_TURNS[s][0] == [0] else s
-     for s in SPECS if s.startswith("chessboard")],
-)  # fmt: skip
+    [s for s in SPECS if s.startswith("chessboard")],
+)
 def test_colour_never_decides_the_identity(spec):
     assert colour_decides(parse_target(spec), 0) is False
 

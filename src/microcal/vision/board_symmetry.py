@@ -37,7 +37,7 @@ def colour_decides(target: Target, turn_deg: int) -> bool:
     Only chessboards have colours to tell by; for any other target it is False (ChArUco
     boards have no ambiguous turn at all: see :func:`ambiguous_turns`).
     """
-    if target.kind != "chessboard":
+    if target.kind != "chessboard" or turn_deg % 360 == 0:
         return False
     cols, rows = target.pattern_size
     if turn_deg % 180 == 0:
