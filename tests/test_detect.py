@@ -88,3 +88,20 @@ def test_odd_by_even_chessboard_is_numbered_from_its_own_origin_however_turned(t
     assert det.found, det.reason
     # Metric: worst distance of each numbered corner to the true projection of that corner.
     assert np.linalg.norm(det.q_px - truth[det.ids], axis=1).max() < 0.6
+
+
+def test_a_lattice_that_skips_a_row_is_not_taken_for_the_board():
+    # A finder may return a lattice whose rows are two squares apart, the last one in the
+    # board's margin: its "squares" straddle real ones, so light and dark levels overlap.
+    from microcal.vision.detect import _not_a_chessboard
+    from microcal.vision.detect import to_gray as gray_of
+
+    _, image, truth = view("chessboard:5x4:500", t=(5000.0, 4500.0, 1500.0))
+    gray = gray_of(image)
+    assert _not_a_chessboard(gray, truth, 5, 4) == ""
+    grid = truth.reshape(4, 5, 2)
+    step = grid[1] - grid[0]
+    skipped = np.concatenate([grid[0], grid[2], grid[3], grid[3] + step]).reshape(-1, 2)
+    assert "do not bound alternating dark and light squares" in _not_a_chessboard(
+        gray, skipped, 5, 4
+    )

@@ -99,19 +99,45 @@ def _homography_rms(target: Target, ids: NDArray[np.intp], q: FloatArray) -> flo
     return float(np.sqrt(np.mean(np.sum((proj - q) ** 2, axis=1))))
 
 
+def _square_levels(gray: NDArray[np.float32], grid: FloatArray) -> FloatArray:
+    """Grey level at the centre of each inner square, (rows - 1, cols - 1)."""
+    centres = 0.25 * (grid[:-1, :-1] + grid[1:, :-1] + grid[:-1, 1:] + grid[1:, 1:])
+    h, w = gray.shape
+    x = np.clip(np.rint(centres[..., 0]).astype(int), 0, w - 1)
+    y = np.clip(np.rint(centres[..., 1]).astype(int), 0, h - 1)
+    return gray[y, x].astype(np.float64)
+
+
 def _colour_score(gray: NDArray[np.float32], grid: FloatArray) -> float:
     """Sum of the inner squares' grey levels with alternating signs, square (0, 0) positive.
 
     Negative when square (0, 0), between corners 0, 1, COLS and COLS + 1, is the dark one:
     the colour convention of :mod:`microcal.vision.targets`.
     """
-    centres = 0.25 * (grid[:-1, :-1] + grid[1:, :-1] + grid[:-1, 1:] + grid[1:, 1:])
-    h, w = gray.shape
-    x = np.clip(np.rint(centres[..., 0]).astype(int), 0, w - 1)
-    y = np.clip(np.rint(centres[..., 1]).astype(int), 0, h - 1)
-    levels = gray[y, x].astype(np.float64)
+    levels = _square_levels(gray, grid)
     b, a = np.indices(levels.shape)
     return float(np.sum(np.where((a + b) % 2 == 0, 1.0, -1.0) * (levels - levels.mean())))
+
+
+def _not_a_chessboard(gray: NDArray[np.float32], corners: FloatArray, cols: int, rows: int) -> str:
+    """Why these corners do not bound a chessboard's squares ("" when they do).
+
+    A finder may return a lattice that skips a row or reaches into the background; then some
+    "squares" straddle two real ones. On a real board every light square is lighter than
+    every dark one.
+    """
+    levels = _square_levels(gray, corners.reshape(rows, cols, 2))
+    if levels.size < 2:
+        return ""
+    b, a = np.indices(levels.shape)
+    even, odd = levels[(a + b) % 2 == 0], levels[(a + b) % 2 == 1]
+    dark, light = (even, odd) if even.mean() < odd.mean() else (odd, even)
+    if light.min() > dark.max():
+        return ""
+    return (
+        f"the {cols}x{rows} corners found do not bound alternating dark and light squares "
+        "(a mis-detected or partly hidden board)"
+    )
 
 
 def _orient(gray: NDArray[np.float32], corners: FloatArray, target: Target) -> FloatArray:
@@ -143,12 +169,16 @@ def _detect_chessboard(gray: NDArray[np.float32], target: Target) -> Detection:
     img8 = _to_uint8(gray)
     flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
     found, corners = cv2.findChessboardCorners(img8, size, flags=flags)
-    method = "classic"
-    if not found:
+    method, why = "classic", ""
+    if found:
+        why = _not_a_chessboard(gray, corners.reshape(-1, 2).astype(np.float64), *size)
+    if not found or why:
         found, corners = cv2.findChessboardCornersSB(img8, size, flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
         method = "sector-based"
-        if not found:
-            return Detection.none(f"no {size[0]}x{size[1]} chessboard found")
+        if found:
+            why = _not_a_chessboard(gray, corners.reshape(-1, 2).astype(np.float64), *size)
+        if not found or why:
+            return Detection.none(why or f"no {size[0]}x{size[1]} chessboard found")
     q = corners.reshape(-1, 2).astype(np.float64)
     q = _orient(gray, q, target)
     q = refine_corners(gray, q, *size)
