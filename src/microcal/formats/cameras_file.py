@@ -55,6 +55,7 @@ class _PinholeCamera(FileSchema):
     dist: list[float]
     R: list[list[float]]
     t_um: list[float]
+    projection_sigma_px: float = 0.0
 
 
 class _Cameras(FileSchema):
@@ -65,7 +66,7 @@ class _Cameras(FileSchema):
 def _load_pinhole(cam: Mapping[str, Any], name: str) -> CameraModel:
     c = _PinholeCamera.model_validate(cam)
     K, dist, R, t_um = (np.array(v) for v in (c.K, c.dist, c.R, c.t_um))
-    return CameraModel(K, dist, R, t_um, c.image_size_px, name)
+    return CameraModel(K, dist, R, t_um, c.image_size_px, name, c.projection_sigma_px)
 
 
 #: Camera model kind (cameras.json's ``"model"``) -> its loader.
@@ -84,6 +85,7 @@ def cameras_to_dict(cal: StereoCalibration, provenance: dict[str, Any]) -> dict[
             "dist": m.dist.tolist(),
             "R": m.R.tolist(),
             "t_um": m.t_um.tolist(),
+            "projection_sigma_px": m.projection_sigma_px,
             "rms_px": c.rms_px,
             "views_used": c.views_used,
             "views_rejected": c.views_rejected,

@@ -250,6 +250,10 @@ class CameraModel:
         Image width and height in pixels.
     name : str
         Free name of the camera ("top", "side", "left" ...).
+    projection_sigma_px : float
+        1-sigma error, per image axis, of this camera's projections that comes from its
+        calibration (not from the image): the same for every frame, so averaging frames does
+        not lower it. 0 when unknown. Measurement adds it to each virtual point's covariance.
 
     Notes
     -----
@@ -266,6 +270,7 @@ class CameraModel:
     t_um: FloatArray
     image_size_px: tuple[int, int]
     name: str = field(default="camera")
+    projection_sigma_px: float = 0.0
 
     def __post_init__(self) -> None:
         K = as_array(self.K, "K", (3, 3))
@@ -293,6 +298,12 @@ class CameraModel:
             value.setflags(write=False)
             object.__setattr__(self, key, value)
         object.__setattr__(self, "image_size_px", size)
+        sigma = float(self.projection_sigma_px)
+        if not (np.isfinite(sigma) and sigma >= 0):
+            raise InputError(
+                f"projection_sigma_px: expected a finite value >= 0, got {self.projection_sigma_px}"
+            )
+        object.__setattr__(self, "projection_sigma_px", sigma)
 
     # --- construction -------------------------------------------------------------------
     @classmethod

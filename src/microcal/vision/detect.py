@@ -105,7 +105,8 @@ def _square_levels(gray: NDArray[np.float32], grid: FloatArray) -> FloatArray:
     h, w = gray.shape
     x = np.clip(np.rint(centres[..., 0]).astype(int), 0, w - 1)
     y = np.clip(np.rint(centres[..., 1]).astype(int), 0, h - 1)
-    return gray[y, x].astype(np.float64)
+    out: FloatArray = gray[y, x].astype(np.float64)
+    return out
 
 
 def _colour_score(gray: NDArray[np.float32], grid: FloatArray) -> float:

@@ -142,6 +142,13 @@ def measure_poses(
     return results
 
 
+def _calibration_cov(camera: object) -> FloatArray:
+    """(2, 2) covariance of a camera's projections from its calibration (0 when unknown):
+    common to every frame, so it is added after the frames are averaged."""
+    sigma = float(getattr(camera, "projection_sigma_px", 0.0))
+    return np.eye(2) * sigma**2
+
+
 def _pooled_frame_covariance(results: list[PoseMeasurement], name: str) -> FloatArray | None:
     """Frame-to-frame covariance of one camera's virtual point, pooled over the poses."""
     scatter = np.zeros((2, 2))
@@ -174,7 +181,7 @@ def _triangulate(
             k = len(m.vp_px[n])
             frame_cov = pooled[n]
             base = frame_cov if frame_cov is not None else m.vp_cov_px2[n]
-            per_pose.append(base / k)
+            per_pose.append(base / k + _calibration_cov(cameras[n]))
         cov[n] = np.array(per_pose)
     cam1, cam2 = cameras[names[0]], cameras[names[1]]
     p, c = triangulate_cameras(cam1, cam2, q[names[0]], q[names[1]], cov[names[0]], cov[names[1]])
@@ -206,6 +213,7 @@ def measure_one(
     cov = [
         (frame_cov_px2[n] if frame_cov_px2 and n in frame_cov_px2 else m.vp_cov_px2[n])
         / len(m.vp_px[n])
+        + _calibration_cov(cameras[n])
         for n in names
     ]
     p, c = triangulate_cameras(cameras[names[0]], cameras[names[1]], q[0], q[1], cov[0], cov[1])

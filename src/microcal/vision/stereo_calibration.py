@@ -24,6 +24,7 @@ the stereo solve.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -266,31 +267,8 @@ def _calibrate_one_known(
                 f"camera {name}: the target was found in {len(used)} image(s); at least 2 at "
                 f"different depths are needed"
             )
-        p = np.vstack([target.points_um()[detections[i].ids] + displacements_um[i] for i in used])
-        q = np.vstack([detections[i].q_px for i in used])
-        P = estimate_projection_matrix(p, q)
-        K, R, t = decompose_projection_matrix(P)
-        K = np.triu(K) / K[2, 2]
-        if refine:
-            K[0, 1] = 0.0  # OpenCV's model has no skew
-        model = CameraModel(K, np.zeros(5), R, t, size, name)
-        std: dict[str, list[float]] = {}
-        if refine:
-            rvec, _ = cv2.Rodrigues(R)
-            flags = cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_FIX_K3
-            _, K2, d2, rvecs, tvecs, sd_in, _, _ = cv2.calibrateCameraExtended(
-                [p.astype(np.float32)],
-                [q.astype(np.float32)],
-                size,
-                model.K.copy(),
-                np.zeros(5),
-                rvecs=[rvec.astype(np.float64)],
-                tvecs=[t.reshape(3, 1).astype(np.float64).copy()],
-                flags=flags | cv2.CALIB_USE_EXTRINSIC_GUESS,
-            )
-            model = _camera_model(K2, d2, rvecs[0], tvecs[0], size, name)
-            sd = np.asarray(sd_in).ravel()
-            std = {"fx_fy_cx_cy_px": sd[:4].tolist(), "k1_k2_p1_p2_k3": sd[4:9].tolist()}
+        p, q = _known_points(detections, used, target, displacements_um)
+        model, std = _fit_known(p, q, size, name, refine)
         rms_views = {
             image_names[i]: _view_rms(
                 model,
@@ -319,8 +297,84 @@ def _calibrate_one_known(
         )
         for i in used
     }
+    sigma = _jackknife_sigma_px(detections, used, target, displacements_um, size, refine, model)
+    model = dataclasses.replace(model, projection_sigma_px=sigma)
     cal = CameraCalibration(model, rms_all, rms_views, len(used), rejected, std, residuals)
     return cal, turned
+
+
+def _known_points(
+    detections: Sequence[Detection], used: Sequence[int], target: Target, disp: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Target points in {V} (N, 3) and their pixels (N, 2) over the views ``used``."""
+    p = np.vstack([target.points_um()[detections[i].ids] + disp[i] for i in used])
+    q = np.vstack([detections[i].q_px for i in used])
+    return p, q
+
+
+def _fit_known(
+    p: FloatArray, q: FloatArray, size: tuple[int, int], name: str, refine: bool
+) -> tuple[CameraModel, dict[str, list[float]]]:
+    """DLT (Eq 3.7-3.15), decomposition (Eq 3.16) and, with ``refine``, OpenCV's non-linear
+    refinement with distortion (k1, k2, p1, p2) started from it."""
+    P = estimate_projection_matrix(p, q)
+    K, R, t = decompose_projection_matrix(P)
+    K = np.triu(K) / K[2, 2]
+    if refine:
+        K[0, 1] = 0.0  # OpenCV's model has no skew
+    model = CameraModel(K, np.zeros(5), R, t, size, name)
+    if not refine:
+        return model, {}
+    rvec, _ = cv2.Rodrigues(R)
+    flags = cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_FIX_K3
+    _, K2, d2, rvecs, tvecs, sd_in, _, _ = cv2.calibrateCameraExtended(
+        [p.astype(np.float32)],
+        [q.astype(np.float32)],
+        size,
+        model.K.copy(),
+        np.zeros(5),
+        rvecs=[rvec.astype(np.float64)],
+        tvecs=[t.reshape(3, 1).astype(np.float64).copy()],
+        flags=flags | cv2.CALIB_USE_EXTRINSIC_GUESS,
+    )
+    sd = np.asarray(sd_in).ravel()
+    std = {"fx_fy_cx_cy_px": sd[:4].tolist(), "k1_k2_p1_p2_k3": sd[4:9].tolist()}
+    return _camera_model(K2, d2, rvecs[0], tvecs[0], size, name), std
+
+
+def _jackknife_sigma_px(
+    detections: Sequence[Detection],
+    used: Sequence[int],
+    target: Target,
+    disp: FloatArray,
+    size: tuple[int, int],
+    refine: bool,
+    model: CameraModel,
+) -> float:
+    """The calibration's own projection error (px per axis), by the jackknife over views.
+
+    The camera is calibrated again without each view in turn; the spread of the calibrated
+    volume's projections over those calibrations, times (n - 1) / n, estimates the variance
+    of the calibration made from all n views. Unlike the covariance of the fit, it counts
+    what differs from view to view beyond pixel noise (a view's detection bias, the stage's
+    step error). 0 with fewer than 3 views or when a reduced set cannot be calibrated.
+    """
+    n = len(used)
+    if n < 3:
+        return 0.0
+    p_all, _ = _known_points(detections, used, target, disp)
+    projections = []
+    for j in used:
+        rest = [i for i in used if i != j]
+        try:
+            cam, _ = _fit_known(*_known_points(detections, rest, target, disp), size,
+                                model.name, refine)  # fmt: skip
+        except (DegenerateDataError, cv2.error):
+            return 0.0
+        projections.append(cam.project(p_all))
+    q = np.array(projections)
+    var = (n - 1) / n * np.sum((q - q.mean(axis=0)) ** 2, axis=0).sum(axis=1) / 2.0
+    return float(np.sqrt(np.mean(var)))
 
 
 def _baseline(models: dict[str, CameraModel]) -> float:
