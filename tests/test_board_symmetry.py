@@ -382,3 +382,31 @@ def test_boards_all_in_one_plane_keep_most_numberings_as_detected():
     _, poses_a, poses_b = _synthetic_views(target, rng, turns_b, max_tilt_deg=0.0)
     res = resolve_turns(target, poses_a, poses_b)
     assert res.turned == [0, 4, 7]
+
+
+@pytest.mark.parametrize("max_tilt_deg", [3.0, 20.0])
+def test_resolve_turns_uses_the_relative_translation_when_tilts_hardly_vary(max_tilt_deg):
+    # With board normals within a few degrees, a wrong 180-degree turn changes the relative
+    # rotation by little; the relative translation (a turn about each view's board centre
+    # moves it) still tells. 6 of 10 views numbered from the other end in camera B.
+    target = parse_target("chessboard:6x4:25000")
+    Rs, ts = turn_transform(target, 180)
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        R_rel = cv2.Rodrigues(np.deg2rad(rng.uniform(-5, 5, 3)))[0]
+        t_rel = np.array([-120_000.0, 0.0, 0.0])
+        pa, pb, ta, tb = {}, {}, {}, {}
+        for v in range(10):
+            angles = np.deg2rad(rng.uniform(-max_tilt_deg, max_tilt_deg, 3)) * [1, 1, 0]
+            Ra = cv2.Rodrigues(angles + [0, 0, np.deg2rad(rng.uniform(-20, 20))])[0]
+            t_a = rng.uniform([-2e5, -1.5e5, 5e5], [2e5, 1.5e5, 9e5])
+            Rb, t_b = R_rel @ Ra, R_rel @ t_a + t_rel
+            if v < 6:  # camera B numbered this view from the other end
+                Rb, t_b = Rb @ Rs.T, t_b - Rb @ Rs.T @ ts
+            noisy = [cv2.Rodrigues(np.deg2rad(rng.normal(0, 0.3, 3)))[0] @ R for R in (Ra, Rb)]
+            pa[v], pb[v] = (cv2.Rodrigues(R)[0].ravel() for R in noisy)
+            ta[v], tb[v] = t_a + rng.normal(0, 500, 3), t_b + rng.normal(0, 500, 3)
+        res = resolve_turns(target, pa, pb, (ta, tb))
+        assert res.turned == list(range(6)), seed
+        # Little tilt is said: the rotation alone could not have decided.
+        assert ("tilt varies by only" in res.note) == (max_tilt_deg < 10)

@@ -48,6 +48,7 @@ def test_corners_are_at_least_as_accurate_as_cornersubpix_with_its_best_window(b
     ours, theirs = [], {h: [] for h in (2, 3, 4, 5, 6, 7, 8)}
     for image, truth in zip(views.images, views.corners_px, strict=True):
         det = detect(image, target)
+        assert det.found, det.reason
         # Metric: distance of each numbered corner to the true projection of that corner
         # (a turned view is numbered in the board's other order: match by position).
         ours.append(np.linalg.norm(det.q_px[:, None] - truth[None], axis=2).min(axis=1))
@@ -153,10 +154,21 @@ def test_stereo_with_a_symmetric_board_seen_turned():
         np.degrees(np.arccos((np.trace(R_true) - 1) / 2)), abs=0.05
     )
     assert cal.views_rejected == []
-    # Whatever each camera's detector numbered, the pairs now agree: every pair that needed
-    # it was turned, and reported.
-    for t in cal.turned_views:
-        assert t["turn_deg"] == 180
+    # Whatever each camera's detector numbered, the pairs now agree: in every view, the
+    # right camera's numbering (turned where reported) relates to the true corners as the
+    # left camera's does, and only such views were turned.
+    turned = {t["image"] for t in cal.turned_views}
+    assert all(t["turn_deg"] == 180 for t in cal.turned_views)
+    n = len(target.points_um())
+
+    def reversed_from_truth(det, truth):  # detected corner k is true corner n - 1 - k
+        return np.linalg.norm(det.q_px - truth[::-1][det.ids], axis=1).max() < 1.0
+
+    for k in range(12):
+        left = reversed_from_truth(dets["left"][k], views.corners_px["left"][k])
+        right = reversed_from_truth(dets["right"][k], views.corners_px["right"][k])
+        assert (f"right{k:02d}" in turned) == (left != right), k
+    assert n == 24
 
 
 def test_stereo_drops_a_pair_whose_pose_disagrees_and_says_why():

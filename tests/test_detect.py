@@ -105,3 +105,12 @@ def test_a_lattice_that_skips_a_row_is_not_taken_for_the_board():
     assert "do not bound alternating dark and light squares" in _not_a_chessboard(
         gray, skipped, 5, 4
     )
+
+
+def test_an_image_with_nan_pixels_is_refused_with_the_reason():
+    _, image, _ = view("chessboard:5x4:500", t=(5000.0, 4500.0, 1500.0))
+    image = image.astype(np.float32)
+    image[10, 20] = np.nan
+    det = detect(image, parse_target("chessboard:5x4:500"))
+    assert not det.found
+    assert det.reason == "the image has 1 NaN or infinite pixels"

@@ -66,7 +66,10 @@ def test_stereo_geometry_matches_the_rig(calibration):
 
 def test_the_pairs_numbered_from_opposite_ends_are_turned_and_reported(calibration):
     turned = calibration.turned_views
-    assert turned, "the 6 x 4 board looks the same turned: some pair must need turning"
+    # The 6 x 4 board looks the same turned: microcal's detector numbers these four right
+    # images from the other end of the board than the left ones (docs/vision.md).
+    assert {t["image"] for t in turned} == {"right01.jpg", "right02.jpg", "right04.jpg",
+                                            "right08.jpg"}  # fmt: skip
     assert all(t["turn_deg"] == 180 and t["camera"] == "right" for t in turned)
     # Each pair's corners, once turned as reported, correspond between the images: after
     # the mean disparity is taken out the same corner lies close in both, much closer than
@@ -90,8 +93,9 @@ def test_the_pairs_numbered_from_opposite_ends_are_turned_and_reported(calibrati
 
 def test_corners_agree_with_opencvs_reference_detection():
     # Metric: per image, RMS distance between microcal's corners and OpenCV's classic
-    # detector refined by cornerSubPix (11 x 11 window, as the reference), in the same
-    # numbering; both estimate the same corners.
+    # detector refined by cornerSubPix (11 x 11 window, as the reference), corner for corner
+    # in OpenCV's numbering or its reverse (the board looks the same turned); both estimate
+    # the same corners.
     target = parse_target(TARGET)
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 30, 0.001)
     for f in _files()["left"] + _files()["right"]:
@@ -101,9 +105,9 @@ def test_corners_agree_with_opencvs_reference_detection():
         ref = cv2.cornerSubPix(gray, c, (5, 5), (-1, -1), crit).reshape(-1, 2)
         det = detect(gray, target)
         assert det.found, f.name
-        # Match by position (the numbering may start at the other end).
-        d = np.linalg.norm(det.q_px[:, None] - ref[None], axis=2).min(axis=1)
-        assert np.sqrt(np.mean(d**2)) < 0.15, f.name
+        rms = min(float(np.sqrt(np.mean(np.sum((det.q_px - r) ** 2, axis=1))))
+                  for r in (ref, ref[::-1]))  # fmt: skip
+        assert rms < 0.15, f.name
 
 
 def test_diagnostics_say_what_limits_this_set(calibration):

@@ -120,7 +120,7 @@ def _finite(value: float) -> float | None:
 def _diagnostics_to_dict(d: CameraDiagnostics) -> dict[str, Any]:
     half = d.split_half
     return {
-        "std_intrinsics": d.std_intrinsics,
+        "std_intrinsics": {k: _finite(v) for k, v in d.std_intrinsics.items()},
         "uncertainty_px": {k: _finite(v) for k, v in d.uncertainty_px.items()},
         "uncertainty_map_px": [
             [_finite(round(float(v), 4)) for v in row] for row in d.uncertainty_map_px

@@ -68,8 +68,9 @@ def turn_ids(target: Target, turn_deg: int) -> NDArray[np.intp]:
     Returns
     -------
     ids : (N,) int
-        ``ids[k]`` is the feature that lands where feature ``k`` was: relabelling a detection
-        whose features were numbered ``k`` to ``ids[k]`` expresses it in the other numbering.
+        Turning the target by ``turn_deg`` puts feature ``k`` where feature ``ids[k]`` was
+        (see :func:`turn_transform`): relabelling a detection's feature ``k`` as ``ids[k]``
+        expresses it in the numbering of the turned target.
     """
     cols, rows = target.pattern_size
     j, i = np.divmod(np.arange(cols * rows), cols)

@@ -91,7 +91,16 @@ def intrinsics_covariance(
         ssr += float(np.sum((proj.reshape(-1, 2) - np.asarray(q, dtype=np.float64)) ** 2))
         n_obs += 2 * len(o)
     dof = max(n_obs - p - 6 * len(object_points), 1)
-    out: FloatArray = np.asarray((ssr / dof) * np.linalg.pinv(A), dtype=np.float64)
+    # Columns scaled to a unit diagonal first: the raw matrix spans many orders of magnitude
+    # (focal lengths in px against distortion terms), which a plain inverse would truncate.
+    d = np.sqrt(np.clip(np.diag(A), 1e-300, None))
+    scaled = A / np.outer(d, d)
+    if np.linalg.cond(scaled) > 1e13:
+        raise DegenerateDataError(
+            f"the intrinsics of lens model {fit.model.name} are not determined by these "
+            f"{len(object_points)} views (information matrix singular)"
+        )
+    out: FloatArray = (ssr / dof) * np.linalg.inv(scaled) / np.outer(d, d)
     return out
 
 
@@ -337,12 +346,17 @@ def diagnose(
     richest_offered : bool
         The lens model is the richest that was offered: the lens may need more.
     """
-    cov = intrinsics_covariance(fit, object_points, image_points)
     names = ["fx", "fy", "cx", "cy", *fit.model.terms]
-    std = {n: float(np.sqrt(max(cov[i, i], 0.0))) for i, n in enumerate(names)}
-    umap = projection_uncertainty_px(fit, cov, size)
-    cover = coverage(image_points, size)
     verdict: list[str] = []
+    try:
+        cov = intrinsics_covariance(fit, object_points, image_points)
+        std = {n: float(np.sqrt(max(cov[i, i], 0.0))) for i, n in enumerate(names)}
+        umap = projection_uncertainty_px(fit, cov, size)
+    except DegenerateDataError as exc:
+        verdict.append(f"too few or too similar views: {exc}")
+        std = dict.fromkeys(names, float("nan"))
+        umap = np.full((GRID[1], GRID[0]), np.nan)
+    cover = coverage(image_points, size)
     empty = [n for n in ("top-left", "top-right", "bottom-left", "bottom-right") if not cover[n]]
     if empty:
         verdict.append(

@@ -6,7 +6,8 @@ the angle between the edges (perspective) and however blurred, as long as the bl
 same on both sides. :func:`refine_corners` finds each corner in two steps:
 
 1. OpenCV's ``cornerSubPix`` (gradients orthogonal to the offsets), with a half-window of
-   :data:`WINDOW_FRACTION` of the corner's own spacing to its nearest neighbour in the grid, so a
+   :data:`WINDOW_FRACTION` of the corner's own spacing to its nearest neighbour in the grid
+   (at most :data:`MAX_HALF_PX`), so a
    corner seen small under perspective gets a small window and one seen large a large one,
    and no window reaches a neighbouring corner or the board's edge;
 2. the centre ``c`` that minimises ``sum_d w(d) (I(c + d) - I(c - d))^2`` over the same
@@ -16,7 +17,8 @@ same on both sides. :func:`refine_corners` finds each corner in two steps:
 On rendered wide-angle views with blur and noise (``microcal.sim.calibration_views``) the
 second step brings the corner error from about 0.035-0.055 px (``cornerSubPix`` with its best
 fixed window) down to 0.014-0.024 px; on the Bumblebee2 photographs it lowers the mono RMS
-from 0.082 to 0.073 px (see docs/vision.md). A corner whose fit does not converge, or moves
+of the left camera from 0.082 to 0.073 px with OpenCV's default lens model (see
+docs/vision.md). A corner whose fit does not converge, or moves
 more than :data:`MAX_SHIFT_PX` from step 1, keeps step 1's position.
 """
 
@@ -28,13 +30,16 @@ from numpy.typing import NDArray
 
 from .._validation import FloatArray
 
-__all__ = ["MAX_SHIFT_PX", "WINDOW_FRACTION", "local_spacing_px", "refine_corners"]
+__all__ = ["MAX_HALF_PX", "MAX_SHIFT_PX", "WINDOW_FRACTION", "local_spacing_px", "refine_corners"]
 
 #: Half-window as a fraction of each corner's spacing to its nearest grid neighbour.
 WINDOW_FRACTION = 0.4
 #: The symmetry fit may move a corner at most this far from the gradient estimate, px.
 MAX_SHIFT_PX = 1.0
 _MIN_HALF_PX = 2
+#: Half-windows are capped here: squares of hundreds of pixels gain nothing from more, and the
+#: symmetry fit samples (2 h + 1)^2 / 2 offsets per corner.
+MAX_HALF_PX = 20
 _ITERATIONS = 10
 _CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 1e-3)
 
@@ -142,7 +147,7 @@ def refine_corners(
     corners_px : (rows * cols, 2) float
     """
     q = np.asarray(corners_px, dtype=np.float64)
-    half = WINDOW_FRACTION * local_spacing_px(q, cols, rows)
+    half = np.minimum(WINDOW_FRACTION * local_spacing_px(q, cols, rows), MAX_HALF_PX)
     first = _gradient_step(gray, q, half)
-    half = WINDOW_FRACTION * local_spacing_px(first, cols, rows)
+    half = np.minimum(WINDOW_FRACTION * local_spacing_px(first, cols, rows), MAX_HALF_PX)
     return _symmetry_step(gray, first, half)

@@ -124,16 +124,22 @@ def _not_a_chessboard(gray: NDArray[np.float32], corners: FloatArray, cols: int,
     """Why these corners do not bound a chessboard's squares ("" when they do).
 
     A finder may return a lattice that skips a row or reaches into the background; then some
-    "squares" straddle two real ones. On a real board every light square is lighter than
-    every dark one.
+    "squares" straddle two real ones. On a real board each square differs from its four
+    neighbours the same way: the dark ones darker than the light ones next to them (a local
+    test, so uneven lighting over the board does not matter).
     """
     levels = _square_levels(gray, corners.reshape(rows, cols, 2))
     if levels.size < 2:
         return ""
     b, a = np.indices(levels.shape)
-    even, odd = levels[(a + b) % 2 == 0], levels[(a + b) % 2 == 1]
-    dark, light = (even, odd) if even.mean() < odd.mean() else (odd, even)
-    if light.min() > dark.max():
+    even = (a + b) % 2 == 0
+    light_even = levels[even].mean() > levels[~even].mean()
+    s = np.where(even == light_even, 1.0, -1.0)  # +1 on the light squares
+    steps = np.concatenate(
+        [((levels[:, :-1] - levels[:, 1:]) * s[:, :-1]).ravel(),
+         ((levels[:-1, :] - levels[1:, :]) * s[:-1, :]).ravel()]
+    )  # fmt: skip
+    if np.all(steps > 0):
         return ""
     return (
         f"the {cols}x{rows} corners found do not bound alternating dark and light squares "
@@ -365,6 +371,10 @@ def detect(
         ``found=False`` with a reason when the target is not (all) there.
     """
     gray = to_gray(image)
+    if gray.dtype.kind == "f":
+        bad = int(np.count_nonzero(~np.isfinite(gray)))
+        if bad:
+            return Detection.none(f"the image has {bad} NaN or infinite pixels")
     x0 = y0 = 0
     if roi is not None:
         h, w = gray.shape

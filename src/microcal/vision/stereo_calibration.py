@@ -41,7 +41,7 @@ from .detect import Detection
 from .lens_models import LENS_MODELS, LensModelChoice, choose_lens_model
 from .lens_models import lens_model as named_lens_model
 from .targets import Target
-from .view_consistency import resolve_turns
+from .view_consistency import normal_spread_deg, resolve_turns
 
 __all__ = [
     "CameraCalibration",
@@ -54,8 +54,12 @@ __all__ = [
 OUTLIER_FACTOR = 3.0
 #: ... and this many pixels.
 OUTLIER_FLOOR_PX = 0.15
+#: Rounds of rejection at most; the fit after the last round is the one returned.
+OUTLIER_ROUNDS = 3
 #: Common ids a view pair needs to enter the stereo solve.
 MIN_COMMON_POINTS = 6
+#: Method (b) refuses views whose board normals all lie within this angle (degrees).
+MIN_TILT_SPREAD_DEG = 5.0
 
 
 @dataclass
@@ -87,8 +91,9 @@ class StereoCalibration:
     rms_px: float
     baseline_um: float
     turned_views: list[dict[str, Any]] = field(default_factory=list)
-    """Images whose corner numbering was turned to agree with the first camera's in the same
-    view (a symmetric board): ``image``, ``camera``, ``turn_deg``."""
+    """Images whose corner numbering was turned (a symmetric board): ``image``, ``camera``,
+    ``turn_deg``. Method (b): to agree with the first camera's in the same view; method (a):
+    with the same camera's first view, or as its steps across the target's plane fit."""
     views_rejected: list[dict[str, str]] = field(default_factory=list)
     """View pairs left out of the stereo solve: ``view`` (both images) and ``reason``."""
     notes: list[str] = field(default_factory=list)
@@ -241,7 +246,8 @@ def _turn_by_steps(
     out = list(detections)
     for i in used:
         out[i] = _renumbered(detections[i], target, best)
-    return out, {i: (turned.get(i, 0) + best) % 360 for i in used}
+    total = {i: (turned.get(i, 0) + best) % 360 for i in used}
+    return out, {i: t for i, t in total.items() if t}
 
 
 def _steps_in_plane(target: Target, disp: FloatArray) -> bool:
@@ -261,7 +267,7 @@ def _calibrate_one_known(
     used, rejected = _usable(detections, image_names)
     detections, turned = _align_views(detections, used, target)
     detections, turned = _turn_by_steps(detections, used, target, displacements_um, turned)
-    for _ in range(3):
+    for round_ in range(OUTLIER_ROUNDS + 1):
         if len(used) < 2:
             raise DegenerateDataError(
                 f"camera {name}: the target was found in {len(used)} image(s); at least 2 at "
@@ -278,7 +284,7 @@ def _calibrate_one_known(
             for i in used
         }
         bad = _outliers(rms_views)
-        if not bad:
+        if not bad or round_ == OUTLIER_ROUNDS:  # the last fit is of the views kept
             break
         rejected += [{"image": v, "reason": r} for v, r in bad.items()]
         used = [i for i in used if image_names[i] not in bad]
@@ -473,7 +479,7 @@ def _calibrate_one_unknown(
     used, rejected = _usable(dets, image_names)
     models = LENS_MODELS if model_name == "auto" else (named_lens_model(model_name),)
     points = target.points_um()
-    for _ in range(3):
+    for round_ in range(OUTLIER_ROUNDS + 1):
         if len(used) < 3:
             raise DegenerateDataError(
                 f"camera {name}: the target was found in {len(used)} view(s); at least 3 "
@@ -489,7 +495,7 @@ def _calibrate_one_unknown(
             image_names[i]: float(e) for i, e in zip(used, choice.fit.per_view_rms_px, strict=True)
         }
         bad = _outliers(view_rms)
-        if not bad:
+        if not bad or round_ == OUTLIER_ROUNDS:  # the last fit is of the views kept
             break
         rejected += [{"image": v, "reason": r} for v, r in bad.items()]
         used = [i for i in used if image_names[i] not in bad]
@@ -499,7 +505,7 @@ def _calibrate_one_unknown(
         projected, _ = cv2.projectPoints(points[dets[i].ids], fit.rvecs[k], fit.tvecs[k], fit.K,
                                          fit.dist)  # fmt: skip
         residuals[image_names[i]] = _residuals(projected.reshape(-1, 2), dets[i].q_px)
-    richest = len(choice.candidates) > 1 and fit.model.name == choice.candidates[-1]["name"]
+    richest = len(models) > 1 and fit.model == models[-1]
     diagnostics = diagnose(fit, obj, img, size, richest_offered=richest)
     sd = fit.std_intrinsics
     std = {
@@ -553,6 +559,11 @@ def calibrate_unknown_poses(
     names = list(detections)
     if len(names) != 2:
         raise InputError(f"calibrate_unknown_poses: expected 2 cameras, got {len(names)}")
+    if len(target.points_um()) < MIN_COMMON_POINTS:
+        raise InputError(
+            f"target {target.spec}: {len(target.points_um())} features are too few for method "
+            f"(b); use a target with at least {MIN_COMMON_POINTS} (e.g. chessboard:7x4:PITCH)"
+        )
     n_views = len(detections[names[0]])
     if any(len(d) != n_views for d in detections.values()):
         raise InputError("calibrate_unknown_poses: every camera needs one image per view")
@@ -563,6 +574,14 @@ def calibrate_unknown_poses(
         for name in names
     }
     a, b = names
+    for name, m in mono.items():
+        spread = normal_spread_deg(dict(enumerate(m.choice.fit.rvecs)))
+        if spread < MIN_TILT_SPREAD_DEG:
+            raise DegenerateDataError(
+                f"camera {name}: the target's tilt varies by only {spread:.1f} deg over the "
+                f"views; tilt it by 20 to 40 degrees in different directions between views "
+                "(method b cannot tell focal length from distance otherwise)"
+            )
     view_names = image_names[a]
     poses = {
         name: {i: m.choice.fit.rvecs[k] for k, i in enumerate(m.used)} for name, m in mono.items()
@@ -571,7 +590,7 @@ def calibrate_unknown_poses(
         name: {i: m.choice.fit.tvecs[k] for k, i in enumerate(m.used)} for name, m in mono.items()
     }
     rejected: list[dict[str, str]] = []
-    resolution = resolve_turns(target, poses[a], poses[b])
+    resolution = resolve_turns(target, poses[a], poses[b], (tvecs[a], tvecs[b]))
     pair = {i: f"{view_names[i]} + {image_names[b][i]}" for i in range(n_views)}
     rejected += [{"view": pair[i], "reason": r} for i, r in resolution.disagree.items()]
     det_b = {i: _renumbered(detections[b][i], target, t) for i, t in resolution.turns.items()}
@@ -597,7 +616,7 @@ def calibrate_unknown_poses(
             continue
         pairs[i] = (obj[ids], d1.q_px[np.searchsorted(d1.ids, ids)],
                     d2.q_px[np.searchsorted(d2.ids, ids)])  # fmt: skip
-    for _ in range(3):
+    for round_ in range(OUTLIER_ROUNDS + 1):
         if len(pairs) < 1:
             raise DegenerateDataError("no view is usable in both cameras for the stereo step")
         keys = sorted(pairs)
@@ -613,7 +632,7 @@ def calibrate_unknown_poses(
             pair[i]: float(np.sqrt(np.mean(e**2))) for i, e in zip(keys, errors, strict=True)
         }
         bad = _outliers(view_rms)
-        if not bad:
+        if not bad or round_ == OUTLIER_ROUNDS:  # the last fit is of the views kept
             break
         rejected += [{"view": v, "reason": "stereo " + r} for v, r in bad.items()]
         pairs = {i: p for i, p in pairs.items() if pair[i] not in bad}
@@ -630,6 +649,11 @@ def calibrate_unknown_poses(
     m2 = _camera_model(fb.K, fb.dist, rvec2, t2, image_size_px[b], b)
     cams = {name: m.calibration for name, m in mono.items()}
     cams[a].model, cams[b].model = m1, m2
+    for cal in cams.values():  # the intrinsics' share of the projection error, per axis
+        d = cal.diagnostics
+        if d is not None and np.isfinite(d.uncertainty_map_px).any():
+            sigma = float(np.sqrt(np.nanmean(d.uncertainty_map_px**2) / 2.0))
+            cal.model = dataclasses.replace(cal.model, projection_sigma_px=sigma)
     return StereoCalibration(
         "unknown poses (per-camera + stereo)",
         cams,
@@ -637,4 +661,5 @@ def calibrate_unknown_poses(
         _baseline({"a": m1, "b": m2}),
         turned,
         rejected,
+        notes=[resolution.note] if resolution.note else [],
     )

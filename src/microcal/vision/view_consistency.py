@@ -10,9 +10,11 @@ other views, because a wrong one composes the true relative pose with a turn abo
 view's board normal, which differs from view to view.
 
 :func:`resolve_turns` takes the hypothesis (one view, one turn) that most views agree with
-within :data:`AGREEMENT_DEG`, preferring on a tie the one that keeps most numberings as
-detected, and gives for every view the turn that agrees with it, or the reason the view
-agrees under none.
+within :data:`AGREEMENT_DEG`, preferring on a tie the one whose relative translations agree
+best (a wrong turn about each view's board centre moves it from view to view), then the one
+that keeps most numberings as detected, and gives for every view the turn that agrees with
+it, or the reason the view agrees under none. When the board's tilt hardly varies, a wrong
+turn changes the relative rotation by little; the result then says so.
 """
 
 from __future__ import annotations
@@ -27,7 +29,13 @@ from .._validation import FloatArray
 from .board_symmetry import ambiguous_turns, turn_transform
 from .targets import Target
 
-__all__ = ["AGREEMENT_DEG", "TurnResolution", "relative_rotation", "resolve_turns"]
+__all__ = [
+    "AGREEMENT_DEG",
+    "TurnResolution",
+    "normal_spread_deg",
+    "relative_rotation",
+    "resolve_turns",
+]
 
 #: Relative rotations within this angle (degrees) agree; turns of a board differ by >= 90.
 AGREEMENT_DEG = 15.0
@@ -74,11 +82,14 @@ class TurnResolution:
         Views whose relative pose agrees under no turn, with the reason.
     rotation : (3, 3) float
         The agreed rotation from camera A's frame to camera B's.
+    note : str
+        A warning when the views' tilts vary too little for the rotation alone to decide.
     """
 
     turns: dict[int, int]
     disagree: dict[int, str]
     rotation: FloatArray
+    note: str = ""
 
     @property
     def turned(self) -> list[int]:
@@ -86,10 +97,34 @@ class TurnResolution:
         return sorted(v for v, t in self.turns.items() if t != 0)
 
 
+def _relative_translation(
+    pose_a: tuple[FloatArray, FloatArray],
+    pose_b: tuple[FloatArray, FloatArray],
+    target: Target,
+    turn_deg: int,
+) -> FloatArray:
+    """Translation from camera A's frame to camera B's implied by one view, (3,), µm."""
+    Rs, ts = turn_transform(target, turn_deg)
+    Ra, Rb = _rotation(pose_a[0]), _rotation(pose_b[0]) @ Rs.T
+    tb = np.ravel(pose_b[1]) - Rb @ ts
+    out: FloatArray = tb - Rb @ Ra.T @ np.ravel(pose_a[1])
+    return out
+
+
+def normal_spread_deg(poses_a: Mapping[int, FloatArray]) -> float:
+    """Largest angle between two views' board normals in camera A, degrees."""
+    normals = np.array([_rotation(r)[:, 2] for r in poses_a.values()])
+    if len(normals) < 2:
+        return 0.0
+    cos = np.clip(normals @ normals.T, -1.0, 1.0)
+    return float(np.degrees(np.arccos(cos.min())))
+
+
 def resolve_turns(
     target: Target,
     poses_a: Mapping[int, FloatArray],
     poses_b: Mapping[int, FloatArray],
+    translations: tuple[Mapping[int, FloatArray], Mapping[int, FloatArray]] | None = None,
 ) -> TurnResolution:
     """Find the turn of camera B's numbering in each view that agrees with all the others.
 
@@ -99,6 +134,11 @@ def resolve_turns(
     poses_a, poses_b : dict view -> (3,) float
         The board's rotation (Rodrigues vector) in each camera's frame, per view, from each
         camera's own calibration. Views missing in either are left out.
+    translations : (dict view -> (3,) float, same), optional
+        The board's translation in each camera, µm. A wrong turn moves the relative
+        translation from view to view even when the board's tilts hardly vary (then a wrong
+        turn changes the relative rotation by little): hypotheses that agree on the rotation
+        equally are told apart by the spread of the relative translations.
 
     Returns
     -------
@@ -109,16 +149,24 @@ def resolve_turns(
     rel = {
         (v, t): relative_rotation(poses_a[v], poses_b[v], target, t) for v in views for t in turns
     }
-    best: tuple[tuple[int, int], FloatArray] | None = None
+    best: tuple[tuple[int, float, int], FloatArray] | None = None
     for hyp in rel.values():
-        agree, kept = 0, 0
+        assigned = {}
         for w in views:
             angles = {u: _angle_deg(rel[(w, u)], hyp) for u in turns}
             u = min(angles, key=lambda k: angles[k])
             if angles[u] < AGREEMENT_DEG:
-                agree += 1
-                kept += u == 0
-        score = (agree, kept)
+                assigned[w] = u
+        spread = 0.0
+        if translations is not None and len(assigned) > 1:
+            ta, tb = translations
+            t = np.array([
+                _relative_translation((poses_a[w], ta[w]), (poses_b[w], tb[w]), target, u)
+                for w, u in assigned.items()
+            ])  # fmt: skip
+            spread = float(np.median(np.linalg.norm(t - np.median(t, axis=0), axis=1)))
+        kept = sum(u == 0 for u in assigned.values())
+        score = (len(assigned), -spread, kept)
         if best is None or score > best[0]:
             best = (score, hyp)
     if best is None:
@@ -136,4 +184,13 @@ def resolve_turns(
                 f"the cameras' relative rotation in this view is {angles[u]:.1f} deg from the "
                 f"other views' (more than {AGREEMENT_DEG:g}): a mis-detected or moved target"
             )
-    return TurnResolution(out, disagree, hyp)
+    note = ""
+    spread_deg = normal_spread_deg({v: poses_a[v] for v in views})
+    if len(turns) > 1 and spread_deg < 2 * AGREEMENT_DEG:
+        note = (
+            f"the board's tilt varies by only {spread_deg:.0f} deg over the views, so its turns "
+            "were told apart "
+            + ("by the relative translation" if translations is not None else "weakly")
+            + ": tilt it more between views, or use an odd x even chessboard"
+        )
+    return TurnResolution(out, disagree, hyp, note)
