@@ -12,6 +12,7 @@ import io
 from collections.abc import Mapping, Sequence
 
 import numpy as np
+from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
@@ -40,6 +41,16 @@ def _uri(fig: Figure) -> str:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=DPI)
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _image_axes(ax: Axes, w: int, h: int, title: str) -> None:
+    """Axes that show a w x h image's pixel frame (v down), labelled."""
+    ax.set_xlim(0, w)
+    ax.set_ylim(h, 0)
+    ax.set_aspect("equal")
+    ax.set_xlabel("u, px")
+    ax.set_ylabel("v, px")
+    ax.set_title(title, fontsize=9)
 
 
 def per_view_rms(per_view_px: Mapping[str, Mapping[str, float]]) -> str:
@@ -98,12 +109,7 @@ def calibration_coverage(
         w, h = image_size_px[cam]
         ax = fig.add_subplot(1, len(residuals_px), k + 1)
         ax.scatter(r[:, 0], r[:, 1], s=1, color="tab:blue", linewidths=0)
-        ax.set_xlim(0, w)
-        ax.set_ylim(h, 0)
-        ax.set_aspect("equal")
-        ax.set_xlabel("u, px")
-        ax.set_ylabel("v, px")
-        ax.set_title(f"{cam}: target points over the {w} x {h} image", fontsize=9)
+        _image_axes(ax, w, h, f"{cam}: target points over the {w} x {h} image")
     return _uri(fig)
 
 
@@ -131,9 +137,7 @@ def projection_uncertainty(
             cs = ax.contour(gx, gy, m, levels=levels, colors="white", linewidths=0.6)
             ax.clabel(cs, fontsize=7, fmt="%g")
         fig.colorbar(im, ax=ax, label="1-sigma, px")
-        ax.set_xlabel("u, px")
-        ax.set_ylabel("v, px")
-        ax.set_title(f"{cam}: projection uncertainty", fontsize=9)
+        _image_axes(ax, w, h, f"{cam}: projection uncertainty")
     return _uri(fig)
 
 
@@ -156,12 +160,7 @@ def residual_field(
         scale = 0.03 * max(w, h) / size if size > 0 else 1.0
         ax.quiver(r[:, 0], r[:, 1], r[:, 2] * scale, -r[:, 3] * scale, angles="xy",
                   scale_units="xy", scale=1.0, width=0.003, color="tab:red")  # fmt: skip
-        ax.set_xlim(0, w)
-        ax.set_ylim(h, 0)
-        ax.set_aspect("equal")
-        ax.set_xlabel("u, px")
-        ax.set_ylabel("v, px")
-        ax.set_title(f"{cam}: residuals over the image (x{scale:.0f})", fontsize=9)
+        _image_axes(ax, w, h, f"{cam}: residuals over the image (x{scale:.0f})")
     return _uri(fig)
 
 
