@@ -3,6 +3,7 @@ known displacements, and a fixed model used as asked (CLI, procedure and lens_mo
 
 from __future__ import annotations
 
+import hashlib
 import json
 
 import cv2
@@ -199,3 +200,35 @@ def test_stereo_calibrate_with_a_fixed_lens_model(stereo_images, tmp_path):
         assert cam["rms_px"] < 0.1, name
     # The rig's baseline is 120 mm: within 2 % (relative).
     assert data["stereo"]["baseline_um"] == pytest.approx(120_000, rel=0.02)
+
+
+@pytest.mark.parametrize(
+    ("existing", "message"),
+    [
+        ('{"format": "microcal.calibration/1", "cameras": {}}', "holds a microcal.calibration/1 file"),
+        ("x,y\n1,2\n", "holds a file microcal did not write"),
+    ],
+)  # fmt: skip
+def test_stereo_calibrate_never_replaces_a_file_of_another_kind(tmp_path, existing, message):
+    out = tmp_path / "calibration.json"
+    out.write_text(existing)
+    before = hashlib.sha256(out.read_bytes()).hexdigest()
+    result = CliRunner().invoke(
+        app, ["stereo-calibrate", "--target", "chessboard:7x4:25000", "--images", "a=x*.png",
+              "--images", "b=y*.png", "--out", str(out)],
+    )  # fmt: skip
+    assert result.exit_code == 2
+    lines = [line for line in result.output.splitlines() if line.startswith("microcal: error:")]
+    assert len(lines) == 1, result.output
+    assert message in lines[0]
+    assert "Traceback" not in result.output
+    assert hashlib.sha256(out.read_bytes()).hexdigest() == before
+
+
+def test_stereo_calibrate_refuses_a_directory_as_out(tmp_path):
+    result = CliRunner().invoke(
+        app, ["stereo-calibrate", "--target", "chessboard:7x4:25000", "--images", "a=x*.png",
+              "--images", "b=y*.png", "--out", str(tmp_path)],
+    )  # fmt: skip
+    assert result.exit_code == 2
+    assert "is a directory; give a file name such as cameras.json" in result.output

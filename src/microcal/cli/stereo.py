@@ -34,15 +34,17 @@ def stereo_calibrate(
     Example: microcal stereo-calibrate --target dotgrid:40x30:250 --images top='cal/top_*.tiff'
     --images side='cal/side_*.tiff' --known-displacements cal/steps.csv --out cameras.json
     """
-    from ..formats.cameras_file import save_stereo_calibration
+    from ..formats.cameras_file import CAMERAS_FORMAT, save_stereo_calibration
     from ..formats.commands_csv import read_joint_csv
     from ..formats.images import read_frames
+    from ..formats.json_file import check_json_output
     from ..formats.options import parse_images
     from ..procedures.stereo import calibrate_views
     from ..report.text_tables import stereo_lines
     from ..vision.targets import parse_target
 
     tgt = parse_target(target)
+    check_json_output(out, CAMERAS_FORMAT, "cameras.json")
     files = parse_images(images)
     n_views = len(next(iter(files.values())))
     disp = None

@@ -18,11 +18,12 @@ from typing import Any, TypeVar
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from .._version import __version__
-from ..errors import FormatError
+from ..errors import FormatError, InputError
 
 __all__ = [
     "FileSchema",
     "check_format",
+    "check_json_output",
     "parse_schema",
     "read_json_object",
     "read_versioned_json",
@@ -118,3 +119,37 @@ def read_versioned_json(
     raw = read_json_object(path, missing_hint)
     check_format(Path(path), raw.get("format"), formats)
     return raw
+
+
+def check_json_output(
+    path: str | os.PathLike[str], fmt: str, example: str, option: str = "--out"
+) -> Path:
+    """Refuse, before any work, an output that cannot be written or is not ours to replace.
+
+    ``path`` may be new, or a file of the format ``fmt`` (its name, any version) that microcal
+    wrote; a directory, a file of another kind or a place without write permission is an
+    ``InputError`` naming the option and the fix (``example``: a file name to suggest).
+    """
+    p = Path(path)
+    name = _name_and_version(fmt)[0]
+    if p.is_dir():
+        raise InputError(f"{option} {p}: is a directory; give a file name such as {example}")
+    if p.exists():
+        try:
+            found = json.loads(p.read_text(encoding="utf-8")).get("format")
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError):
+            found = None
+        if not isinstance(found, str) or _name_and_version(found)[0] != name:
+            what = f"a {found} file" if isinstance(found, str) else "a file microcal did not write"
+            raise InputError(
+                f"{option} {p}: holds {what}, not a {name} file; microcal replaces only "
+                f"files of that kind it wrote: choose another name such as {example}"
+            )
+    parent = p.parent if str(p.parent) else Path(".")
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not os.access(parent, os.W_OK):
+        raise InputError(
+            f"{option} {p}: cannot write in {parent} (no permission); choose another place"
+        )
+    return p
