@@ -114,3 +114,11 @@ def test_an_image_with_nan_pixels_is_refused_with_the_reason():
     det = detect(image, parse_target("chessboard:5x4:500"))
     assert not det.found
     assert det.reason == "the image has 1 NaN or infinite pixels"
+
+
+@pytest.mark.parametrize("spec", ["chessboard:3x2:400", "chessboard:2x2:400", "charuco:2x4:400"])
+def test_boards_too_small_for_the_finders_are_refused_at_the_spec(spec):
+    from microcal.errors import InputError
+
+    with pytest.raises(InputError, match=r"expected at least 3x3"):
+        parse_target(spec)

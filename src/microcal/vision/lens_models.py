@@ -33,6 +33,7 @@ point and the focal length, and only ``radial1`` is offered.
 from __future__ import annotations
 
 import contextlib
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -53,6 +54,7 @@ __all__ = [
     "field_of_view_deg",
     "fit_camera",
     "lens_model",
+    "opencv_reason",
 ]
 
 _KEEP_ZERO = cv2.CALIB_FIX_K4 | cv2.CALIB_FIX_K5 | cv2.CALIB_FIX_K6
@@ -129,6 +131,13 @@ MIN_VIEWS_TO_CHOOSE = 4
 STOP_AFTER = 2
 
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-9)
+
+
+def opencv_reason(exc: Exception) -> str:
+    """The readable part of an OpenCV error ("Principal point must be within the image")."""
+    text = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+    m = re.search(r"error: \([^)]*\) (.*?)(?: in function .*)?$", text)
+    return m.group(1).strip() if m else text
 
 
 def lens_model(name: str) -> LensModel:
@@ -219,7 +228,7 @@ def fit_camera(
     except cv2.error as exc:
         raise DegenerateDataError(
             f"the camera cannot be calibrated from these {len(obj)} views with lens model "
-            f"{model.name} (OpenCV: {str(exc).strip().splitlines()[-1]}); the views need "
+            f"{model.name} (OpenCV: {opencv_reason(exc)}); the views need "
             "different tilts of the target"
         ) from None
     if not np.all(np.isfinite(K)) or not np.isfinite(rms):

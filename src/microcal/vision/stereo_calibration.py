@@ -38,7 +38,7 @@ from ..geometry import CameraModel, decompose_projection_matrix, estimate_projec
 from .board_symmetry import ambiguous_turns, turn_ids
 from .calibration_diagnostics import CameraDiagnostics, diagnose
 from .detect import Detection
-from .lens_models import LENS_MODELS, LensModelChoice, choose_lens_model
+from .lens_models import LENS_MODELS, LensModelChoice, choose_lens_model, opencv_reason
 from .lens_models import lens_model as named_lens_model
 from .targets import Target
 from .view_consistency import normal_spread_deg, resolve_turns
@@ -333,16 +333,22 @@ def _fit_known(
         return model, {}
     rvec, _ = cv2.Rodrigues(R)
     flags = cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_FIX_K3
-    _, K2, d2, rvecs, tvecs, sd_in, _, _ = cv2.calibrateCameraExtended(
-        [p.astype(np.float32)],
-        [q.astype(np.float32)],
-        size,
-        model.K.copy(),
-        np.zeros(5),
-        rvecs=[rvec.astype(np.float64)],
-        tvecs=[t.reshape(3, 1).astype(np.float64).copy()],
-        flags=flags | cv2.CALIB_USE_EXTRINSIC_GUESS,
-    )
+    try:
+        _, K2, d2, rvecs, tvecs, sd_in, _, _ = cv2.calibrateCameraExtended(
+            [p.astype(np.float32)],
+            [q.astype(np.float32)],
+            size,
+            model.K.copy(),
+            np.zeros(5),
+            rvecs=[rvec.astype(np.float64)],
+            tvecs=[t.reshape(3, 1).astype(np.float64).copy()],
+            flags=flags | cv2.CALIB_USE_EXTRINSIC_GUESS,
+        )
+    except cv2.error as exc:
+        raise DegenerateDataError(
+            f"camera {name}: the views do not fit one camera (OpenCV: {opencv_reason(exc)}); "
+            "are the steps in µm, one row per image in the images' sorted order?"
+        ) from None
     sd = np.asarray(sd_in).ravel()
     std = {"fx_fy_cx_cy_px": sd[:4].tolist(), "k1_k2_p1_p2_k3": sd[4:9].tolist()}
     return _camera_model(K2, d2, rvecs[0], tvecs[0], size, name), std

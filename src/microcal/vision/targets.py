@@ -118,7 +118,7 @@ def parse_target(spec: str) -> Target:
         raise InputError(f"target {spec!r}: the pitch and feature size must be numbers") from None
     if pitch <= 0:
         raise InputError(f"target {spec!r}: expected a pitch > 0 µm, got {pitch:g}")
-    minimum = 3 if kind == "charuco" else 2
+    minimum = 2 if kind == "dotgrid" else 3  # OpenCV's chessboard finders need 3 x 3
     if cols < minimum or rows < minimum:
         raise InputError(
             f"target {spec!r}: expected at least {minimum}x{minimum}, got {cols}x{rows}"
