@@ -51,6 +51,7 @@ __all__ = [
     "LensModelChoice",
     "MonoFit",
     "choose_lens_model",
+    "dist_of_length",
     "field_of_view_deg",
     "fit_camera",
     "lens_model",
@@ -131,6 +132,14 @@ MIN_VIEWS_TO_CHOOSE = 4
 STOP_AFTER = 2
 
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-9)
+
+
+def dist_of_length(dist: object, n: int) -> FloatArray:
+    """A distortion vector cut or zero-padded to ``n`` coefficients (OpenCV's order), (n,)."""
+    flat = np.asarray(dist, dtype=np.float64).ravel()[:n]
+    out = np.zeros(n)
+    out[: flat.size] = flat
+    return out
 
 
 def opencv_reason(exc: Exception) -> str:
@@ -217,9 +226,7 @@ def fit_camera(
     d0: FloatArray | None = None
     if guess is not None:
         K0 = np.asarray(guess[0], dtype=np.float64).copy()
-        d0 = np.zeros(model.n_coefficients)
-        given = np.asarray(guess[1], dtype=np.float64).ravel()[: model.n_coefficients]
-        d0[: given.size] = given
+        d0 = dist_of_length(guess[1], model.n_coefficients)
         flags |= cv2.CALIB_USE_INTRINSIC_GUESS
     try:
         rms, K, dist, rvecs, tvecs, std_in, _, per_view = cv2.calibrateCameraExtended(
@@ -236,9 +243,7 @@ def fit_camera(
             f"the camera calibration with lens model {model.name} did not converge; the views "
             "need different tilts of the target"
         )
-    dist_out = np.zeros(model.n_coefficients)
-    flat = np.asarray(dist, dtype=np.float64).ravel()[: model.n_coefficients]
-    dist_out[: flat.size] = flat
+    dist_out = dist_of_length(dist, model.n_coefficients)
     std = np.asarray(std_in, dtype=np.float64).ravel()
     return MonoFit(
         model,

@@ -38,7 +38,13 @@ from ..geometry import CameraModel, decompose_projection_matrix, estimate_projec
 from .board_symmetry import ambiguous_turns, turn_ids
 from .calibration_diagnostics import CameraDiagnostics, diagnose
 from .detect import Detection
-from .lens_models import LENS_MODELS, LensModelChoice, choose_lens_model, opencv_reason
+from .lens_models import (
+    LENS_MODELS,
+    LensModelChoice,
+    choose_lens_model,
+    dist_of_length,
+    opencv_reason,
+)
 from .lens_models import lens_model as named_lens_model
 from .targets import Target
 from .view_consistency import normal_spread_deg, resolve_turns
@@ -120,10 +126,8 @@ def _camera_model(
     K = np.asarray(K, dtype=np.float64).copy()
     K[1, 0] = K[2, 0] = K[2, 1] = 0.0
     K[2, 2] = 1.0
-    flat = np.asarray(dist, dtype=np.float64).ravel()
-    n = next((k for k in (5, 8, 12, 14) if flat.size <= k), 14)
-    d = np.zeros(n)
-    d[: min(n, flat.size)] = flat[:n]
+    size_in = np.asarray(dist).size
+    d = dist_of_length(dist, next((k for k in (5, 8, 12, 14) if size_in <= k), 14))
     # Re-orthonormalise R against rounding in Rodrigues.
     u, _, vt = np.linalg.svd(R)
     return CameraModel(K, d, u @ vt, np.asarray(tvec, dtype=np.float64).ravel(), size, name)
@@ -164,13 +168,6 @@ def _usable(
 
 #: With these flags OpenCV's stereo solve reads all 14 coefficients of each camera (fixed).
 _ALL_TERMS = cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL | cv2.CALIB_TILTED_MODEL
-
-
-def _padded(dist: FloatArray) -> FloatArray:
-    """The distortion vector zero-padded to OpenCV's 14 coefficients."""
-    out = np.zeros(14)
-    out[: len(dist)] = dist
-    return out
 
 
 def _renumbered(det: Detection, target: Target, turn_deg: int) -> Detection:
@@ -630,7 +627,8 @@ def calibrate_unknown_poses(
             [pairs[i][0].astype(np.float32) for i in keys],
             [pairs[i][1].astype(np.float32) for i in keys],
             [pairs[i][2].astype(np.float32) for i in keys],
-            fa.K, _padded(fa.dist), fb.K, _padded(fb.dist), image_size_px[a], None, None,
+            fa.K, dist_of_length(fa.dist, 14), fb.K, dist_of_length(fb.dist, 14),
+            image_size_px[a], None, None,
             flags=cv2.CALIB_FIX_INTRINSIC | _ALL_TERMS,
         )  # fmt: skip
         errors = np.asarray(per_view, dtype=np.float64).reshape(len(keys), -1)
