@@ -368,8 +368,9 @@ def test_no_common_view_gives_an_empty_resolution():
 
 
 def test_boards_all_in_one_plane_keep_most_numberings_as_detected():
-    """With every board in the same plane (no tilt) a turned numbering is indistinguishable
-    from a turned relative pose: the module then keeps the numbering of most views."""
+    """With every board in the same plane (no tilt) and no translations given, a turned
+    numbering is indistinguishable from a turned relative pose by the rotation alone: the
+    module keeps the numbering of most views, and says the decision was weak."""
     target = parse_target("chessboard:6x4:25000")
     rng = np.random.default_rng(11)
     turns_b = {0: 180, 4: 180, 7: 180}
@@ -377,6 +378,7 @@ def test_boards_all_in_one_plane_keep_most_numberings_as_detected():
     res = resolve_turns(target, poses_a, poses_b)
     assert res.disagree == {}
     assert res.turned == sorted(turns_b)
+    assert "told apart weakly" in res.note
     # The majority turned: now the other seven are the ones renumbered.
     turns_b = {v: 180 for v in range(10) if v not in (0, 4, 7)}
     _, poses_a, poses_b = _synthetic_views(target, rng, turns_b, max_tilt_deg=0.0)
