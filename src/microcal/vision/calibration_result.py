@@ -8,9 +8,9 @@ from OpenCV's results, a detection renumbered by a turn of its board.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import cv2
 import numpy as np
@@ -20,8 +20,11 @@ from ..geometry import CameraModel
 from .board_symmetry import turn_ids
 from .calibration_diagnostics import CameraDiagnostics
 from .detect import Detection
-from .lens_models import dist_of_length
 from .targets import Target
+from .view_consistency import rotation_angle_deg
+
+ViewT = TypeVar("ViewT")
+ResultT = TypeVar("ResultT")
 
 __all__ = [
     "OUTLIER_FACTOR",
@@ -86,8 +89,7 @@ class StereoCalibration:
         models = list(self.models().values())
         if len(models) < 2:
             return 0.0
-        R = models[1].R @ models[0].R.T
-        return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+        return rotation_angle_deg(models[1].R, models[0].R)
 
 
 def _camera_model(
@@ -97,22 +99,17 @@ def _camera_model(
     K = np.asarray(K, dtype=np.float64).copy()
     K[1, 0] = K[2, 0] = K[2, 1] = 0.0
     K[2, 2] = 1.0
-    size_in = np.asarray(dist).size
-    d = dist_of_length(dist, next((k for k in (5, 8, 12, 14) if size_in <= k), 14))
+    d = np.asarray(dist, dtype=np.float64).ravel()  # OpenCV's lengths are CameraModel's
     # Re-orthonormalise R against rounding in Rodrigues.
     u, _, vt = np.linalg.svd(R)
     return CameraModel(K, d, u @ vt, np.asarray(tvec, dtype=np.float64).ravel(), size, name)
-
-
-def _view_rms(model: CameraModel, p_um: FloatArray, q_px: FloatArray) -> float:
-    return float(np.sqrt(np.mean(np.sum((model.project(p_um) - q_px) ** 2, axis=1))))
 
 
 def _residuals(projected_px: FloatArray, detected_px: FloatArray) -> FloatArray:
     return np.hstack([detected_px, projected_px - detected_px])
 
 
-def _outliers(rms: dict[str, float]) -> dict[str, str]:
+def _outliers(rms: Mapping[ViewT, float]) -> dict[ViewT, str]:
     if len(rms) < 3:
         return {}
     median = float(np.median(list(rms.values())))
@@ -123,6 +120,35 @@ def _outliers(rms: dict[str, float]) -> dict[str, str]:
         for view, value in rms.items()
         if value > limit
     }
+
+
+def _fit_rejecting_outliers(
+    views: Sequence[ViewT], fit: Callable[[list[ViewT]], tuple[ResultT, Mapping[ViewT, float]]]
+) -> tuple[ResultT, list[ViewT], dict[ViewT, str]]:
+    """Fit, drop the views whose RMS stands out, fit again, :data:`OUTLIER_ROUNDS` rounds at
+    most; the fit returned is always of the views kept.
+
+    Parameters
+    ----------
+    views : sequence
+        The views to start from.
+    fit : callable (views) -> (result, {view: RMS px})
+        Fits the views given (raising when they are too few) and gives each one's RMS.
+
+    Returns
+    -------
+    result, kept views, {rejected view: reason}
+    """
+    kept = list(views)
+    rejected: dict[ViewT, str] = {}
+    for round_ in range(OUTLIER_ROUNDS + 1):
+        result, rms = fit(kept)
+        bad = _outliers(rms)
+        if not bad or round_ == OUTLIER_ROUNDS:
+            break
+        rejected.update(bad)
+        kept = [v for v in kept if v not in bad]
+    return result, kept, rejected
 
 
 def _usable(

@@ -19,18 +19,17 @@ import numpy as np
 from .._validation import FloatArray
 from ..errors import DegenerateDataError, InputError
 from ..geometry import CameraModel, decompose_projection_matrix, estimate_projection_matrix
+from ..geometry.reprojection import reprojection_error
 from .board_symmetry import ambiguous_turns
 from .calibration_result import (
-    OUTLIER_ROUNDS,
     CameraCalibration,
     StereoCalibration,
     _baseline,
     _camera_model,
-    _outliers,
+    _fit_rejecting_outliers,
     _renumbered,
     _residuals,
     _usable,
-    _view_rms,
 )
 from .detect import Detection
 from .lens_models import opencv_reason
@@ -95,8 +94,7 @@ def _turn_by_steps(
             P = estimate_projection_matrix(p, q)
         except DegenerateDataError:
             return detections, turned
-        proj = p @ P[:, :3].T + P[:, 3]
-        rms[t] = float(np.sqrt(np.mean(np.sum((proj[:, :2] / proj[:, 2:] - q) ** 2, axis=1))))
+        rms[t] = float(np.sqrt(np.mean(reprojection_error(P, p, q) ** 2)))
     best = min(rms, key=lambda k: rms[k])
     if best == 0:
         return detections, turned
@@ -124,45 +122,40 @@ def _calibrate_one_known(
     used, rejected = _usable(detections, image_names)
     detections, turned = _align_views(detections, used, target)
     detections, turned = _turn_by_steps(detections, used, target, displacements_um, turned)
-    for round_ in range(OUTLIER_ROUNDS + 1):
-        if len(used) < 2:
+    points = target.points_um()
+
+    def calibrate(views: list[int]) -> tuple[tuple[CameraModel, dict[str, list[float]],
+                                             dict[int, FloatArray]], dict[int, float]]:  # fmt: skip
+        if len(views) < 2:
             raise DegenerateDataError(
-                f"camera {name}: the target was found in {len(used)} image(s); at least 2 at "
+                f"camera {name}: the target was found in {len(views)} image(s); at least 2 at "
                 f"different depths are needed"
             )
-        p, q = _known_points(detections, used, target, displacements_um)
-        model, std = _fit_known(p, q, size, name, refine)
-        rms_views = {
-            image_names[i]: _view_rms(
-                model,
-                target.points_um()[detections[i].ids] + displacements_um[i],
-                detections[i].q_px,
+        model, std = _fit_known(*_known_points(detections, views, target, displacements_um),
+                                size, name, refine)  # fmt: skip
+        residuals = {
+            i: _residuals(
+                model.project(points[detections[i].ids] + displacements_um[i]), detections[i].q_px
             )
-            for i in used
+            for i in views
         }
-        bad = _outliers(rms_views)
-        if not bad or round_ == OUTLIER_ROUNDS:  # the last fit is of the views kept
-            break
-        rejected += [{"image": v, "reason": r} for v, r in bad.items()]
-        used = [i for i in used if image_names[i] not in bad]
-    all_err = np.concatenate(
-        [
-            model.project(target.points_um()[detections[i].ids] + displacements_um[i])
-            - detections[i].q_px
-            for i in used
-        ]
-    )
+        rms = {
+            i: float(np.sqrt(np.mean(np.sum(r[:, 2:] ** 2, axis=1)))) for i, r in residuals.items()
+        }
+        return (model, std, residuals), rms
+
+    (model, std, residuals), used, bad = _fit_rejecting_outliers(used, calibrate)
+    rejected += [{"image": image_names[i], "reason": r} for i, r in bad.items()]
+    all_err = np.concatenate([residuals[i][:, 2:] for i in used])
     rms_all = float(np.sqrt(np.mean(np.sum(all_err**2, axis=1))))
-    residuals = {
-        image_names[i]: _residuals(
-            model.project(target.points_um()[detections[i].ids] + displacements_um[i]),
-            detections[i].q_px,
-        )
+    rms_views = {
+        image_names[i]: float(np.sqrt(np.mean(np.sum(residuals[i][:, 2:] ** 2, axis=1))))
         for i in used
     }
     sigma = _jackknife_sigma_px(detections, used, target, displacements_um, size, refine, model)
     model = dataclasses.replace(model, projection_sigma_px=sigma)
-    cal = CameraCalibration(model, rms_all, rms_views, len(used), rejected, std, residuals)
+    by_name = {image_names[i]: residuals[i] for i in used}
+    cal = CameraCalibration(model, rms_all, rms_views, len(used), rejected, std, by_name)
     return cal, turned
 
 

@@ -385,10 +385,9 @@ def choose_lens_model(
     n = len(object_points)
     if n < MIN_VIEWS_TO_CHOOSE:
         simple = first
-        if len(models) > 1:
-            with contextlib.suppress(DegenerateDataError):
-                simple = fit_camera(object_points, image_points, size, models[1],
-                                    guess=(first.K, first.dist))  # fmt: skip
+        with contextlib.suppress(DegenerateDataError):
+            simple = fit_camera(object_points, image_points, size, models[1],
+                                guess=(first.K, first.dist))  # fmt: skip
         return LensModelChoice(
             simple,
             f"{n} views are too few to compare lens models by held-out error (at least "

@@ -24,12 +24,11 @@ from ..errors import DegenerateDataError, InputError
 from ..geometry import CameraModel
 from .calibration_diagnostics import diagnose
 from .calibration_result import (
-    OUTLIER_ROUNDS,
     CameraCalibration,
     StereoCalibration,
     _baseline,
     _camera_model,
-    _outliers,
+    _fit_rejecting_outliers,
     _renumbered,
     _residuals,
     _usable,
@@ -69,26 +68,29 @@ def _calibrate_one_unknown(
     used, rejected = _usable(dets, image_names)
     models = LENS_MODELS if model_name == "auto" else (named_lens_model(model_name),)
     points = target.points_um()
-    for round_ in range(OUTLIER_ROUNDS + 1):
-        if len(used) < 3:
+
+    def calibrate(views: list[int]) -> tuple[LensModelChoice, dict[int, float]]:
+        if len(views) < 3:
             raise DegenerateDataError(
-                f"camera {name}: the target was found in {len(used)} view(s); at least 3 "
+                f"camera {name}: the target was found in {len(views)} view(s); at least 3 "
                 f"tilted views are needed"
             )
-        obj = [points[dets[i].ids] for i in used]
-        img = [dets[i].q_px for i in used]
+        obj = [points[dets[i].ids] for i in views]
+        img = [dets[i].q_px for i in views]
         try:
             choice = choose_lens_model(obj, img, size, models=models)
         except DegenerateDataError as exc:
             raise DegenerateDataError(f"camera {name}: {exc}") from None
-        view_rms = {
-            image_names[i]: float(e) for i, e in zip(used, choice.fit.per_view_rms_px, strict=True)
-        }
-        bad = _outliers(view_rms)
-        if not bad or round_ == OUTLIER_ROUNDS:  # the last fit is of the views kept
-            break
-        rejected += [{"image": v, "reason": r} for v, r in bad.items()]
-        used = [i for i in used if image_names[i] not in bad]
+        rms = dict(zip(views, (float(e) for e in choice.fit.per_view_rms_px), strict=True))
+        return choice, rms
+
+    choice, used, bad = _fit_rejecting_outliers(used, calibrate)
+    rejected += [{"image": image_names[i], "reason": r} for i, r in bad.items()]
+    view_rms = {
+        image_names[i]: float(e) for i, e in zip(used, choice.fit.per_view_rms_px, strict=True)
+    }
+    obj = [points[dets[i].ids] for i in used]
+    img = [dets[i].q_px for i in used]
     fit = choice.fit
     residuals = {}
     for k, i in enumerate(used):
@@ -206,27 +208,25 @@ def calibrate_unknown_poses(
             continue
         pairs[i] = (obj[ids], d1.q_px[np.searchsorted(d1.ids, ids)],
                     d2.q_px[np.searchsorted(d2.ids, ids)])  # fmt: skip
-    for round_ in range(OUTLIER_ROUNDS + 1):
-        if len(pairs) < 1:
+
+    def stereo(views: list[int]) -> tuple[tuple[float, FloatArray, FloatArray], dict[int, float]]:
+        if not views:
             raise DegenerateDataError("no view is usable in both cameras for the stereo step")
-        keys = sorted(pairs)
         rms, _, _, _, _, R, T, _, _, _, _, per_view = cv2.stereoCalibrateExtended(
-            [pairs[i][0].astype(np.float32) for i in keys],
-            [pairs[i][1].astype(np.float32) for i in keys],
-            [pairs[i][2].astype(np.float32) for i in keys],
+            [pairs[i][0].astype(np.float32) for i in views],
+            [pairs[i][1].astype(np.float32) for i in views],
+            [pairs[i][2].astype(np.float32) for i in views],
             fa.K, dist_of_length(fa.dist, 14), fb.K, dist_of_length(fb.dist, 14),
             image_size_px[a], None, None,
             flags=cv2.CALIB_FIX_INTRINSIC | _ALL_TERMS,
         )  # fmt: skip
-        errors = np.asarray(per_view, dtype=np.float64).reshape(len(keys), -1)
-        view_rms = {
-            pair[i]: float(np.sqrt(np.mean(e**2))) for i, e in zip(keys, errors, strict=True)
-        }
-        bad = _outliers(view_rms)
-        if not bad or round_ == OUTLIER_ROUNDS:  # the last fit is of the views kept
-            break
-        rejected += [{"view": v, "reason": "stereo " + r} for v, r in bad.items()]
-        pairs = {i: p for i, p in pairs.items() if pair[i] not in bad}
+        errors = np.asarray(per_view, dtype=np.float64).reshape(len(views), -1)
+        by_view = {i: float(np.sqrt(np.mean(e**2))) for i, e in zip(views, errors, strict=True)}
+        return (float(rms), R, T), by_view
+
+    (rms, R, T), kept, bad = _fit_rejecting_outliers(sorted(pairs), stereo)
+    rejected += [{"view": pair[i], "reason": "stereo " + r} for i, r in bad.items()]
+    pairs = {i: pairs[i] for i in kept}
     if reference_view not in pairs:
         raise DegenerateDataError(
             f"reference view {reference_view} was left out of the stereo step; choose another"
@@ -248,7 +248,7 @@ def calibrate_unknown_poses(
     return StereoCalibration(
         "unknown poses (per-camera + stereo)",
         cams,
-        float(rms),
+        rms,
         _baseline({"a": m1, "b": m2}),
         turned,
         rejected,

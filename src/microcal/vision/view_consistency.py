@@ -35,6 +35,7 @@ __all__ = [
     "normal_spread_deg",
     "relative_rotation",
     "resolve_turns",
+    "rotation_angle_deg",
 ]
 
 #: Relative rotations within this angle (degrees) agree; turns of a board differ by >= 90.
@@ -46,7 +47,8 @@ def _rotation(rvec: FloatArray) -> FloatArray:
     return np.asarray(R, dtype=np.float64)
 
 
-def _angle_deg(Ra: FloatArray, Rb: FloatArray) -> float:
+def rotation_angle_deg(Ra: FloatArray, Rb: FloatArray) -> float:
+    """Angle of the rotation between two rotation matrices (of ``Ra Rb^T``), degrees."""
     c = (np.trace(Ra @ Rb.T) - 1.0) / 2.0
     return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
 
@@ -153,7 +155,7 @@ def resolve_turns(
     for hyp in rel.values():
         assigned = {}
         for w in views:
-            angles = {u: _angle_deg(rel[(w, u)], hyp) for u in turns}
+            angles = {u: rotation_angle_deg(rel[(w, u)], hyp) for u in turns}
             u = min(angles, key=lambda k: angles[k])
             if angles[u] < AGREEMENT_DEG:
                 assigned[w] = u
@@ -175,7 +177,7 @@ def resolve_turns(
     out: dict[int, int] = {}
     disagree: dict[int, str] = {}
     for w in views:
-        angles = {u: _angle_deg(rel[(w, u)], hyp) for u in turns}
+        angles = {u: rotation_angle_deg(rel[(w, u)], hyp) for u in turns}
         u = min(angles, key=lambda k: angles[k])
         if angles[u] < AGREEMENT_DEG:
             out[w] = u
