@@ -155,7 +155,7 @@ def test_faults_are_retried_recorded_and_nothing_is_lost(tmp_path):
 
 def test_resume_refuses_another_rig_or_edited_files(tmp_path):
     run = tmp_path / "run"
-    assert run_microcal("acquire", "--rig", "sim", "--design", "sobol", "--poses", "8", "--frames", "1", "--store", "roi",
+    assert run_microcal("acquire", "--rig", "sim", "--design", "sobol", "--poses", "12", "--frames", "1", "--store", "roi",
                         "--out", run).returncode == 0  # fmt: skip
     out = run_microcal("acquire", "--rig", fake_rig(tmp_path, "[overrides.manipulator]\nspeed_um_s = 10.0\n"),
                        "--out", run, "--resume")  # fmt: skip
@@ -169,7 +169,7 @@ def test_resume_refuses_another_rig_or_edited_files(tmp_path):
     (run / "commands.csv").write_text((run / "commands.csv").read_text() + "4,1,1,1\n")
     out = run_microcal("acquire", "--rig", "sim", "--out", run, "--resume")
     assert "commands.csv was edited" in out.stderr
-    out = run_microcal("acquire", "--rig", "sim", "--poses", "3", "--out", run)
+    out = run_microcal("acquire", "--rig", "sim", "--poses", "12", "--out", run)
     assert "already holds a run; use --resume" in out.stderr
 
 
@@ -194,7 +194,7 @@ def test_bad_designs_exit_2_and_move_nothing(tmp_path, rows, message):
 
 def test_acquire_then_measure(tmp_path):
     run = tmp_path / "run"
-    assert run_microcal("acquire", "--rig", "sim", "--poses", "6", "--frames", "2", "--store", "roi",
+    assert run_microcal("acquire", "--rig", "sim", "--poses", "12", "--frames", "2", "--store", "roi",
                         "--out", run).returncode == 0  # fmt: skip
     plat = sim.platform("thesis", seed=0)
     from microcal.formats.cameras_file import write_cameras
@@ -205,7 +205,7 @@ def test_acquire_then_measure(tmp_path):
     write_cameras(tmp_path / "cameras.json", cams)
     out = run_microcal("measure", run, "--cameras", tmp_path / "cameras.json")
     assert out.returncode == 0, out.stderr
-    assert "measured 6 of 6 poses" in out.stdout
+    assert "measured 12 of 12 poses" in out.stdout
 
 
 def test_sigterm_stops_cleanly_and_resume_finishes(tmp_path):
@@ -222,7 +222,7 @@ def test_sigterm_stops_cleanly_and_resume_finishes(tmp_path):
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 2
     assert "run stopped (stopped on request before pose" in err
-    assert "resume with: microcal acquire --rig sim --out" in err
+    assert "resume with: microcal acquire --out" in err
     stored = len(journal(run))
     assert 3 <= stored < 40
     check_run_complete(run, stored)  # what was stored is whole
@@ -235,10 +235,10 @@ def test_sigterm_stops_cleanly_and_resume_finishes(tmp_path):
 
 def test_manipulator_error_stops_the_run_with_how_to_resume(tmp_path):
     rig = fake_rig(tmp_path, "[overrides.manipulator.faults]\nmove_failure_rate = 1.0\n")
-    out = run_microcal("acquire", "--rig", rig, "--poses", "10", "--out", tmp_path / "run")
+    out = run_microcal("acquire", "--rig", rig, "--poses", "12", "--out", tmp_path / "run")
     assert out.returncode == 2
     assert "refused the move" in out.stderr
-    assert "0 of 10 poses stored; resume with" in out.stderr
+    assert "0 of 12 poses stored; resume with" in out.stderr
 
 
 def test_evaluation_trajectories_as_designs(tmp_path):

@@ -97,10 +97,10 @@ def test_dropped_connection_mid_move_is_reconnected_and_the_run_completes(rig, t
     path, fake, _ = rig
     fake.faults.drop_after_move = 8  # pose 3's second axis
     run = tmp_path / "run"
-    result = acquire("--rig", str(path), "--poses", "6", "--settle", "fixed:0.05", "--frames",
+    result = acquire("--rig", str(path), "--poses", "12", "--settle", "fixed:0.05", "--frames",
                      "1", "--out", str(run))  # fmt: skip
     assert result.exit_code == 0, result.output
-    assert [r["status"] for r in journal(run)] == ["ok"] * 6
+    assert [r["status"] for r in journal(run)] == ["ok"] * 12
     assert fake.connections == 2
 
 
@@ -108,7 +108,7 @@ def test_a_controller_error_stops_the_run_cleanly_and_resume_completes_it(rig, t
     path, fake, _ = rig
     fake.faults.fail_after_moves = 7  # pose 3, axis x
     run = tmp_path / "run"
-    args = ["--rig", str(path), "--poses", "6", "--settle", "fixed:0.05", "--frames", "1",
+    args = ["--rig", str(path), "--poses", "12", "--settle", "fixed:0.05", "--frames", "1",
             "--out", str(run)]  # fmt: skip
     result = acquire(*args)
     assert result.exit_code == 2
@@ -117,21 +117,21 @@ def test_a_controller_error_stops_the_run_cleanly_and_resume_completes_it(rig, t
     assert (
         "run stopped (pose 3: mcs2: axis x (channel 0): movement failed; controller: -1015" in line
     )
-    assert "2 of 6 poses stored" in line
+    assert "2 of 12 poses stored" in line
     assert "--resume" in line
     assert "Traceback" not in result.output
     assert [r["pose"] for r in journal(run)] == [1, 2]
     result = acquire(*args, "--resume")
     assert result.exit_code == 0, result.output
     records = journal(run)
-    assert [r["pose"] for r in records] == [1, 2, 3, 4, 5, 6]
+    assert [r["pose"] for r in records] == list(range(1, 13))
     assert all(r["status"] == "ok" for r in records)
 
 
 def test_a_camera_that_stops_answering_stops_the_run_cleanly_and_resume_completes(rig, tmp_path):
     path, _, top = rig
     run = tmp_path / "run"
-    args = ["--rig", str(path), "--poses", "10", "--settle", "fixed:0.2", "--frames", "1",
+    args = ["--rig", str(path), "--poses", "12", "--settle", "fixed:0.2", "--frames", "1",
             "--out", str(run)]  # fmt: skip
     stopper = threading.Timer(1.0, top.send_signal, (signal.SIGSTOP,))
     stopper.start()
@@ -158,7 +158,7 @@ def test_a_camera_that_stops_answering_stops_the_run_cleanly_and_resume_complete
     result = acquire(*args, "--resume")
     assert result.exit_code == 0, result.output
     records = journal(run)
-    assert [r["pose"] for r in records] == list(range(1, 11))  # every pose once
+    assert [r["pose"] for r in records] == list(range(1, 13))  # every pose once
     assert records[-1]["status"] == "ok"
 
 
@@ -221,11 +221,11 @@ def test_micro_manager_rig_acquires(tmp_path):
     assert result.exit_code == 0, result.output
     assert "manipulator: Micro-Manager XY + Z" in result.output
     run = tmp_path / "run"
-    result = acquire("--rig", str(path), "--poses", "5", "--settle", "fixed:0.01", "--frames",
+    result = acquire("--rig", str(path), "--poses", "12", "--settle", "fixed:0.01", "--frames",
                      "1", "--out", str(run))  # fmt: skip
     assert result.exit_code == 0, result.output
     records = journal(run)
-    assert [r["status"] for r in records] == ["ok"] * 5
+    assert [r["status"] for r in records] == ["ok"] * 12
     assert tifffile.imread(run / records[0]["images"]["side"]["file"]).shape[-2:] == (103, 123)
 
 

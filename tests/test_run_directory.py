@@ -225,13 +225,15 @@ def test_resume_refuses_edited_commands(run):
         RunDirectory.resume(out, RIG)
 
 
-def test_a_journal_with_a_pose_twice_is_refused(run):
+def test_a_pose_journaled_twice_is_damage_and_the_first_line_counts(run):
     out, _ = run
-    first = (out / "journal.jsonl").read_text().splitlines()[0]
+    lines = (out / "journal.jsonl").read_text().splitlines()
     with open(out / "journal.jsonl", "a") as fh:
-        fh.write(first + "\n")
-    with pytest.raises(FormatError, match="pose 1 appears twice"):
-        RunDirectory.open(out).journal()
+        fh.write(lines[0] + "\n")
+    directory = RunDirectory.open(out)
+    assert list(directory.journal()) == [1, 2]
+    damage = directory.journal_damage()
+    assert [(d.number, d.reason, d.pose) for d in damage] == [(len(lines) + 1, "pose 1 again", 1)]
 
 
 # --- the joint-command CSV reader -----------------------------------------------------------
@@ -284,6 +286,7 @@ def test_csv_errors_of_run_files_are_format_errors(tmp_path):
         read_joint_csv(path, error=FormatError)
     run = tmp_path / "run"
     RunDirectory.create(run, _manifest(), D_UM)
+    (run / "run.json").unlink()  # a run made by hand: no SHA-256 of its commands
     (run / "commands.csv").write_text("pose,dx_um,dy_um,dz_um\n1,1,2,3\n1,4,5,6\n")
     with pytest.raises(FormatError, match=r"commands\.csv, line 3: pose 1 appears twice"):
         RunDirectory.open(run).commands()

@@ -26,6 +26,8 @@ from .smaract_mcs2 import MCS2_PORT
 __all__ = [
     "ARAVIS_DEFAULT_EXPOSURE_MS",
     "DEFAULT_BOARD",
+    "LEGACY_MM_CAMERA_RECORD",
+    "LEGACY_MM_STAGE_RECORD",
     "AravisCameraSpec",
     "CameraSpec",
     "HardwareRigSpec",
@@ -45,8 +47,8 @@ ARAVIS_DEFAULT_EXPOSURE_MS = 10.0
 
 # Settings that run.json records held before the specs were typed, for devices they do not
 # apply to (their defaults then); written again so that those runs can still be resumed.
-_LEGACY_MM_STAGE_RECORD = {"port": MCS2_PORT, "timeout_s": 2.0, "reconnects": 2}
-_LEGACY_MM_CAMERA_RECORD = {"pixel_format": "Mono8", "timeout_s": 2.0}
+LEGACY_MM_STAGE_RECORD = {"port": MCS2_PORT, "timeout_s": 2.0, "reconnects": 2}
+LEGACY_MM_CAMERA_RECORD = {"pixel_format": "Mono8", "timeout_s": 2.0}
 
 
 def _positive(name: str, value: object) -> float:
@@ -225,7 +227,7 @@ class MMStageSpec:
         return {
             "kind": self.kind,
             "limits_um": _limits_record(self.limits_um),
-            **_LEGACY_MM_STAGE_RECORD,
+            **LEGACY_MM_STAGE_RECORD,
             "xy_stage": self.xy_stage,
             "focus": self.focus,
         }
@@ -332,7 +334,7 @@ class MMCameraSpec:
         out: dict[str, Any] = {"kind": self.kind, "device": self.device}
         if self.exposure_ms is not None:
             out["exposure_ms"] = self.exposure_ms
-        return out | _LEGACY_MM_CAMERA_RECORD | {"pixel_size_um": self.pixel_size_um}
+        return out | LEGACY_MM_CAMERA_RECORD | {"pixel_size_um": self.pixel_size_um}
 
 
 @dataclass(frozen=True)

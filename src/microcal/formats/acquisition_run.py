@@ -1,34 +1,124 @@
-"""The run directory of ``microcal acquire``: its plan, a new run or a resumed one."""
+"""The run directory of ``microcal acquire``: its options, a new run or a resumed one.
+
+A new run records in run.json every option that shapes it (rig, design, settle, frames,
+store); ``--resume`` reads them back, so ``microcal acquire --out RUN --resume`` needs no
+other option, and an option given again must agree with the recorded one.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import signal
 import sys
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from numpy.typing import ArrayLike
 
 from .._validation import FloatArray
 from ..errors import InputError
+from ..kinematics.designs import DESIGNS
 from ..procedures.acquisition import AcquisitionConfig, RunStoppedError
 from ..procedures.acquisition import acquire as run_acquisition
-from ..procedures.planning import DESIGN_CHOICES, RunPlan, plan_run
-from .run_directory import HOLDS_A_RUN, RunDirectory, RunWriter, holds_run
+from ..procedures.planning import DESIGN_CHOICES, POLYNOMIAL_POSES, RunPlan, plan_run
+from .records import RunManifest
+from .run_directory import HOLDS_A_RUN, MANIFEST, RunDirectory, RunWriter, holds_run
+from .run_lock import run_lock
 from .run_manifest import new_manifest
 
-__all__ = ["acquire_remaining", "check_out", "open_run", "plan_for"]
+__all__ = [
+    "DEFAULTS",
+    "AcquireRequest",
+    "acquire_remaining",
+    "check_out",
+    "plan_for",
+    "run_acquire",
+]
+
+#: The options of a new run that the command line leaves out.
+DEFAULTS: dict[str, Any] = {
+    "rig": "sim", "design": "random", "poses": 170, "seed": 0, "settle": "vision", "frames": 5,
+    "store": "full",
+}  # fmt: skip
+_RECORDED = {"settle": "settle", "frames": "frames_per_pose", "store": "store"}
+
+
+@dataclasses.dataclass(frozen=True)
+class AcquireRequest:
+    """What ``microcal acquire`` was asked for; None is an option left out."""
+
+    out: Path
+    rig: str | None = None
+    design: str | None = None
+    poses: int | None = None
+    seed: int | None = None
+    resume: bool = False
+    settle: str | None = None
+    frames: int | None = None
+    store: str | None = None
+    dry_run: bool = False
+
+    def filled(self, manifest: RunManifest | None = None) -> AcquireRequest:
+        """Every option set: a new run's defaults, or what a resumed run recorded.
+
+        Raises
+        ------
+        InputError
+            On resume, an option that differs from the one run.json records.
+        """
+        values: dict[str, Any] = {}
+        for name, default in DEFAULTS.items():
+            given = getattr(self, name)
+            if manifest is None or name == "rig":
+                values[name] = default if given is None else given
+                continue
+            recorded = _recorded(manifest, name)
+            if name == "design" and given is not None and given not in DESIGN_CHOICES:
+                given = "file"  # a CSV of commands: the run holds its own copy
+            if given is not None and recorded is not None and given != recorded:
+                raise InputError(
+                    f"--{name} {getattr(self, name)}: this run was begun with --{name} "
+                    f"{recorded} ({MANIFEST}); leave --{name} out to resume it"
+                )
+            values[name] = (
+                given if given is not None else recorded if recorded is not None else default
+            )
+        return dataclasses.replace(self, **values)
+
+
+def _recorded(manifest: RunManifest, name: str) -> Any:
+    """The value run.json records for an option (None when it records none)."""
+    design = manifest.design
+    if name in ("design", "poses", "seed"):
+        key = "kind" if name == "design" else name
+        return getattr(design, key) if design is not None else None
+    return getattr(manifest, _RECORDED[name])
 
 
 def check_out(out: Path, resume: bool, dry_run: bool) -> None:
-    """Refuse, before any device is opened, a run directory that does not fit the request."""
+    """Refuse, before any device is opened, a run directory that does not fit the request.
+
+    A new run goes into a new or empty directory: never over a run, nor among other files
+    (a user's own commands.csv or images would be replaced).
+    """
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: is a file; choose a directory for the run")
-    if not resume and not dry_run and holds_run(out):
+    if resume:
+        if not (out / MANIFEST).exists():
+            raise InputError(f"{out}: no run to resume (no {MANIFEST}); start it without --resume")
+        return
+    if dry_run or not out.exists():
+        return
+    if holds_run(out):
         raise InputError(f"{out}: {HOLDS_A_RUN}")
-    if resume and not (out / "run.json").exists():
-        raise InputError(f"{out}: no run to resume (no run.json); start it without --resume")
+    others = sorted(p.name for p in out.iterdir())
+    if others:
+        shown = ", ".join(others[:3]) + (", ..." if len(others) > 3 else "")
+        raise InputError(
+            f"--out {out}: holds other files ({shown}); a new run needs a new or empty directory"
+        )
 
 
 def plan_for(
@@ -39,7 +129,7 @@ def plan_for(
         return plan_run(design, poses, seed, limits_um, axes=axes)
     from .commands_csv import read_joint_csv
 
-    if not Path(design).exists():
+    if not Path(design).is_file():
         raise InputError(
             f"--design {design}: not a design ({', '.join(DESIGN_CHOICES)}) and no such file"
         )
@@ -47,19 +137,82 @@ def plan_for(
     return plan_run("file", poses, seed, limits_um, axes=axes, commands_um=commands)
 
 
-def open_run(
-    out: Path,
-    rig: Any,
-    opened: Any,
-    plan: RunPlan | None,
-    settle: str,
-    frames: int,
-    store: str,
-    resume: bool,
+def run_acquire(request: AcquireRequest) -> Iterator[str]:
+    """``microcal acquire``: check the request, open the rig, acquire (or dry-run) the run.
+
+    Yields the lines to print. Nothing is created before the options, the run directory and
+    the devices are checked; the run directory is locked while the run goes on.
+
+    Raises
+    ------
+    MicrocalError
+        A bad option, a run directory that does not fit, a rig that does not open, or a run
+        stopped (with the command that resumes it).
+    """
+    from ..devices.rig import open_rig
+    from ..procedures.dry_run import dry_run as check_rig
+    from .options import parse_settle
+    from .rig_file import load_rig, rig_from_record
+
+    out = request.out
+    if request.resume and request.dry_run:
+        raise InputError("--dry-run and --resume: choose one")
+    check_out(out, request.resume, request.dry_run)
+    manifest = RunDirectory(out).manifest if request.resume else None
+    req = request.filled(manifest)
+    if request.poses is not None and req.design not in DESIGNS and manifest is None:
+        raise InputError(f"--poses: design {req.design} has its own poses; leave --poses out")
+    if req.store not in ("full", "roi"):
+        raise InputError(f"--store: expected 'full' or 'roi', got {req.store!r}")
+    mode, fixed_s = parse_settle(str(req.settle))
+    if manifest is not None and request.rig is None:
+        spec = rig_from_record(manifest.rig, str(out / MANIFEST))
+    else:
+        spec = load_rig(str(req.rig))
+    config = AcquisitionConfig(settle=mode, fixed_s=fixed_s, frames_per_pose=cast(int, req.frames),
+                               store_roi=req.store == "roi")  # fmt: skip
+    with open_rig(spec) as opened:
+        m = opened.manipulator
+        plan = None
+        if manifest is None:
+            plan = plan_for(
+                str(req.design), cast(int, req.poses), cast(int, req.seed), m.limits_um, m.axes
+            )
+            if req.design in DESIGNS and plan.poses < POLYNOMIAL_POSES:
+                yield (f"note: {plan.poses} poses identify the matrix model; the polynomial "
+                       f"model needs about {POLYNOMIAL_POSES}")  # fmt: skip
+        if plan is not None and req.dry_run:
+            yield from check_rig(m, opened.cameras, opened.board, plan, opened.description)
+            return
+        with _run_directory(out, creating=plan is not None), run_lock(out, "acquire"):
+            writer, pose_ids, d = _open_run(out, spec, opened, plan, req)
+            hint = f"microcal acquire --out {out} --resume"
+            yield from acquire_remaining(opened, writer, pose_ids, d, config, hint, req.resume)
+
+
+@contextlib.contextmanager
+def _run_directory(out: Path, creating: bool) -> Iterator[None]:
+    """The run directory for the lock; a new one that the run never began in is removed."""
+    made = creating and not out.exists()
+    if made:
+        out.mkdir(parents=True)
+    try:
+        yield
+    except BaseException:
+        if made and not holds_run(out):
+            with contextlib.suppress(OSError):
+                for leftover in (out / "images", out / ".microcal.lock"):
+                    leftover.rmdir() if leftover.is_dir() else leftover.unlink(missing_ok=True)
+                out.rmdir()
+        raise
+
+
+def _open_run(
+    out: Path, rig: Any, opened: Any, plan: RunPlan | None, req: AcquireRequest
 ) -> tuple[RunWriter, list[int], FloatArray]:
     """The writer of the run, its pose numbers and commands: a new run from ``plan``, or the
     run in ``out`` resumed (it must come from the same rig and be unedited)."""
-    if resume or plan is None:
+    if plan is None:
         writer = RunDirectory.resume(out, rig.to_dict())
         pose_ids, d = RunDirectory.open(out).commands()
         return writer, pose_ids, d
@@ -68,9 +221,9 @@ def open_run(
         target=opened.board.spec,
         cameras=list(opened.cameras),
         design=plan.design_record(),
-        settle=settle,
-        frames_per_pose=frames,
-        store=store,
+        settle=str(req.settle),
+        frames_per_pose=cast(int, req.frames),
+        store=str(req.store),
         command="acquire",
     )
     writer = RunDirectory.create(out, manifest, plan.d_um)
@@ -100,6 +253,7 @@ def acquire_remaining(
     import numpy as np
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
+    yield from writer.repairs
     todo = writer.remaining(pose_ids)
     verb = "resuming" if resume else "starting"
     yield f"{verb} {writer.run_dir}: {len(todo)} of {len(pose_ids)} poses to do"

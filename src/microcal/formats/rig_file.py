@@ -40,6 +40,8 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
 
 from ..devices.rig_spec import (
+    LEGACY_MM_CAMERA_RECORD,
+    LEGACY_MM_STAGE_RECORD,
     AravisCameraSpec,
     CameraSpec,
     HardwareRigSpec,
@@ -54,7 +56,7 @@ from ..devices.rig_spec import (
 from ..errors import FormatError, InputError
 from .json_file import validation_message
 
-__all__ = ["load_rig"]
+__all__ = ["load_rig", "rig_from_record"]
 
 
 def _flatten(prefix: str, node: dict[str, Any], out: dict[str, Any]) -> None:
@@ -94,8 +96,60 @@ def load_rig(spec: str) -> RigSpec:
         raise FormatError(
             f"--rig {spec}: no such file (or use 'sim' for the simulated platform)"
         ) from None
+    except IsADirectoryError:
+        raise FormatError(f"--rig {spec}: is a directory; give a rig TOML file") from None
+    except UnicodeDecodeError:
+        raise FormatError(f"{path}: not a text file (expected a rig TOML file)") from None
     except tomllib.TOMLDecodeError as exc:
         raise FormatError(f"{path}: not valid TOML ({exc})") from None
+    return _from_data(path, data)
+
+
+def rig_from_record(record: object, where: str) -> RigSpec:
+    """The rig a run recorded (``run.json``'s ``rig``: a spec's ``to_dict()``), for a resume.
+
+    Raises
+    ------
+    FormatError
+        Not a rig's record (the message names ``where``).
+    """
+    if not isinstance(record, dict):
+        raise FormatError(f"{where}: records no rig; give --rig")
+    return _from_data(Path(where), _unflatten(record))
+
+
+def _unflatten(record: dict[str, Any]) -> dict[str, Any]:
+    """A recorded rig's ``overrides`` are dotted names; the file's are tables."""
+    out = dict(record)
+    _drop_legacy(out.get("manipulator"), LEGACY_MM_STAGE_RECORD)
+    for camera in (
+        (out.get("cameras") or {}).values() if isinstance(out.get("cameras"), dict) else ()
+    ):
+        _drop_legacy(camera, LEGACY_MM_CAMERA_RECORD)
+    flat = out.get("overrides")
+    if isinstance(flat, dict):
+        nested: dict[str, Any] = {}
+        for key, value in flat.items():
+            node = nested
+            *parents, leaf = str(key).split(".")
+            for part in parents:
+                node = node.setdefault(part, {})
+                if not isinstance(node, dict):
+                    raise FormatError(f"overrides: {key} is both a value and a table")
+            node[leaf] = value
+        out["overrides"] = nested
+    return out
+
+
+def _drop_legacy(device: object, legacy: dict[str, Any]) -> None:
+    """A Micro-Manager device's record repeats settings it has not (see ``rig_spec``)."""
+    if isinstance(device, dict) and device.get("kind") == "micromanager":
+        for key, value in legacy.items():
+            if device.get(key) == value:
+                del device[key]
+
+
+def _from_data(path: Path, data: dict[str, Any]) -> RigSpec:
     driver = data.get("driver")
     if driver == "hardware":
         return _hardware(path, data)

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import json
 import os
+import re
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -84,6 +86,8 @@ class RunDirectory:
         self._manifest: RunManifest | None = None
         self._manifest_read = False
         self._journal: dict[int, JournalLine] | None = None
+        self._damage: list[DamagedLine] = []
+        self._verified: set[str] = set()
 
     def __repr__(self) -> str:
         return f"RunDirectory({str(self.path)!r})"
@@ -154,28 +158,46 @@ class RunDirectory:
         Raises
         ------
         FormatError
-            No such file, or a malformed one (the message names the line).
+            No such file, a malformed one (the message names the line), or one that differs
+            from the commands the run began with (run.json records their SHA-256).
         """
         path = self.path / COMMANDS
         if not path.is_file():
             raise FormatError(f"{path}: no such file (is {self.path} a run directory?)")
+        recorded = self.manifest.commands_sha256 if self.manifest is not None else None
+        if recorded is not None and sha256_file(path) != recorded:
+            raise FormatError(
+                f"{path}: edited since the run began (its SHA-256 is not the one "
+                f"{MANIFEST} records); restore the original commands"
+            )
         poses, d = read_joint_csv(path, pose_column=True, error=FormatError)
         assert poses is not None
         return poses, d
 
     def journal(self) -> dict[int, JournalLine]:
-        """The journal's lines by pose, in the order acquired ({} without a journal).
+        """The journal's intact lines by pose, in the order acquired ({} without a journal).
 
-        A last line cut by a crash is ignored.
-
-        Raises
-        ------
-        FormatError
-            A line that is not a journal line, or a pose that appears twice.
+        A damaged line (not JSON, not a journal line, a pose again) is left out and listed by
+        :meth:`journal_damage`; the lines after it are kept.
         """
         if self._journal is None:
-            self._journal = _read_journal(self.path / JOURNAL)[0]
+            read = _read_journal(self.path / JOURNAL)
+            self._journal, self._damage = read.lines, read.damaged
         return self._journal
+
+    def journal_damage(self) -> list[DamagedLine]:
+        """The journal's damaged lines, in file order ([] when it has none)."""
+        self.journal()
+        return list(self._damage)
+
+    def damage_note(self) -> str | None:
+        """One line naming the damaged journal lines and their poses, or None."""
+        damaged = self.journal_damage()
+        if not damaged:
+            return None
+        described = "; ".join(d.describe() for d in damaged[:3])
+        more = f" (and {len(damaged) - 3} more)" if len(damaged) > 3 else ""
+        return f"{self.path / JOURNAL}: {described}{more}"
 
     def image_path(self, camera: str, pose: int) -> Path | None:
         """The image file of a camera at a pose (``images/CAMERA_0001.tiff``), if present."""
@@ -196,22 +218,56 @@ class RunDirectory:
         ------
         FormatError
             ``acquisition failed: REASON`` for a pose whose acquisition failed, ``no image
-            images/CAMERA_NNNN.tiff`` when the file is missing, or an unreadable file.
+            images/CAMERA_NNNN.tiff`` when the file is missing, an unreadable file; and in
+            a run with a journal, a pose the journal does not hold, an image whose SHA-256
+            or frame count is not the journal's.
         """
         from ..vision.roi import frames_from_region
         from .images import read_frames
 
-        line = self.journal().get(pose)
+        journal = self.journal()
+        line = journal.get(pose)
         if line is not None and line.failed:
             raise FormatError(f"acquisition failed: {line.reason or ''}")
         path = self.image_path(camera, pose)
         if path is None:
             raise FormatError(f"no image {IMAGES}/{camera}_{pose:04d}.tiff")
-        frames = read_frames(path)
         image = line.images.get(camera) if line is not None else None
+        if (self.path / JOURNAL).exists():
+            self._verify(pose, camera, path, line, image)
+        frames = read_frames(path)
+        if image is not None and image.frames is not None and len(frames) != image.frames:
+            raise FormatError(f"{path}: {len(frames)} frames, the journal records {image.frames}")
         if image is not None and image.roi is not None:
             frames = frames_from_region(frames, image.roi.offset_px, image.roi.full_size_px)
         return frames
+
+    def _verify(
+        self,
+        pose: int,
+        camera: str,
+        path: Path,
+        line: JournalLine | None,
+        image: ImageRecord | None,
+    ) -> None:
+        """An image is measured only as the journal recorded it (file and SHA-256)."""
+        if line is None:
+            damage = " (the journal has damaged lines: run acquire --resume to repair)"
+            raise FormatError(
+                f"pose {pose} is not in the journal, so its images cannot be verified"
+                + (damage if self.journal_damage() else "")
+            )
+        if image is None:
+            raise FormatError(f"the journal records no image of camera {camera!r}")
+        if self.path / image.file != path:
+            raise FormatError(f"{path}: the journal records {image.file} instead")
+        if image.file not in self._verified:
+            if sha256_file(path) != image.sha256:
+                raise FormatError(
+                    f"{path}: changed since it was recorded (its SHA-256 is not the "
+                    f"journal's); restore the original file"
+                )
+            self._verified.add(image.file)
 
     def journaled(self, key: str, poses: Sequence[int]) -> FloatArray | None:
         """A number each pose's journal line records under ``key``, (N,); NaN where a pose has
@@ -305,40 +361,85 @@ def write_commands(run_dir: str | os.PathLike[str], d_um: FloatArray) -> Path:
     return write_joint_csv(Path(run_dir) / COMMANDS, d_um)
 
 
-def _read_journal(path: Path) -> tuple[dict[int, JournalLine], list[bytes]]:
-    """The journal's lines by pose and their bytes; a line cut by a crash ends it."""
+@dataclass(frozen=True)
+class DamagedLine:
+    """A journal line that cannot be used: its line number, why, and its pose if legible."""
+
+    number: int
+    reason: str
+    pose: int | None = None
+
+    def describe(self) -> str:
+        """``line 7 (pose 7): not JSON``."""
+        pose = f" (pose {self.pose})" if self.pose is not None else ""
+        return f"line {self.number}{pose}: {self.reason}"
+
+
+@dataclass
+class _JournalRead:
+    lines: dict[int, JournalLine] = field(default_factory=dict)
+    good: list[bytes] = field(default_factory=list)  # the intact lines' bytes, in order
+    damaged: list[DamagedLine] = field(default_factory=list)
+
+
+_POSE_BYTES = re.compile(rb'"pose"\s*:\s*(\d{1,9})')
+
+
+def _read_journal(path: Path) -> _JournalRead:
+    """The journal's intact lines by pose and their bytes, and its damaged lines.
+
+    A damaged line never hides the lines after it: each line stands alone.
+    """
+    out = _JournalRead()
     if not path.exists():
-        return {}, []
-    lines: dict[int, JournalLine] = {}
-    good: list[bytes] = []
-    for number, raw in enumerate(path.read_bytes().split(b"\n"), start=1):
+        return out
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise FormatError(f"{path}: cannot be read ({exc.strerror})") from None
+    raws = data.split(b"\n")
+    for number, raw in enumerate(raws, start=1):
         if not raw.strip():
             continue
+        legible = _POSE_BYTES.search(raw)
+        pose = int(legible.group(1)) if legible else None
+        cut = number == len(raws)  # no line end: the write was cut by a stop
         try:
             record = json.loads(raw)
-        except (json.JSONDecodeError, UnicodeDecodeError):
-            break  # cut by a crash: everything after it is lost anyway
-        line = parse_schema(JournalLine, record, f"{path}, line {number}")
-        if line.pose in lines:
-            raise FormatError(f"{path}: pose {line.pose} appears twice; the journal was edited")
-        lines[line.pose] = line
-        good.append(raw)
-    return lines, good
+            line = parse_schema(JournalLine, record, f"{path}, line {number}")
+        except (json.JSONDecodeError, UnicodeDecodeError, RecursionError):
+            reason = "cut short by a stop" if cut else "not JSON (damaged)"
+            out.damaged.append(DamagedLine(number, reason, pose))
+            continue
+        except FormatError as exc:
+            reason = str(exc).rpartition(f"line {number}: ")[2]
+            out.damaged.append(DamagedLine(number, reason, pose))
+            continue
+        if line.pose in out.lines:
+            out.damaged.append(DamagedLine(number, f"pose {line.pose} again", line.pose))
+            continue
+        out.lines[line.pose] = line
+        out.good.append(raw)
+    return out
 
 
 class RunWriter:
     """Writes a run directory so that a crash at any instant loses at most the pose in progress.
 
     Images are written to a temporary name and renamed; the journal line of a pose is
-    appended, flushed and synced only after its images. On resume, a journal line cut by a
-    crash is dropped, images without a journal line are overwritten, and every recorded image
-    is checked against its SHA-256.
+    appended, flushed and synced only after its images. On resume, every recorded image is
+    checked against its SHA-256, a damaged journal line (one cut by a stop, or changed) is
+    dropped and its pose acquired again (the intact lines after it are kept), temporary
+    files a stop left are removed, and images without a journal line are overwritten; each
+    repair is listed in :attr:`repairs`.
     """
 
     def __init__(self, run_dir: str | os.PathLike[str], manifest: RunManifest) -> None:
         self.run_dir = Path(run_dir)
         self.manifest = manifest
         self.done: dict[int, JournalLine] = {}
+        #: What resuming mended: damaged journal lines dropped, temporary files removed.
+        self.repairs: list[str] = []
 
     # --- creating and resuming ---------------------------------------------------------
     @classmethod
@@ -395,20 +496,35 @@ class RunWriter:
 
     def _read_journal(self) -> None:
         path = self.run_dir / JOURNAL
+        self._remove_temporary_files()
         if not path.exists():
             return
-        lines, good = _read_journal(path)
-        for pose, line in lines.items():
+        read = _read_journal(path)
+        for pose, line in read.lines.items():
             for cam, image in line.images.items():
                 file = self.run_dir / image.file
                 if not file.is_file() or sha256_file(file) != image.sha256:
                     raise FormatError(
-                        f"{file}: missing or changed since it was recorded "
-                        f"(camera {cam}, pose {pose})"
+                        f"{file}: missing or changed since it was recorded (camera {cam}, "
+                        f"pose {pose}); restore it before resuming"
                     )
-        self.done = lines
-        # Rewrite the journal without a cut last line, so appends stay well-formed.
-        write_text_atomic(path, "".join(g.decode() + "\n" for g in good))
+        self.done = read.lines
+        for damaged in read.damaged:
+            again = "" if damaged.pose in read.lines else "; its pose is acquired again"
+            self.repairs.append(f"{path}: dropped {damaged.describe()}{again}")
+        if read.damaged:
+            # Rewrite the journal with its intact lines only, so appends stay well-formed.
+            write_text_atomic(path, "".join(g.decode() + "\n" for g in read.good))
+
+    def _remove_temporary_files(self) -> None:
+        """Files a stop left while being written (``.NAME.XXXX.tmp``: see ``atomic.py``)."""
+        for folder in (self.run_dir, self.run_dir / IMAGES):
+            if not folder.is_dir():
+                continue
+            for tmp in folder.glob(".*.tmp"):
+                if tmp.is_file() and not tmp.is_symlink():
+                    tmp.unlink()
+                    self.repairs.append(f"removed {tmp}, left by a stop while it was written")
 
     # --- writing -------------------------------------------------------------------------
     def store(self, pose: int, frames: dict[str, list[Any]], record: dict[str, Any]) -> None:

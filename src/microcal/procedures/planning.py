@@ -20,12 +20,28 @@ from ..kinematics.designs import DESIGNS, check_design, make_design
 from ..thesis.experiment import TABLE_5_2_POSES_UM
 from .evaluation import decoupling_path, iso_cube_poses
 
-__all__ = ["DESIGN_CHOICES", "TRAJECTORIES", "RunPlan", "plan_run", "trajectory"]
+__all__ = [
+    "DESIGN_CHOICES",
+    "MAX_DESIGN_POSES",
+    "MIN_DESIGN_POSES",
+    "POLYNOMIAL_POSES",
+    "TRAJECTORIES",
+    "RunPlan",
+    "plan_run",
+    "trajectory",
+]
 
 #: Evaluation trajectories an acquisition can follow (thesis Table 5-2, Fig 5.5, ISO 9283).
 TRAJECTORIES = ("table-5-2", "decoupling", "iso-cube")
 #: Every named design; anything else is a CSV file of commands.
 DESIGN_CHOICES = (*DESIGNS, *TRAJECTORIES)
+#: A generated design identifies a model fitted on about two thirds of its poses and
+#: validated on the rest: the matrix model (4 terms per axis) needs 12 poses, the polynomial
+#: model (10 terms per axis) about 30 (:data:`POLYNOMIAL_POSES`; the thesis used 170).
+MIN_DESIGN_POSES = 12
+POLYNOMIAL_POSES = 30
+#: More poses than this is a typing slip (at the thesis's 30 s settle, about a week).
+MAX_DESIGN_POSES = 20_000
 
 
 @dataclass(frozen=True)
@@ -113,6 +129,12 @@ def plan_run(
     """
     lim = as_array(limits_um, "limits_um", (len(axes), 2))
     if design in DESIGNS:
+        if not MIN_DESIGN_POSES <= poses <= MAX_DESIGN_POSES:
+            raise InputError(
+                f"poses: expected {MIN_DESIGN_POSES} to {MAX_DESIGN_POSES} for a {design} "
+                f"design (the matrix model needs {MIN_DESIGN_POSES} to fit and validate, the "
+                f"polynomial model about {POLYNOMIAL_POSES}; the thesis used 170), got {poses}"
+            )
         d = make_design(design, poses, lim[:, 0], lim[:, 1], seed)
         return RunPlan(design, seed, check_design(d, lim, axes), lim[:, 0], lim[:, 1])
     if design in TRAJECTORIES:  # for evaluation: only the limits matter
