@@ -17,27 +17,26 @@ _Cameras = Annotated[Path, Option(help="cameras.json (or a calibration.json with
 _Target = Annotated[str | None, Option(help="End-effector board (default: run.json's).")]
 
 
+_Force = Annotated[bool, Option(help="Replace a measurements.csv that measured more poses.")]
+
+
 @app.command(short_help="Measure the end-effector in 3D at every pose.")
-def measure(run_dir: _RunDir, cameras: _Cameras, target: _Target = None) -> None:
+def measure(
+    run_dir: _RunDir, cameras: _Cameras, target: _Target = None, force: _Force = False
+) -> None:
     """Measure the end-effector in 3D at every pose of a run; writes measurements.csv.
+
+    Every image is measured only if it is the one the journal recorded (its SHA-256).
 
     Example: microcal measure runs/a --cameras cameras.json
     """
-    from ..formats.cameras_file import load_cameras
-    from ..formats.run_directory import RunDirectory
+    from ..formats.run_measurement import measure_run
     from ..report.text_tables import measurement_lines
-    from ..vision.measurement import measure_poses
-    from ..vision.targets import parse_target
 
-    run = RunDirectory.open(run_dir, require_commands=False)
-    models = load_cameras(cameras)
-    poses, d = run.commands()
-    board = parse_target(target or run.target_spec or "chessboard:4x3:400")
     with staged_progress() as progress:
         tick = lambda done, n: progress("measuring", done, n)  # noqa: E731
-        results = measure_poses(poses, d, run.frames, models, board, progress=tick)
-    path = run.write_measurements(poses, d, results)
-    print_parts(Console(), measurement_lines(results, path))
+        measured = measure_run(run_dir, cameras, target, force=force, progress=tick)
+    print_parts(Console(), [*measured.notes, *measurement_lines(measured.results, measured.path)])
 
 
 _ReportDir = Annotated[Path, Argument(help="Run directory (any of its files).")]

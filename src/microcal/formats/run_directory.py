@@ -254,7 +254,7 @@ class RunDirectory:
         if line is None:
             damage = " (the journal has damaged lines: run acquire --resume to repair)"
             raise FormatError(
-                f"pose {pose} is not in the journal, so its images cannot be verified"
+                "not in the journal, so its images cannot be verified"
                 + (damage if self.journal_damage() else "")
             )
         if image is None:
