@@ -112,7 +112,7 @@ def test_write_is_atomic(tmp_path, calibration, monkeypatch):
         raise OSError("disk full")
 
     monkeypatch.setattr("os.replace", boom)
-    with pytest.raises(OSError, match="disk full"):
+    with pytest.raises(FormatError, match=r"cannot be written \(disk full\); nothing was replaced"):
         write_calibration(path, calibration)
     assert path.read_bytes() == before
     assert [p.name for p in tmp_path.iterdir()] == ["calibration.json"]

@@ -75,7 +75,7 @@ BAD_INVOCATIONS = [
     (["acquire", "--out", "{tmp}/r", "--design", "rnadom"], "not a design (random, sobol,"),
     (["acquire", "--out", "{tmp}/r", "--settle", "soon"], "--settle"),
     (["acquire", "--out", "{tmp}/r", "--store", "some"], "--store"),
-    (["acquire", "--out", "{tmp}/r", "--poses", "1"], "Invalid value for '--poses'"),
+    (["acquire", "--out", "{tmp}/r", "--poses", "1"], "poses: expected 12 to 20000"),
     (["measure", "{tmp}/none", "--cameras", "{tmp}/c.json"], "not a directory"),
     (["measure", "{tmp}", "--cameras", "{tmp}/c.json"], "c.json"),
     (["measure", "{tmp}"], "Missing option '--cameras'"),

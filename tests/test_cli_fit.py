@@ -95,7 +95,7 @@ def _write(path, rows):
         ("good", ["fit", "{run}", "--folds", "1"], "Invalid value for '--folds'"),
         ("good", ["fit", "{run}", "--model", "cubic"], "Invalid value for '--model'"),
         ("good", ["fit", "{run}", "--penter", "0.2"], "expected 0 < penter <= premove < 1"),
-        ("badcal", ["fit", "{run}", "--out", "{tmp}/bad.json"], "not a JSON file"),
+        ("badcal", ["fit", "{run}", "--out", "{tmp}/bad.json"], "holds a file microcal did not write"),
         ("notemp", ["fit", "{tmp}/few.csv", "--temperature"], "has no 'temperature_c' column"),
     ],
 )  # fmt: skip

@@ -48,12 +48,14 @@ def evaluate(
     from ..devices.rig import open_rig
     from ..formats.calibration_file import load_calibration
     from ..formats.calibration_update import camera_models
+    from ..formats.json_file import check_json_output
     from ..formats.options import rig_with_seed
-    from ..formats.results_file import update_results
+    from ..formats.results_file import RESULTS_FORMAT, update_results
     from ..formats.rig_file import load_rig
     from ..procedures.evaluation import run_evaluation
     from ..report.text_tables import evaluation_tables, is_thesis_rig
 
+    check_json_output(out, RESULTS_FORMAT, "results.json")
     cal = load_calibration(calibration)
     m, models = cal.manipulator(manipulator), camera_models(cal)
     spec = rig_with_seed(load_rig(rig), seed)

@@ -44,11 +44,12 @@ def fit(
     Example: microcal fit runs/a --model polynomial --train 110 --out calibration.json
     """
     from ..formats.calibration_file import export_mat
-    from ..formats.calibration_update import add_manipulator
+    from ..formats.calibration_update import add_manipulator, check_fit_outputs
     from ..formats.measurements import read_measurements
     from ..procedures.identification import calibrate_manipulator
     from ..report.text_tables import fit_lines
 
+    check_fit_outputs(out, mat)
     path = source / "measurements.csv" if source.is_dir() else source
     meas = read_measurements(path)
     names = [*(extra or []), *(["temperature"] if temperature else [])]

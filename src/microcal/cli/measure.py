@@ -8,7 +8,6 @@ from typing import Annotated
 from rich.console import Console
 from typer import Argument, Option
 
-from ..errors import InputError
 from ..report.console import print_parts, staged_progress
 from ._app import app
 
@@ -53,8 +52,9 @@ def report(run_dir: _ReportDir, out: _ReportOut = None) -> None:
 
     Example: microcal report demo-out
     """
+    from ..formats.outputs import check_output, foreign_report
     from ..report import write_report
 
-    if out is not None and out.is_dir():
-        raise InputError(f"--out {out}: is a directory; give a file name such as report.html")
-    print(f"wrote {write_report(run_dir, out)}")
+    target = out if out is not None else run_dir / "report.html"
+    check_output(target, kind="a microcal report", foreign=foreign_report, example="report.html")
+    print(f"wrote {write_report(run_dir, target)}")

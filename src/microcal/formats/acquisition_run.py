@@ -22,7 +22,14 @@ from ..errors import InputError
 from ..kinematics.designs import DESIGNS
 from ..procedures.acquisition import AcquisitionConfig, RunStoppedError
 from ..procedures.acquisition import acquire as run_acquisition
-from ..procedures.planning import DESIGN_CHOICES, POLYNOMIAL_POSES, RunPlan, plan_run
+from ..procedures.planning import (
+    DESIGN_CHOICES,
+    POLYNOMIAL_POSES,
+    RunPlan,
+    check_poses,
+    plan_run,
+)
+from .outputs import check_writable
 from .records import RunManifest
 from .run_directory import HOLDS_A_RUN, MANIFEST, RunDirectory, RunWriter, holds_run
 from .run_lock import run_lock
@@ -105,6 +112,8 @@ def check_out(out: Path, resume: bool, dry_run: bool) -> None:
     """
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: is a file; choose a directory for the run")
+    if not dry_run:
+        check_writable(out, f"--out {out}")
     if resume:
         if not (out / MANIFEST).exists():
             raise InputError(f"{out}: no run to resume (no {MANIFEST}); start it without --resume")
@@ -160,7 +169,9 @@ def run_acquire(request: AcquireRequest) -> Iterator[str]:
     check_out(out, request.resume, request.dry_run)
     manifest = RunDirectory(out).manifest if request.resume else None
     req = request.filled(manifest)
-    if request.poses is not None and req.design not in DESIGNS and manifest is None:
+    if manifest is None and req.design in DESIGNS:
+        check_poses(str(req.design), cast(int, req.poses))
+    elif request.poses is not None and manifest is None:
         raise InputError(f"--poses: design {req.design} has its own poses; leave --poses out")
     if req.store not in ("full", "roi"):
         raise InputError(f"--store: expected 'full' or 'roi', got {req.store!r}")

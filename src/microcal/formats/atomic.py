@@ -7,6 +7,8 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
+from ..errors import FormatError
+
 __all__ = ["write_atomic", "write_text_atomic"]
 
 
@@ -24,10 +26,18 @@ def write_atomic(path: str | os.PathLike[str], write: Callable[[Path], None]) ->
 
     The temporary file is removed if ``write`` fails; ``path`` is either the old file or the
     complete new one, never a mixture.
+
+    Raises
+    ------
+    FormatError
+        The file cannot be written (no permission, disk full, a folder of that name).
     """
     target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    except OSError as exc:
+        raise FormatError(f"{target}: cannot be written ({exc.strerror or exc})") from None
     os.close(fd)
     tmp = Path(tmp_name)
     try:
@@ -36,6 +46,11 @@ def write_atomic(path: str | os.PathLike[str], write: Callable[[Path], None]) ->
             os.fsync(fh.fileno())
         os.chmod(tmp, 0o666 & ~_UMASK)  # mkstemp makes 0600; give the usual permissions
         os.replace(tmp, target)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise FormatError(
+            f"{target}: cannot be written ({exc.strerror or exc}); nothing was replaced"
+        ) from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise

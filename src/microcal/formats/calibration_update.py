@@ -41,6 +41,20 @@ def add_manipulator(
     return calibration
 
 
+def check_fit_outputs(out: Path, mat: Path | None) -> None:
+    """Refuse, before the fit, a calibration.json or .mat output that is not ours to replace."""
+    from .calibration_file import CALIBRATION_FORMAT
+    from .json_file import check_json_output
+    from .outputs import check_output, foreign_mat
+
+    check_json_output(out, CALIBRATION_FORMAT, "calibration.json")
+    if mat is not None:
+        if mat.resolve() == out.resolve():
+            raise InputError(f"--mat {mat}: is --out too; give the .mat file its own name")
+        check_output(mat, kind="a .mat file of models", foreign=foreign_mat,
+                     example="calibration.mat", option="--mat")  # fmt: skip
+
+
 def camera_models(calibration: Calibration) -> dict[str, CameraModel]:
     """The calibrated cameras a calibration holds (``fit --cameras`` put them there).
 

@@ -18,7 +18,7 @@ from typing import Any, TypeVar
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from .._version import __version__
-from ..errors import FormatError, InputError
+from ..errors import FormatError
 
 __all__ = [
     "FileSchema",
@@ -130,26 +130,18 @@ def check_json_output(
     wrote; a directory, a file of another kind or a place without write permission is an
     ``InputError`` naming the option and the fix (``example``: a file name to suggest).
     """
-    p = Path(path)
+    from .outputs import check_output
+
     name = _name_and_version(fmt)[0]
-    if p.is_dir():
-        raise InputError(f"{option} {p}: is a directory; give a file name such as {example}")
-    if p.exists():
+
+    def foreign(p: Path) -> str | None:
         try:
             found = json.loads(p.read_text(encoding="utf-8")).get("format")
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError):
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError, RecursionError):
             found = None
-        if not isinstance(found, str) or _name_and_version(found)[0] != name:
-            what = f"a {found} file" if isinstance(found, str) else "a file microcal did not write"
-            raise InputError(
-                f"{option} {p}: holds {what}, not a {name} file; microcal replaces only "
-                f"files of that kind it wrote: choose another name such as {example}"
-            )
-    parent = p.parent if str(p.parent) else Path(".")
-    while not parent.exists() and parent != parent.parent:
-        parent = parent.parent
-    if not os.access(parent, os.W_OK):
-        raise InputError(
-            f"{option} {p}: cannot write in {parent} (no permission); choose another place"
-        )
-    return p
+        if not isinstance(found, str):
+            return "a file microcal did not write"
+        return None if _name_and_version(found)[0] == name else f"a {found} file"
+
+    return check_output(path, kind=f"a {name} file", foreign=foreign, example=example,
+                        option=option)  # fmt: skip

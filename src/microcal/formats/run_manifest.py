@@ -58,8 +58,11 @@ def new_manifest(
 
 def clear_demo_dir(out: Path) -> None:
     """Make ``out`` ready for a demo: new, empty, or holding only an earlier demo's files."""
+    from .outputs import check_writable
+
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: is a file; choose a directory")
+    check_writable(out, f"--out {out}")
     if not out.exists() or not any(out.iterdir()):
         return
     entries = {p.name for p in out.iterdir()}

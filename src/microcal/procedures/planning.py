@@ -27,6 +27,7 @@ __all__ = [
     "POLYNOMIAL_POSES",
     "TRAJECTORIES",
     "RunPlan",
+    "check_poses",
     "plan_run",
     "trajectory",
 ]
@@ -79,6 +80,22 @@ class RunPlan:
         return record
 
 
+def check_poses(design: str, poses: int) -> None:
+    """Refuse a pose count a generated design cannot identify a model from, or absurd.
+
+    Raises
+    ------
+    InputError
+        Fewer than :data:`MIN_DESIGN_POSES` or more than :data:`MAX_DESIGN_POSES`.
+    """
+    if not MIN_DESIGN_POSES <= poses <= MAX_DESIGN_POSES:
+        raise InputError(
+            f"poses: expected {MIN_DESIGN_POSES} to {MAX_DESIGN_POSES} for a {design} "
+            f"design (the matrix model needs {MIN_DESIGN_POSES} to fit and validate, the "
+            f"polynomial model about {POLYNOMIAL_POSES}; the thesis used 170), got {poses}"
+        )
+
+
 def trajectory(name: str, limits_um: ArrayLike) -> FloatArray:
     """An evaluation trajectory's joint commands within a rig's limits, (N, 3) µm.
 
@@ -129,12 +146,7 @@ def plan_run(
     """
     lim = as_array(limits_um, "limits_um", (len(axes), 2))
     if design in DESIGNS:
-        if not MIN_DESIGN_POSES <= poses <= MAX_DESIGN_POSES:
-            raise InputError(
-                f"poses: expected {MIN_DESIGN_POSES} to {MAX_DESIGN_POSES} for a {design} "
-                f"design (the matrix model needs {MIN_DESIGN_POSES} to fit and validate, the "
-                f"polynomial model about {POLYNOMIAL_POSES}; the thesis used 170), got {poses}"
-            )
+        check_poses(design, poses)
         d = make_design(design, poses, lim[:, 0], lim[:, 1], seed)
         return RunPlan(design, seed, check_design(d, lim, axes), lim[:, 0], lim[:, 1])
     if design in TRAJECTORIES:  # for evaluation: only the limits matter

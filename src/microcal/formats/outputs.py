@@ -1,0 +1,98 @@
+"""Outputs checked before any work: writable, and never a file that is not ours to replace.
+
+Every writer of microcal replaces only a file of its own kind that microcal wrote (a
+calibration.json by a calibration.json, never a cameras.json, a CSV or a user's notes), and
+says so before it starts, not after an hour of acquisition or a fit.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+from ..errors import InputError
+
+__all__ = ["check_output", "check_writable", "foreign_mat", "foreign_report"]
+
+
+def check_output(
+    path: str | os.PathLike[str],
+    *,
+    kind: str,
+    foreign: Callable[[Path], str | None],
+    example: str,
+    option: str = "--out",
+) -> Path:
+    """Refuse an output that is a directory, a file that is not ours (``foreign`` says what it
+    holds), or a place without write permission; returns the path.
+
+    Parameters
+    ----------
+    kind : str
+        What the output is, for the message (``a report``).
+    foreign : callable (path) -> str or None
+        For an existing file: None when microcal wrote it and it is of this kind, else what
+        it holds (``a microcal.cameras/1 file``).
+    example : str
+        A file name to suggest.
+
+    Raises
+    ------
+    InputError
+        ``OPTION PATH: is a directory`` / ``holds WHAT, not KIND`` / ``cannot write in DIR``,
+        each with the fix.
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise InputError(f"{option} {p}: is a directory; give a file name such as {example}")
+    held = foreign(p) if p.exists() else None
+    if held is not None:
+        raise InputError(
+            f"{option} {p}: holds {held}, not {kind}; microcal replaces only files of that "
+            f"kind it wrote: choose another name such as {example}"
+        )
+    check_writable(p.parent if str(p.parent) else Path("."), f"{option} {p}")
+    return p
+
+
+def check_writable(folder: Path, what: str) -> None:
+    """Refuse a folder (or its nearest existing parent) without write permission."""
+    parent = folder
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if parent.exists() and not parent.is_dir():
+        raise InputError(f"{what}: {parent} is a file, not a folder; choose another place")
+    if not os.access(parent, os.W_OK):
+        raise InputError(f"{what}: cannot write in {parent} (no permission); choose another place")
+
+
+def _head(path: Path, n: int) -> bytes:
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(n)
+    except OSError:
+        return b""
+
+
+_NOT_OURS = "a file microcal did not write"
+
+
+def foreign_report(path: Path) -> str | None:
+    """None for an HTML report microcal wrote (its generator tag)."""
+    return None if b'<meta name="generator" content="microcal' in _head(path, 4096) else _NOT_OURS
+
+
+def foreign_mat(path: Path) -> str | None:
+    """None for a MATLAB file ``export_mat`` wrote: MAT 5, every variable a model's struct."""
+    if not _head(path, 19).startswith(b"MATLAB 5.0 MAT-file"):
+        return _NOT_OURS
+    import scipy.io
+
+    try:
+        data = scipy.io.loadmat(str(path), squeeze_me=True, struct_as_record=False)
+    except Exception:
+        return "a MATLAB file microcal cannot read"
+    models = [v for k, v in data.items() if not k.startswith("__")]
+    ours = bool(models) and all(hasattr(m, "kind") and hasattr(m, "coefficients") for m in models)
+    return None if ours else "a MATLAB file of other data"
