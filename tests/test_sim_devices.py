@@ -161,7 +161,9 @@ def test_overrides_from_python_and_a_rig_file(tmp_path):
     plat = sim.platform("thesis", seed=0, overrides=over)
     assert plat.cameras["top"].formation.read_noise_e == 10.0
     assert plat.manipulator.speed_um_s == 500.0
-    with pytest.raises(InputError, match=r"override 'top\.nope': no setting 'nope' here"):
+    with pytest.raises(
+        InputError, match=r"override 'top\.nope': no setting 'nope' \(settings here: dist,"
+    ):
         sim.platform("thesis", overrides={"top.nope": 1})
     with pytest.raises(InputError, match="expected float, got str"):
         sim.platform("thesis", overrides={"manipulator.speed_um_s": "fast"})

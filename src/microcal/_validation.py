@@ -6,6 +6,7 @@ with a message naming the argument, the expected shape and the shape that was gi
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -13,7 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import InputError
 
-__all__ = ["FloatArray", "as_array", "as_rows"]
+__all__ = ["FloatArray", "as_array", "as_rows", "check_number"]
 
 FloatArray = NDArray[np.float64]
 
@@ -132,3 +133,49 @@ def check_limits(
             f"limits [{lim[k, 0]:g}, {lim[k, 1]:g}] µm{count}; nothing was moved"
         )
     return d
+
+
+def check_number(
+    name: str,
+    value: object,
+    low: float | None = None,
+    high: float | None = None,
+    *,
+    above: float | None = None,
+    integer: bool = False,
+) -> float:
+    """A finite number within its range, or an InputError saying expected vs got.
+
+    Parameters
+    ----------
+    low, high : float, optional
+        Inclusive bounds.
+    above : float, optional
+        An exclusive lower bound (``above=0``: strictly positive).
+    integer : bool
+        Only whole numbers (bool is never a number here).
+
+    Returns
+    -------
+    float
+        ``value`` as a float.
+    """
+    kinds = (int, np.integer) if integer else (int, float, np.integer, np.floating)
+    if isinstance(value, bool) or not isinstance(value, kinds) or not math.isfinite(value):
+        what = "an integer" if integer else "a finite number"
+        raise InputError(f"{name}: expected {what}, got {value!r}")
+    v = float(value)
+    bounds = []
+    if above is not None:
+        bounds.append(f"> {above:g}")
+    if low is not None:
+        bounds.append(f">= {low:g}")
+    if high is not None:
+        bounds.append(f"<= {high:g}")
+    if (
+        (above is not None and not v > above)
+        or (low is not None and v < low)
+        or (high is not None and v > high)
+    ):
+        raise InputError(f"{name}: expected a number {' and '.join(bounds)}, got {value!r}")
+    return v

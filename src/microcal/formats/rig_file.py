@@ -33,6 +33,7 @@ exposure_ms = 10
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -263,7 +264,24 @@ def _build(path: Path, where: str, cls: type[Any], given: dict[str, Any]) -> Any
         raise FormatError(f"{path}: {where}.{exc}") from None
 
 
+def _check_keys(path: Path, where: str, table: object, model: type[BaseModel]) -> None:
+    """An unknown key is an error naming the nearest valid one (before the types' checks)."""
+    if not isinstance(table, dict):
+        return
+    names = list(model.model_fields)
+    for key in table:
+        if key not in names:
+            near = difflib.get_close_matches(str(key), names, n=1)
+            hint = f"did you mean {near[0]!r}? " if near else ""
+            raise FormatError(
+                f"{path}: {where}{key}: not a setting ({hint}settings: {', '.join(names)})"
+            )
+
+
 def _sim(path: Path, data: dict[str, Any]) -> SimRigSpec:
+    from ..sim.platforms import PRESETS, check_overrides
+
+    _check_keys(path, "", data, _Sim)
     try:
         rig = _Sim.model_validate(data)
     except ValidationError as exc:
@@ -272,13 +290,25 @@ def _sim(path: Path, data: dict[str, Any]) -> SimRigSpec:
     given.pop("driver")
     overrides: dict[str, Any] = {}
     _flatten("", given.pop("overrides", {}), overrides)
+    preset = given.get("preset", "thesis")
+    if preset not in PRESETS:
+        near = difflib.get_close_matches(preset, PRESETS, n=1)
+        hint = f" (did you mean {near[0]!r}?)" if near else ""
+        raise FormatError(f"{path}: preset: expected one of {list(PRESETS)}, got {preset!r}{hint}")
     try:
+        check_overrides(overrides)
         return SimRigSpec(**given, overrides=overrides)
     except InputError as exc:
         raise FormatError(f"{path}: {exc}") from None
 
 
 def _hardware(path: Path, data: dict[str, Any]) -> HardwareRigSpec:
+    _check_keys(path, "", data, _Hardware)
+    _check_keys(path, "manipulator.", data.get("manipulator"), _Manipulator)
+    _check_keys(path, "micromanager.", data.get("micromanager"), _MicroManager)
+    cameras = data.get("cameras")
+    for name, camera in cameras.items() if isinstance(cameras, dict) else ():
+        _check_keys(path, f"cameras.{name}.", camera, _Camera)
     try:
         rig = _Hardware.model_validate(data)
     except ValidationError as exc:

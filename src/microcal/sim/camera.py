@@ -12,6 +12,7 @@ would; occlusion and glare spoil the image.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -19,9 +20,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from .._validation import FloatArray
+from .._validation import FloatArray, check_number
 from ..devices.base import Camera, Clock
-from ..errors import DeviceTimeoutError, FrameError
+from ..errors import DeviceTimeoutError, FrameError, InputError
 from ..geometry.camera_model import CameraModel
 from .render import Placement, Reflectance, render_placement, roi_of
 
@@ -71,6 +72,22 @@ class ImageFormation:
     nominal_exposure_s: float = 0.02
     readout_s: float = 0.03
 
+    def __post_init__(self) -> None:
+        check_number("full_well_e", self.full_well_e, above=0)
+        check_number("illumination", self.illumination, above=0, high=10)
+        check_number("read_noise_e", self.read_noise_e, low=0)
+        check_number("vignetting", self.vignetting, low=0, high=0.99)
+        check_number("blur_sigma_px", self.blur_sigma_px, low=0, high=50)
+        check_number("defocus_px_per_mm", self.defocus_px_per_mm, low=0)
+        check_number("focus_depth_um", self.focus_depth_um)
+        if len(self.jitter_px) != 2:
+            raise InputError(f"jitter_px: expected [along, across] px, got {self.jitter_px!r}")
+        for v in self.jitter_px:
+            check_number("jitter_px", v, low=0, high=50)
+        check_number("supersample", self.supersample, low=1, high=8, integer=True)
+        check_number("nominal_exposure_s", self.nominal_exposure_s, above=0)
+        check_number("readout_s", self.readout_s, low=0)
+
 
 @dataclass(frozen=True)
 class CameraFaults:
@@ -80,6 +97,10 @@ class CameraFaults:
     timeout_rate: float = 0.0
     occlusion_rate: float = 0.0
     glare_rate: float = 0.0
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            check_number(f.name, getattr(self, f.name), low=0, high=1)
 
 
 @dataclass

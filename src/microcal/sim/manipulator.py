@@ -11,12 +11,13 @@ given rates: a move the controller refuses (:class:`MoveError`) and a command th
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .._validation import FloatArray
+from .._validation import FloatArray, check_number
 from ..devices.base import Clock, Manipulator
 from ..errors import DeviceTimeoutError, MoveError
 from .kinematics import TrueKinematics
@@ -30,6 +31,10 @@ class ManipulatorFaults:
 
     move_failure_rate: float = 0.0
     timeout_rate: float = 0.0
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            check_number(f.name, getattr(self, f.name), low=0, high=1)
 
 
 class SimManipulator(Manipulator):

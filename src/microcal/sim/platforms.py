@@ -14,14 +14,15 @@ or a rig file's ``[overrides]`` tables, which mirror those dotted names.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from .._validation import FloatArray
+from .._validation import FloatArray, check_number
 from ..errors import InputError
-from ..geometry.camera_model import CameraModel
+from ..geometry.camera_model import DIST_LENGTHS, CameraModel
 from ..thesis.cameras import thesis_cameras
 from ..vision.targets import Target, parse_target
 from .camera import CameraFaults, ImageFormation, SimCamera
@@ -29,7 +30,7 @@ from .clock import SimClock
 from .manipulator import ManipulatorFaults, SimManipulator
 from .render import Placement
 
-__all__ = ["PlatformConfig", "Scene", "SimPlatform", "platform"]
+__all__ = ["PlatformConfig", "Scene", "SimPlatform", "check_overrides", "platform"]
 
 
 @dataclass
@@ -41,6 +42,18 @@ class CameraConfig:
     bit_depth: int = 8
     formation: ImageFormation = field(default_factory=ImageFormation)
     faults: CameraFaults = field(default_factory=CameraFaults)
+
+    def __post_init__(self) -> None:
+        if len(self.dist) not in DIST_LENGTHS:
+            raise InputError(
+                f"dist: expected {', '.join(map(str, DIST_LENGTHS))} coefficients, got "
+                f"{len(self.dist)}"
+            )
+        for v in self.dist:
+            check_number("dist", v, low=-10, high=10)
+        check_number("pixel_size_um", self.pixel_size_um, above=0)
+        if self.bit_depth not in (8, 10, 12, 16) or isinstance(self.bit_depth, bool):
+            raise InputError(f"bit_depth: expected 8, 10, 12 or 16, got {self.bit_depth!r}")
 
 
 @dataclass
@@ -60,6 +73,31 @@ class ManipulatorConfig:
     temperature_c: float = 22.0
     temperature_drift_c_per_h: float = 0.0
     faults: ManipulatorFaults = field(default_factory=ManipulatorFaults)
+
+    def __post_init__(self) -> None:
+        lim = np.asarray(self.limits_um, dtype=np.float64) if _rows_of_two(self.limits_um) else None
+        if (
+            lim is None
+            or lim.shape != (3, 2)
+            or not np.all(np.isfinite(lim))
+            or np.any(lim[:, 0] >= lim[:, 1])
+        ):
+            raise InputError(
+                f"limits_um: expected [low, high] µm for x, y and z, got {self.limits_um!r}"
+            )
+        check_number("speed_um_s", self.speed_um_s, above=0)
+        check_number("loop_settle_s", self.loop_settle_s, low=0)
+        check_number("sensor_noise_um", self.sensor_noise_um, low=0)
+        check_number("temperature_c", self.temperature_c, low=-50, high=100)
+        check_number("temperature_drift_c_per_h", self.temperature_drift_c_per_h, low=-20, high=20)
+
+
+def _rows_of_two(value: object) -> bool:
+    return isinstance(value, tuple | list) and all(
+        isinstance(r, tuple | list) and len(r) == 2 and all(
+            isinstance(v, int | float) and not isinstance(v, bool) for v in r
+        ) for r in value
+    )  # fmt: skip
 
 
 @dataclass
@@ -90,24 +128,50 @@ PRESETS = ("thesis",)
 def _set_dotted(obj: Any, dotted: str, value: Any, full: str = "") -> Any:
     full = full or dotted
     head, _, rest = dotted.partition(".")
-    if not dataclasses.is_dataclass(obj) or not any(
-        f.name == head for f in dataclasses.fields(obj)
-    ):
-        raise InputError(f"override {full!r}: no setting {head!r} here")
+    names = [f.name for f in dataclasses.fields(obj)] if dataclasses.is_dataclass(obj) else []
+    if head not in names:
+        near = difflib.get_close_matches(head, names, n=1)
+        hint = f"did you mean {near[0]!r}? " if near else ""
+        settings = f"({hint}settings here: {', '.join(names)})" if names else "(not a table)"
+        raise InputError(f"override {full!r}: no setting {head!r} {settings}")
     current = getattr(obj, head)
     if rest:
-        return dataclasses.replace(obj, **{head: _set_dotted(current, rest, value, full)})  # type: ignore[type-var]
+        return dataclasses.replace(obj, **{head: _set_dotted(current, rest, value, full)})
     if isinstance(current, tuple) and isinstance(value, list):
         value = tuple(tuple(v) if isinstance(v, list) else v for v in value)
     if (
         current is not None
         and not isinstance(value, type(current))
-        and not (isinstance(current, float) and isinstance(value, int))
-    ):
+        and not (
+            isinstance(current, float) and isinstance(value, int) and not isinstance(value, bool)
+        )
+    ) or (isinstance(value, bool) and not isinstance(current, bool)):
         raise InputError(
             f"override {full!r}: expected {type(current).__name__}, got {type(value).__name__}"
         )
-    return dataclasses.replace(obj, **{head: value})  # type: ignore[type-var]
+    try:
+        return dataclasses.replace(obj, **{head: value})
+    except InputError as exc:
+        raise InputError(f"override {full!r}: {str(exc).partition(': ')[2]}") from None
+
+
+def check_overrides(overrides: dict[str, Any]) -> PlatformConfig:
+    """The platform configuration with ``overrides`` applied: each name, type and range checked.
+
+    Raises
+    ------
+    InputError
+        ``override 'top.faults.drop_rate': expected a number >= 0 and <= 1, got 1.5``, or
+        an unknown name (with the nearest one).
+    """
+    config = PlatformConfig()
+    for key, value in overrides.items():
+        config = _set_dotted(config, key, value)
+    try:
+        parse_target(config.board)
+    except InputError as exc:
+        raise InputError(f"override 'board': {exc}") from None
+    return config
 
 
 class Scene:
@@ -171,9 +235,7 @@ def platform(
 
     if preset not in PRESETS:
         raise InputError(f"preset: expected one of {list(PRESETS)}, got {preset!r}")
-    config = PlatformConfig()
-    for key, value in (overrides or {}).items():
-        config = _set_dotted(config, key, value)
+    config = check_overrides(overrides or {})
     root = np.random.SeedSequence(seed)
     s_manip, s_top, s_side = root.spawn(3)
     clock = SimClock()
