@@ -122,3 +122,25 @@ def test_boards_too_small_for_the_finders_are_refused_at_the_spec(spec):
 
     with pytest.raises(InputError, match=r"expected at least 3x3"):
         parse_target(spec)
+
+
+def test_a_spec_smaller_than_the_board_is_never_found():
+    """A 3x3 spec on the thesis's 4x3 board: the finders find parts of it (or lattices in the
+    noise); each is refused with the reason, while the right spec finds every view."""
+    from microcal import sim
+    from microcal.kinematics.designs import make_design
+
+    plat = sim.platform("thesis", seed=5)
+    d = make_design("random", 6, [0, 0, 0], [8000, 8000, 4800], 5)
+    small, whole = parse_target("chessboard:3x3:400"), parse_target("chessboard:4x3:400")
+    reasons = []
+    for k in range(len(d)):
+        plat.manipulator.move_to_um(d[k])
+        plat.clock.sleep(5.0)
+        for cam in plat.cameras.values():
+            image = cam.grab()
+            assert detect(image, whole).found
+            wrong = detect(image, small)
+            assert not wrong.found, k
+            reasons.append(wrong.reason)
+    assert any("goes on past its" in r for r in reasons)

@@ -195,7 +195,27 @@ def models_from_dict(data: dict[str, Any], where: str = "cameras") -> dict[str, 
             raise FormatError(f"{where}: cameras.{name}.{validation_message(exc)}") from None
         except InputError as exc:
             raise FormatError(f"{where}: cameras.{name}: {exc}") from None
+    _check_usable(models, where)
     return models
+
+
+def _check_usable(models: dict[str, CameraModel], where: str) -> None:
+    """Refuse cameras that are valid numbers but no cameras (see ``geometry.camera_checks``)."""
+    from ..geometry.camera_checks import distortion_problem, same_view
+
+    for name, model in models.items():
+        problem = distortion_problem(model)
+        if problem is not None:
+            raise FormatError(
+                f"{where}: cameras.{name}: {problem}; calibrate it again, or with a simpler "
+                f"--lens-model"
+            )
+    pair = same_view(models)
+    if pair is not None:
+        raise FormatError(
+            f"{where}: cameras {pair[0]} and {pair[1]} see from one centre (the same camera "
+            f"twice?); measuring depth needs two views from different places"
+        )
 
 
 def read_cameras(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, CameraModel]]:

@@ -147,6 +147,88 @@ def _not_a_chessboard(gray: NDArray[np.float32], corners: FloatArray, cols: int,
     )
 
 
+#: Squares smaller than this (px) are noise to a chessboard finder, not a board.
+MIN_SQUARE_PX = 8.0
+#: A board's corners lie on a homography of its lattice within this share of a square (lens
+#: distortion over a board stays far below it); a lattice that skips a row does not.
+MAX_LATTICE_RESIDUAL = 0.1
+
+
+def _board_edges(gray: NDArray[np.float32], q: FloatArray, cols: int, rows: int) -> str:
+    """Why the corners found are not the whole board of the spec ("" when they are).
+
+    Two rings of squares around the corners are sampled (the lattice extended by the
+    homography of the corners): the first ring is the board's own border squares, which
+    alternate like the inner ones (a lattice found in noise or clutter does not); past
+    them a board of the spec's size ends (its margin, the background), while a larger
+    board goes on alternating (a finder asked for fewer corners than the board has finds a
+    part of it, numbered as if it were the whole: positions then come out squares off).
+    Only cells inside the image count.
+    """
+    grid0 = q.reshape(rows, cols, 2)
+    spacing = np.concatenate([np.linalg.norm(np.diff(grid0, axis=0), axis=2).ravel(),
+                              np.linalg.norm(np.diff(grid0, axis=1), axis=2).ravel()])  # fmt: skip
+    if float(np.median(spacing)) < MIN_SQUARE_PX:
+        return f"the corners found are {np.median(spacing):.1f} px apart: noise, not a board"
+    j, i = np.meshgrid(np.arange(cols, dtype=np.float64), np.arange(rows, dtype=np.float64))
+    lattice = np.stack([j.ravel(), i.ravel()], axis=1)
+    H: Any = cv2.findHomography(lattice, q, 0)[0]
+    if H is None:
+        return ""
+    fitted = cv2.perspectiveTransform(lattice.reshape(-1, 1, 2), H).reshape(-1, 2)
+    residual = float(np.sqrt(np.mean(np.sum((fitted - q) ** 2, axis=1))))
+    if residual > MAX_LATTICE_RESIDUAL * float(np.median(spacing)):
+        return (
+            f"the {cols}x{rows} corners found are not a regular lattice (off a board's by "
+            f"{residual:.1f} px RMS): a mis-detected or partly hidden board"
+        )
+    je, ie = np.meshgrid(np.arange(-2.0, cols + 2), np.arange(-2.0, rows + 2))
+    ext = cv2.perspectiveTransform(np.stack([je.ravel(), ie.ravel()], axis=1).reshape(-1, 1, 2), H)
+    grid = ext.reshape(rows + 4, cols + 4, 2)
+    box = max(1, int(0.3 * float(np.median(spacing))))  # a patch of each square, not a pixel
+    levels = _square_levels(cv2.blur(gray, (box, box)), grid)  # (rows + 3, cols + 3)
+    centres = 0.25 * (grid[:-1, :-1] + grid[1:, :-1] + grid[:-1, 1:] + grid[1:, 1:])
+    h, w = gray.shape
+    x, y = centres[..., 0], centres[..., 1]
+    seen = (x >= 0) & (x < w) & (y >= 0) & (y < h)
+    b, a = np.indices(levels.shape)
+    inner = levels[2:-2, 2:-2]
+    parity = (a + b) % 2 == 0
+    light_even = inner[parity[2:-2, 2:-2]].mean() > inner[~parity[2:-2, 2:-2]].mean()
+    sign = np.where(parity == light_even, 1.0, -1.0)  # +1 where a light square would be
+    along = (levels[:, :-1] - levels[:, 1:]) * sign[:, :-1]  # > 0 between alternating squares
+    across = (levels[:-1, :] - levels[1:, :]) * sign[:-1, :]
+    contrast = float(np.median(np.concatenate([along[2:-2, 2:-2].ravel(),
+                                               across[2:-2, 2:-2].ravel()])))  # fmt: skip
+    if contrast <= 0:
+        return ""
+    # the border squares: steps within rings 0-1 (inner plus first ring), inside the image
+    ok_along = seen[1:-1, 1:-2] & seen[1:-1, 2:-1]
+    ok_across = seen[1:-2, 1:-1] & seen[2:-1, 1:-1]
+    border = np.concatenate([along[1:-1, 1:-1][ok_along], across[1:-1, 1:-1][ok_across]])
+    if border.size and np.mean(border > 0) < 0.75:
+        return (
+            f"the {cols}x{rows} corners found are not bordered by a chessboard's squares "
+            "(a lattice found in noise or clutter, or a partly hidden board)"
+        )
+    sides: dict[str, tuple[int | slice, int | slice]] = {
+        "top": (0, slice(1, -1)), "bottom": (-1, slice(1, -1)),
+        "left": (slice(1, -1), 0), "right": (slice(1, -1), -1),
+    }  # fmt: skip
+    for side, index in sides.items():
+        ring, ok, s = (np.asarray(v[index]) for v in (levels, seen, sign))
+        pairs = ok[:-1] & ok[1:]
+        if np.count_nonzero(pairs) < 2:
+            continue
+        alternating = (ring[:-1] - ring[1:]) * s[:-1] > 0.5 * contrast
+        if np.mean(alternating[pairs]) >= 0.8:
+            return (
+                f"the board goes on past its {side} edge: it has more than the spec's "
+                f"{cols}x{rows} inner corners (give the target spec of the whole board)"
+            )
+    return ""
+
+
 def _orient(gray: NDArray[np.float32], corners: FloatArray, target: Target) -> FloatArray:
     """Number the corners from the board's own origin, as far as the picture can tell.
 
@@ -189,6 +271,9 @@ def _detect_chessboard(gray: NDArray[np.float32], target: Target) -> Detection:
     q = corners.reshape(-1, 2).astype(np.float64)
     q = _orient(gray, q, target)
     q = refine_corners(gray, q, *size)
+    not_whole = _board_edges(gray, q, *size)
+    if not_whole:
+        return Detection.none(not_whole)
     ids = np.arange(len(q), dtype=np.intp)
     return Detection(True, ids, q, _homography_rms(target, ids, q), method=method)
 
