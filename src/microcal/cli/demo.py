@@ -15,7 +15,7 @@ from ._app import app
 QUICK_POSES, QUICK_FRAMES = 40, 2
 
 _Seed = Annotated[int, Option(min=0, help="Seed of all random draws.")]
-_Poses = Annotated[int, Option(min=20, help="Poses to acquire (the thesis used 170).")]
+_Poses = Annotated[int, Option(min=20, max=20000, help="Poses to acquire (the thesis: 170).")]
 _Quick = Annotated[bool, Option(help="A short run: 40 poses, 2 frames each, 1 ISO cycle.")]
 _Out = Annotated[Path, Option("--out", "-o", help="Run directory (replaces an earlier demo).")]
 

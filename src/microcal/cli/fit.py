@@ -47,11 +47,12 @@ def fit(
     from ..formats.calibration_update import add_manipulator, check_fit_outputs
     from ..formats.measurements import read_measurements
     from ..procedures.identification import calibrate_manipulator
+    from ..procedures.planning import MIN_DESIGN_POSES
     from ..report.text_tables import fit_lines
 
-    check_fit_outputs(out, mat)
+    check_fit_outputs(out, mat, manipulator)
     path = source / "measurements.csv" if source.is_dir() else source
-    meas = read_measurements(path)
+    meas = read_measurements(path, min_poses=MIN_DESIGN_POSES)
     names = [*(extra or []), *(["temperature"] if temperature else [])]
     inputs = meas.extra_inputs(list(dict.fromkeys(names)), path)
     entry, fits = calibrate_manipulator(
@@ -87,13 +88,15 @@ def solve(
     Example: microcal solve calibration.json 2000 2000 300 --limits 0:8000,0:8000,0:4800
     """
     from ..formats.calibration_file import load_calibration
-    from ..formats.options import parse_limits, parse_position
+    from ..formats.options import parse_limits, parse_number, parse_position
     from ..procedures.compensation import solve_position
     from ..report.text_tables import solution_lines
 
     m = load_calibration(calibration).manipulator(manipulator)
-    values = {} if temperature is None else {"temperature": temperature}
-    lim = parse_limits(limits) if limits else None
+    values = (
+        {} if temperature is None else {"temperature": parse_number(temperature, "--temperature")}
+    )
+    lim = parse_limits(limits) if limits is not None else None
     sol = solve_position(m, parse_position(position_um), values, limits_um=lim)
     print("dx_um dy_um dz_um\n" + " ".join(f"{v:.4f}" for v in sol.d_um))
     for line in solution_lines(sol, m):

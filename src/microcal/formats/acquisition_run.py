@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import difflib
 import signal
 import sys
 from collections.abc import Iterator
@@ -169,6 +170,15 @@ def run_acquire(request: AcquireRequest) -> Iterator[str]:
     check_out(out, request.resume, request.dry_run)
     manifest = RunDirectory(out).manifest if request.resume else None
     req = request.filled(manifest)
+    if (
+        manifest is None
+        and req.design not in DESIGN_CHOICES
+        and not Path(str(req.design)).is_file()
+    ):
+        near = difflib.get_close_matches(str(req.design), DESIGN_CHOICES, n=1)
+        hint = f"did you mean {near[0]}? " if near else ""
+        raise InputError(f"--design {req.design}: not a design ({hint}designs: "
+                         f"{', '.join(DESIGN_CHOICES)}) and no such CSV file")  # fmt: skip
     if manifest is None and req.design in DESIGNS:
         check_poses(str(req.design), cast(int, req.poses))
     elif request.poses is not None and manifest is None:

@@ -41,12 +41,15 @@ def add_manipulator(
     return calibration
 
 
-def check_fit_outputs(out: Path, mat: Path | None) -> None:
-    """Refuse, before the fit, a calibration.json or .mat output that is not ours to replace."""
+def check_fit_outputs(out: Path, mat: Path | None, manipulator: str = "m1") -> None:
+    """Refuse, before the fit, a calibration.json or .mat output that is not ours to replace,
+    or an empty manipulator name."""
     from .calibration_file import CALIBRATION_FORMAT
     from .json_file import check_json_output
     from .outputs import check_output, foreign_mat
 
+    if not manipulator.strip():
+        raise InputError("--manipulator: expected a name such as m1, got an empty one")
     check_json_output(out, CALIBRATION_FORMAT, "calibration.json")
     if mat is not None:
         if mat.resolve() == out.resolve():

@@ -195,7 +195,14 @@ def models_from_dict(data: dict[str, Any], where: str = "cameras") -> dict[str, 
             raise FormatError(f"{where}: cameras.{name}.{validation_message(exc)}") from None
         except InputError as exc:
             raise FormatError(f"{where}: cameras.{name}: {exc}") from None
-    _check_usable(models, where)
+        except (ValueError, TypeError, OverflowError) as exc:  # arrays of ragged or odd values
+            raise FormatError(f"{where}: cameras.{name}: not a camera's numbers ({exc})") from None
+    try:
+        _check_usable(models, where)
+    except FormatError:
+        raise
+    except (ValueError, OverflowError, FloatingPointError) as exc:
+        raise FormatError(f"{where}: cameras hold numbers no camera has ({exc})") from None
     return models
 
 

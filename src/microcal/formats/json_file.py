@@ -74,6 +74,8 @@ def read_json_object(path: str | os.PathLike[str], missing_hint: str = "") -> di
         raise FormatError(f"{p}: no such file{missing_hint}") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise FormatError(f"{p}: not a JSON file ({exc})") from None
+    except (RecursionError, ValueError) as exc:  # nested too deep, an integer of 4300 digits
+        raise FormatError(f"{p}: not a JSON file microcal reads ({type(exc).__name__})") from None
     if not isinstance(raw, dict):
         raise FormatError(f"{p}: expected a JSON object, got {type(raw).__name__}")
     return raw

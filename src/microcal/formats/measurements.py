@@ -86,13 +86,14 @@ class Measurements:
         return out
 
 
-def read_measurements(path: str | os.PathLike[str]) -> Measurements:
+def read_measurements(path: str | os.PathLike[str], min_poses: int = 1) -> Measurements:
     """Read ``measurements.csv``; rows with a status other than ``ok`` are counted, not used.
 
     Raises
     ------
     FormatError
-        Missing file or columns, values that are not numbers, duplicate poses.
+        Missing file or columns, values that are not numbers, duplicate poses, fewer
+        measured poses than ``min_poses``.
     """
     p = Path(path)
     try:
@@ -101,7 +102,20 @@ def read_measurements(path: str | os.PathLike[str]) -> Measurements:
         raise FormatError(f"{p}: no such file (run 'microcal measure' first)") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise FormatError(f"{p}: cannot be read as text ({exc})") from None
-    reader = csv.DictReader(io.StringIO(text))
+    try:
+        meas = _parse_measurements(p, text)
+    except csv.Error as exc:
+        raise FormatError(f"{p}: not a CSV file microcal can read ({exc})") from None
+    if meas.pose.size < min_poses:
+        raise FormatError(
+            f"{p}: {meas.pose.size} measured poses ({meas.n_failed} failed); identifying a "
+            f"model needs at least {min_poses}"
+        )
+    return meas
+
+
+def _parse_measurements(p: Path, text: str) -> Measurements:
+    reader = csv.DictReader(io.StringIO(text.removeprefix("\ufeff")))
     header = reader.fieldnames or []
     missing = [c for c in REQUIRED if c not in header]
     if missing:
@@ -118,6 +132,8 @@ def read_measurements(path: str | os.PathLike[str]) -> Measurements:
             pose = int(row["pose"])
         except (TypeError, ValueError):
             raise FormatError(f"{p}, line {line}: pose {row['pose']!r} is not an integer") from None
+        if not 0 <= pose < 10**9:
+            raise FormatError(f"{p}, line {line}: pose {pose} is not a pose number (0 to 10^9)")
         if pose in seen:
             raise FormatError(f"{p}, line {line}: pose {pose} appears twice")
         seen.add(pose)
@@ -135,7 +151,11 @@ def read_measurements(path: str | os.PathLike[str]) -> Measurements:
                 f"{p}, line {line}: {bad[0]} = {row[bad[0]]!r} is not a number"
             ) from None
         if not np.all(np.isfinite(values)):
-            raise FormatError(f"{p}, line {line}: non-finite value in a status-ok row")
+            column = cols[int(np.flatnonzero(~np.isfinite(values))[0])]
+            raise FormatError(
+                f"{p}, line {line}: {column} = {row[column]!r} in a status-ok row (expected a "
+                f"finite number)"
+            )
         rows.append([pose, *values])
         extra_rows.append([_extra_value(p, line, row, EXTRA_INPUTS[n].column) for n in extra_names])
     if not rows:

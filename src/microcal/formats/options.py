@@ -14,7 +14,14 @@ from .._validation import FloatArray
 from ..devices.rig_spec import RigSpec, SimRigSpec
 from ..errors import InputError
 
-__all__ = ["parse_images", "parse_limits", "parse_position", "parse_settle", "rig_with_seed"]
+__all__ = [
+    "parse_images",
+    "parse_limits",
+    "parse_number",
+    "parse_position",
+    "parse_settle",
+    "rig_with_seed",
+]
 
 
 def parse_limits(text: str) -> FloatArray:
@@ -39,6 +46,13 @@ def parse_position(values: list[float]) -> FloatArray:
     if not np.all(np.isfinite(target)):
         raise InputError(f"position: expected finite numbers, got {values}")
     return target
+
+
+def parse_number(value: float, option: str) -> float:
+    """A finite number given to ``option``."""
+    if not math.isfinite(value):
+        raise InputError(f"{option}: expected a finite number, got {value}")
+    return float(value)
 
 
 def parse_settle(text: str) -> tuple[Literal["vision", "fixed"], float]:

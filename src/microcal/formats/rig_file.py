@@ -103,7 +103,12 @@ def load_rig(spec: str) -> RigSpec:
         raise FormatError(f"{path}: not a text file (expected a rig TOML file)") from None
     except tomllib.TOMLDecodeError as exc:
         raise FormatError(f"{path}: not valid TOML ({exc})") from None
-    return _from_data(path, data)
+    except (RecursionError, ValueError) as exc:  # nested too deep, an integer of 4300 digits
+        raise FormatError(f"{path}: not a rig file microcal reads ({type(exc).__name__})") from None
+    try:
+        return _from_data(path, data)
+    except RecursionError:
+        raise FormatError(f"{path}: settings nested too deep for a rig file") from None
 
 
 def rig_from_record(record: object, where: str) -> RigSpec:
@@ -322,6 +327,8 @@ def _hardware(path: Path, data: dict[str, Any]) -> HardwareRigSpec:
     micromanager = None
     if rig.micromanager is not None:
         mm = _given(rig.micromanager)
+        if "\0" in str(mm.get("config") or ""):
+            raise FormatError(f"{path}: micromanager.config: a file name cannot hold a NUL")
         if mm.get("config") is not None and not Path(mm["config"]).is_absolute():
             mm["config"] = str((path.parent / mm["config"]).resolve())
         try:
@@ -329,6 +336,13 @@ def _hardware(path: Path, data: dict[str, Any]) -> HardwareRigSpec:
         except InputError as exc:
             raise FormatError(f"{path}: {exc}") from None
     given = {"board": rig.board} if rig.board is not None else {}
+    if rig.board is not None:
+        from ..vision.targets import parse_target
+
+        try:
+            parse_target(rig.board)
+        except InputError as exc:
+            raise FormatError(f"{path}: board: {exc}") from None
     try:
         return HardwareRigSpec(manipulator, cameras, micromanager=micromanager, **given)
     except InputError as exc:

@@ -407,7 +407,7 @@ def _read_journal(path: Path) -> _JournalRead:
         try:
             record = json.loads(raw)
             line = parse_schema(JournalLine, record, f"{path}, line {number}")
-        except (json.JSONDecodeError, UnicodeDecodeError, RecursionError):
+        except (json.JSONDecodeError, UnicodeDecodeError, RecursionError, ValueError):
             reason = "cut short by a stop" if cut else "not JSON (damaged)"
             out.damaged.append(DamagedLine(number, reason, pose))
             continue

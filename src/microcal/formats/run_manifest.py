@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 from typing import Any
@@ -70,6 +71,10 @@ def clear_demo_dir(out: Path) -> None:
         manifest = json.loads((out / "run.json").read_text(encoding="utf-8"))
         is_demo = manifest.get("provenance", {}).get("command") == "demo"
     except (OSError, ValueError, AttributeError):
+        is_demo = False
+    images = out / "images"
+    own = re.compile(r"[A-Za-z0-9_-]+_\d{4}\.tiff")
+    if images.is_dir() and any(not own.fullmatch(f.name) for f in images.iterdir()):
         is_demo = False
     if not is_demo or not entries <= DEMO_FILES:
         raise InputError(

@@ -102,7 +102,16 @@ def measure_run(
     run = RunDirectory.open(run_dir, require_commands=False)
     models = load_cameras(cameras)
     poses, d = run.commands()
-    board = parse_target(target or run.target_spec or DEFAULT_TARGET)
+    if run.manifest is not None and not (run.path / "journal.jsonl").is_file():
+        raise FormatError(
+            f"{run.path / 'journal.jsonl'}: missing; without it the run's images cannot be "
+            f"verified (restore it, or acquire the run again)"
+        )
+    try:
+        board = parse_target(target or run.target_spec or DEFAULT_TARGET)
+    except InputError as exc:
+        where = "--target" if target else f"{run.path / 'run.json'}: target"
+        raise InputError(f"{where}: {exc}") from None
     previous = _ok_poses(run.measurements_path)
     if not os.access(run.path, os.W_OK):
         raise InputError(f"{run.path}: cannot write measurements.csv there (no permission)")

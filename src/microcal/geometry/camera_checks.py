@@ -21,6 +21,10 @@ __all__ = ["MAX_EDGE_STRETCH", "distortion_problem", "same_view"]
 _MAX_RADIUS = 10.0
 
 
+#: The share of the image at each border left out of the fold test: a polynomial fitted to
+#: views that never reached the image's edge may turn over right there (it does not measure
+#: there either); a fold further in is no lens.
+EDGE_MARGIN = 0.05
 #: The most a lens model may stretch or shrink the image edge's distance from the centre
 #: (OpenCV's polynomial models of real non-fisheye lenses stay well within a factor 2).
 MAX_EDGE_STRETCH = 3.0
@@ -52,7 +56,13 @@ def distortion_problem(model: CameraModel, directions: int = 72, steps: int = 60
     px = (xy_d @ model.K[:2, :2].T + model.K[:2, 2]).reshape(directions, steps, 2)
     r_d = np.linalg.norm(xy_d, axis=1).reshape(directions, steps)
     det = np.linalg.det(jac).reshape(directions, steps)
-    inside = (px[..., 0] >= 0) & (px[..., 0] <= w - 1) & (px[..., 1] >= 0) & (px[..., 1] <= h - 1)
+    mx, my = EDGE_MARGIN * w, EDGE_MARGIN * h  # a fit's extrapolation to the very edge may bend
+    inside = (
+        (px[..., 0] >= mx)
+        & (px[..., 0] <= w - 1 - mx)
+        & (px[..., 1] >= my)
+        & (px[..., 1] <= h - 1 - my)
+    )
     for k in range(directions):
         left = np.flatnonzero(~inside[k])  # the ray up to where it first leaves the image
         stop = int(left[0]) if left.size else steps

@@ -290,9 +290,9 @@ class CameraModel:
             )
         t = as_array(self.t_um, "t_um", (3,))
         size = tuple(int(v) for v in self.image_size_px)
-        if len(size) != 2 or min(size) <= 0:
+        if len(size) != 2 or min(size) <= 0 or max(size) > 1_000_000:
             raise InputError(
-                f"image_size_px: expected (width, height) > 0, got {self.image_size_px}"
+                f"image_size_px: expected (width, height) of 1 to 10^6 px, got {self.image_size_px}"
             )
         for key, value in (("K", K), ("dist", dist), ("R", R), ("t_um", t)):
             value.setflags(write=False)

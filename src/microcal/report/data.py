@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from .._validation import FloatArray
-from ..errors import InputError
+from ..errors import FormatError, InputError
 from ..formats.calibration_file import Calibration, load_calibration
 from ..formats.json_file import read_versioned_json
 from ..formats.measurements import Measurements, read_measurements
@@ -93,10 +93,29 @@ class RunData:
         return out
 
 
+def _rows_of_four(value: object) -> bool:
+    try:
+        rows = np.asarray(value, dtype=np.float64)
+    except (ValueError, TypeError):
+        return False
+    return rows.ndim == 2 and rows.shape[1] == 4
+
+
 def _cameras(path: Path) -> dict[str, Any] | None:
+    """cameras.json as read, after its cameras load (a malformed one fails here, named)."""
+    from ..formats.cameras_file import read_cameras
+
     if not path.exists():
         return None
-    return read_versioned_json(path, ("microcal.cameras/1",))
+    raw = read_versioned_json(path, ("microcal.cameras/1",))
+    read_cameras(path)
+    for name, cam in raw["cameras"].items():
+        residuals = cam.get("residuals_px", {})
+        if not isinstance(residuals, dict) or not all(map(_rows_of_four, residuals.values())):
+            raise FormatError(
+                f"{path}: cameras.{name}.residuals_px: expected per image rows of [u, v, du, dv] px"
+            )
+    return raw
 
 
 def load_run(run_dir: str | os.PathLike[str]) -> RunData:

@@ -95,6 +95,10 @@ class Target:
         return out
 
 
+#: More features than this is a typing slip, not a target (a 1000 x 1000 dot grid).
+MAX_FEATURES = 1_000_000
+
+
 def parse_target(spec: str) -> Target:
     """Parse a target spec string (see the module docstring).
 
@@ -122,6 +126,11 @@ def parse_target(spec: str) -> Target:
     if cols < minimum or rows < minimum:
         raise InputError(
             f"target {spec!r}: expected at least {minimum}x{minimum}, got {cols}x{rows}"
+        )
+    if cols * rows > MAX_FEATURES:
+        raise InputError(
+            f"target {spec!r}: {cols}x{rows} features is more than a target has (at most "
+            f"{MAX_FEATURES}); give its columns and rows of inner corners or dots"
         )
     if kind == "chessboard" and feature:
         raise InputError(f"target {spec!r}: a chessboard takes no feature size")
