@@ -29,6 +29,7 @@ _Temperature = Annotated[bool, Option(help="Same as --extra temperature (T, T² 
 _Name = Annotated[str, Option(help="Name of the manipulator in the calibration file.")]
 _Cameras = Annotated[Path | None, Option(help="cameras.json to include (for evaluate).")]
 _Mat = Annotated[Path | None, Option(help="Also export the calibration as a .mat file.")]
+_Exclude = Annotated[bool, Option(help="Leave out poses the model misses by > 6 robust sigmas.")]
 
 
 @app.command(short_help="Identify a kinematic model from measurements.")
@@ -37,7 +38,7 @@ def fit(
     select: _Select = SelectChoice.stepwise, penter: _Penter = 0.05, premove: _Premove = 0.10,
     train: _Train = None, folds: _Folds = None, seed: _FoldSeed = 0, extra: _Extra = None,
     temperature: _Temperature = False, manipulator: _Name = "m1", cameras: _Cameras = None,
-    mat: _Mat = None,
+    mat: _Mat = None, exclude_outliers: _Exclude = False,
 ) -> None:  # fmt: skip
     """Identify a manipulator's kinematic model from measured positions.
 
@@ -48,7 +49,7 @@ def fit(
     from ..formats.measurements import read_measurements
     from ..procedures.identification import calibrate_manipulator
     from ..procedures.planning import MIN_DESIGN_POSES
-    from ..report.text_tables import fit_lines
+    from ..report.text_tables import fit_lines, outlier_lines
 
     check_fit_outputs(out, mat, manipulator)
     path = source / "measurements.csv" if source.is_dir() else source
@@ -58,6 +59,7 @@ def fit(
     entry, fits = calibrate_manipulator(
         manipulator, meas.d_um, meas.p_um, model.value, train=train, select=select.value,
         penter=penter, premove=premove, folds=folds, seed=seed, extra_inputs=inputs,
+        exclude_outliers=exclude_outliers,
     )  # fmt: skip
     result = fits[model.value]
     calibration = add_manipulator(out, entry, cameras, {"measurements": path}, model.value)
@@ -68,7 +70,8 @@ def fit(
         f"{model.value} model of {manipulator!r} from {len(meas.pose)} poses of {path}{skipped}"
     )
     wrote = f"wrote {out}" + (f" and {mat}" if mat else "")
-    print_parts(Console(), fit_lines(result.model, result.validation, header, wrote))
+    lines = fit_lines(result.model, result.validation, header, wrote)
+    print_parts(Console(), [*lines, *outlier_lines(result, meas.pose)])
 
 
 _Calibration = Annotated[Path, Argument(help="calibration.json")]

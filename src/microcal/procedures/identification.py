@@ -7,6 +7,7 @@ calibration.json.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -46,6 +47,41 @@ class Identification:
     cross_validation: CrossValidation | None
     inputs: FloatArray  # (N, k) used
     positions_um: FloatArray  # (N, 3) used
+    #: Rows the model misses by more than :data:`OUTLIER_Z` robust standard deviations on
+    #: some axis: (row, distance from the model µm, robust z), worst first.
+    outliers: tuple[tuple[int, float, float], ...] = ()
+    #: Rows of the data given that were left out as outliers (``exclude_outliers``).
+    excluded: tuple[int, ...] = ()
+
+
+#: A pose the model misses by more than this many robust standard deviations (1.4826 x the
+#: median absolute deviation of the residuals, per axis) is an outlier: a mis-measured pose,
+#: a frame of another pose. Gaussian residuals pass it once in about 10^8 poses.
+OUTLIER_Z = 6.0
+
+
+def find_outliers(
+    model: KinematicModel, inputs: FloatArray, positions_um: FloatArray, z: float = OUTLIER_Z
+) -> tuple[tuple[int, float, float], ...]:
+    """Rows whose residual from ``model`` exceeds ``z`` robust standard deviations on an axis.
+
+    Parameters
+    ----------
+    inputs : (N, k) float
+    positions_um : (N, 3) float
+
+    Returns
+    -------
+    tuple of (row, distance_um, robust_z), worst first
+    """
+    r = positions_um - model.predict_um(inputs)
+    centred = r - np.median(r, axis=0)
+    sigma = np.maximum(1.4826 * np.median(np.abs(centred), axis=0), 1e-3)  # a 1 nm floor
+    score = np.max(np.abs(centred) / sigma, axis=1)
+    rows = np.flatnonzero(score > z)
+    rows = rows[np.argsort(-score[rows])]
+    distance = np.linalg.norm(r, axis=1)
+    return tuple((int(i), float(distance[i]), float(score[i])) for i in rows)
 
 
 def identify(
@@ -117,7 +153,8 @@ def identify(
     if folds is not None:
         cv = cross_validate(fit, u, positions, folds, seed)
         validation["cross_validation"] = cv.as_dict()
-    return Identification(val.model, validation, val, cv, u, positions)
+    found = find_outliers(val.model, u, positions)
+    return Identification(val.model, validation, val, cv, u, positions, found)
 
 
 def calibrate_manipulator(
@@ -127,11 +164,14 @@ def calibrate_manipulator(
     model: Literal["matrix", "polynomial"] = "polynomial",
     *,
     train: int | None = None,
+    exclude_outliers: bool = False,
     **options: Any,
 ) -> tuple[ManipulatorCalibration, dict[str, Identification]]:
     """The whole calibration of one manipulator: its model, validation and what goes with it.
 
-    Identifies ``model`` as :func:`identify` does (``options`` are its keywords); a polynomial
+    Identifies ``model`` as :func:`identify` does (``options`` are its keywords); with
+    ``exclude_outliers`` the poses it finds to be outliers are left out and it is fitted
+    again (the result lists them in ``excluded``). A polynomial
     model is joined by the matrix model fitted on the same poses (for the matrix compensator,
     Eq 4.16), and the range of the joints the model was identified on is recorded.
 
@@ -144,6 +184,15 @@ def calibrate_manipulator(
         and for a polynomial model also the matrix model's.
     """
     result = identify(d_um, p_um, model, train=train, **options)
+    if exclude_outliers and result.outliers:
+        keep = np.ones(len(result.inputs), dtype=bool)
+        excluded = tuple(sorted(row for row, _, _ in result.outliers))
+        keep[list(excluded)] = False
+        extra_inputs = options.get("extra_inputs") or {}
+        options["extra_inputs"] = {k: np.asarray(v)[keep] for k, v in extra_inputs.items()}
+        d_um, p_um = np.asarray(d_um)[keep], np.asarray(p_um)[keep]
+        refit = identify(d_um, p_um, model, train=train, **options)
+        result = dataclasses.replace(refit, outliers=result.outliers, excluded=excluded)
     d = np.asarray(d_um, dtype=np.float64)
     extra: dict[str, Any] = {
         "joint_range_um": np.column_stack([d.min(axis=0), d.max(axis=0)]).tolist()

@@ -321,6 +321,17 @@ def fit_lines(
     return [header, terms_table(model), *validation_lines(dict(validation)), wrote]
 
 
+def outlier_lines(result: Any, poses: Any) -> list[str]:
+    """The warnings of ``microcal fit`` about poses the model misses far more than the rest."""
+    left_out = set(result.excluded)
+    return [
+        f"warning: pose {int(poses[row])} is {dist:.2f} µm from the model, {z:.0f} robust standard "
+        f"deviations: " + ("left out of the fit" if row in left_out else
+                           "check it (--exclude-outliers leaves such poses out)")
+        for row, dist, z in result.outliers
+    ]  # fmt: skip
+
+
 def solution_lines(solution: Any, calibration: Any) -> list[str]:
     """The notes ``microcal solve`` prints on stderr about a compensator's solution."""
     lines = []
