@@ -114,7 +114,7 @@ def test_points_behind_the_camera_project_to_nan():
         ({"R": np.diag([1.0, 1.0, -1.0])}, r"R: expected a rotation"),
         ({"R": np.eye(3) * 1.01}, r"R: expected a rotation"),
         ({"t_um": [0, 0]}, r"t_um: expected shape \(3,\), got \(2,\)"),
-        ({"image_size_px": (0, 10)}, r"image_size_px: expected \(width, height\) > 0"),
+        ({"image_size_px": (0, 10)}, r"image_size_px: expected \(width, height\) of 1 to 10\^6"),
     ],
 )
 def test_camera_model_rejects_bad_parameters(kwargs, match):

@@ -72,7 +72,10 @@ BAD_INVOCATIONS = [
     (["acquire", "--out", "{tmp}/r", "--rig", "{tmp}/rig.toml"], "no such file"),
     (["acquire", "--out", "{tmp}/r", "--rig", "{bad}"], "not valid TOML"),
     (["acquire", "--out", "{tmp}/r", "--design", "{tmp}/none.csv"], "none.csv"),
-    (["acquire", "--out", "{tmp}/r", "--design", "rnadom"], "not a design (random, sobol,"),
+    (
+        ["acquire", "--out", "{tmp}/r", "--design", "rnadom"],
+        "not a design (did you mean random? designs: random, sobol,",
+    ),
     (["acquire", "--out", "{tmp}/r", "--settle", "soon"], "--settle"),
     (["acquire", "--out", "{tmp}/r", "--store", "some"], "--store"),
     (["acquire", "--out", "{tmp}/r", "--poses", "1"], "poses: expected 12 to 20000"),

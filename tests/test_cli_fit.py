@@ -89,7 +89,7 @@ def _write(path, rows):
     ("setup", "args", "message"),
     [
         ("none", ["fit", "{tmp}/missing"], "no such file"),
-        ("few", ["fit", "{tmp}/few.csv"], "expected more samples than candidate terms"),
+        ("few", ["fit", "{tmp}/few.csv"], "8 measured poses (0 failed); identifying a model needs at least 12"),
         ("still", ["fit", "{tmp}/still.csv", "--select", "all"], "input 'dz' has the same value in every sample"),
         ("good", ["fit", "{run}", "--train", "170"], "train: expected between 1 and 169"),
         ("good", ["fit", "{run}", "--folds", "1"], "Invalid value for '--folds'"),
@@ -102,7 +102,8 @@ def _write(path, rows):
 def test_user_errors_exit_2_with_one_line(run_dir, tmp_path, setup, args, message):
     rng = np.random.default_rng(0)
     if setup in ("few", "notemp"):
-        _write(tmp_path / "few.csv", [f"{i},ok,{i},{2 * i},{i * i},1,2,{i}" for i in range(1, 9)])
+        n = 9 if setup == "few" else 15
+        _write(tmp_path / "few.csv", [f"{i},ok,{i},{2 * i},{i * i},1,2,{i}" for i in range(1, n)])
     if setup == "still":
         d = rng.uniform(0, 8000, (40, 3))
         _write(

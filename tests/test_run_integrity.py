@@ -22,7 +22,6 @@ import pytest
 from conftest import run_microcal
 from microcal import sim
 from microcal.formats.cameras_file import write_cameras
-from microcal.formats.run_lock import run_lock
 
 POSES = 12
 
@@ -208,6 +207,8 @@ def test_a_resume_needs_no_option_and_keeps_the_first_parts(tmp_path):
 
 
 def test_a_run_in_use_is_refused_with_the_pid_of_its_holder(run, cameras):
+    from microcal.formats.run_lock import run_lock
+
     before = _hashes(run)
     with run_lock(run, "test"):
         out = run_microcal("acquire", "--out", run, "--resume")

@@ -210,14 +210,16 @@ def _check_usable(models: dict[str, CameraModel], where: str) -> None:
     """Refuse cameras that are valid numbers but no cameras (see ``geometry.camera_checks``)."""
     from ..geometry.camera_checks import distortion_problem, same_view
 
-    for name, model in models.items():
+    # the checks are of the pinhole model's distortion and centre; other kinds bring their own
+    pinholes = {n: m for n, m in models.items() if getattr(m, "kind", "pinhole") == "pinhole"}
+    for name, model in pinholes.items():
         problem = distortion_problem(model)
         if problem is not None:
             raise FormatError(
                 f"{where}: cameras.{name}: {problem}; calibrate it again, or with a simpler "
                 f"--lens-model"
             )
-    pair = same_view(models)
+    pair = same_view(pinholes)
     if pair is not None:
         raise FormatError(
             f"{where}: cameras {pair[0]} and {pair[1]} see from one centre (the same camera "
