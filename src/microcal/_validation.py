@@ -161,10 +161,16 @@ def check_number(
         ``value`` as a float.
     """
     kinds = (int, np.integer) if integer else (int, float, np.integer, np.floating)
-    if isinstance(value, bool) or not isinstance(value, kinds) or not math.isfinite(value):
+    v = math.nan
+    if isinstance(value, kinds) and not isinstance(value, bool):
+        try:
+            v = float(value)
+        except OverflowError:  # an integer beyond any float
+            v = math.inf
+    if not math.isfinite(v):
         what = "an integer" if integer else "a finite number"
-        raise InputError(f"{name}: expected {what}, got {value!r}")
-    v = float(value)
+        shown = repr(value) if len(repr(value)) < 40 else f"{repr(value)[:30]}..."
+        raise InputError(f"{name}: expected {what}, got {shown}")
     bounds = []
     if above is not None:
         bounds.append(f"> {above:g}")

@@ -99,7 +99,7 @@ def read_joint_csv(
     if missing:
         raise error(
             f"{where}, line 1: missing column(s) {missing}; expected a CSV with columns "
-            f"{','.join(wanted)}, got {','.join(header)}"
+            f"{','.join(wanted)}, got {','.join(header)[:200]!r}"
         )
     use_pose = pose_column is not False and "pose" in header
     index = [header.index(c) for c in columns]
