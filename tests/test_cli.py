@@ -163,3 +163,19 @@ def test_installed_entry_point_runs():
     out = run_microcal("--version")
     assert out.returncode == 0, out.stderr
     assert __version__ in out.stdout
+
+
+def test_an_opencv_error_that_escapes_is_one_line(tmp_path, monkeypatch):
+    """Any cv2.error that no procedure turned into a microcal error still ends in one line."""
+    import cv2
+
+    def refuse(*args, **kwargs):
+        raise cv2.error("OpenCV(4.10) /src/x.cpp:1: error: (-215:Assertion failed) !_src.empty()")
+
+    monkeypatch.setattr("microcal.formats.run_measurement.measure_run", refuse)
+    result = runner.invoke(app, ["measure", str(tmp_path), "--cameras", str(tmp_path / "c.json")])
+    assert result.exit_code == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1
+    assert lines[0].startswith("microcal: error: OpenCV could not use an input (")
+    assert "Traceback" not in result.output

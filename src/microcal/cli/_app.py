@@ -41,6 +41,11 @@ class _Commands(TyperGroup):
             fail("interrupted")
         except MicrocalError as exc:
             fail(str(exc))
+        except Exception as exc:
+            if type(exc).__module__.split(".")[0] != "cv2":  # OpenCV's cv2.error, unforeseen
+                raise
+            reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else "no reason"
+            fail(f"OpenCV could not use an input ({reason}); check the images and --target")
         sys.exit(code if isinstance(code, int) else 0)
 
     def list_commands(self, ctx: Any) -> list[str]:
