@@ -98,7 +98,7 @@ def check_format(path: str | os.PathLike[str], found: object, formats: tuple[str
     if isinstance(found, str):
         found_name, found_version = _name_and_version(found)
         if found_name == name:
-            known = ", ".join(_name_and_version(f)[1] for f in formats)
+            known = ", ".join(_name_and_version(f)[1] for f in formats if f.startswith(name))
             raise FormatError(
                 f"{path}: {name} version {found_version!r} is not one this microcal "
                 f"({__version__}) reads; it reads version {known} (a newer microcal may have "

@@ -488,7 +488,9 @@ class RunWriter:
                 f"resume it with that rig"
             )
         commands = path / COMMANDS
-        if not commands.is_file() or sha256_file(commands) != manifest.commands_sha256:
+        if not commands.is_file():
+            raise FormatError(f"{commands}: missing; restore it to resume this run")
+        if sha256_file(commands) != manifest.commands_sha256:
             raise FormatError(f"{commands} was edited since the run began; refusing to resume")
         writer = cls(path, manifest)
         writer._read_journal()
