@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import importlib.util
 import io
 import json
 import os
@@ -785,8 +786,10 @@ def acquire_cases() -> list[Case]:
         Case(a + "rig-hardware-board-1x1",
              lambda w: _rig(w, _hardware('board = "chessboard:4x3:400"', 'board = "chessboard:1x1:400"')), "board"),
         Case(a + "rig-hardware-controller-unreachable", lambda w: _rig(w, HARDWARE_RIG), "127.0.0.1"),
-        Case(a + "rig-micromanager-not-installed",
-             lambda w: _acquire(w, "--rig", str(w.copy("micromanager.toml")), "--dry-run"), "pymmcore"),
+        # without the extra: pymmcore-plus is named; with it: its configuration file is
+        Case(a + "rig-micromanager-cannot-open",
+             lambda w: _acquire(w, "--rig", str(w.copy("micromanager.toml")), "--dry-run"),
+             "MMConfig_rig.cfg" if importlib.util.find_spec("pymmcore_plus") else "pymmcore"),
         Case(a + "rig-micromanager-config-and-python-devices",
              lambda w: _rig(w, (w.good / "micromanager.toml").read_text(encoding="utf-8").replace(
                  '# python_devices = "mydevices:load"', 'python_devices = "mydevices:load"')), "micromanager"),

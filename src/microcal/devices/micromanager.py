@@ -9,7 +9,10 @@ given pure-Python devices (pymmcore-plus's ``UniMMCore``) by a function of your 
 
 from __future__ import annotations
 
+import contextlib
 import importlib
+import logging
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -42,11 +45,17 @@ def open_core(config: str | None = None, python_devices: str | None = None) -> A
         ``"module:function"``: ``function(core)`` loads pure-Python devices into a
         ``UniMMCore`` (``core.loadPyDevice(label, device)``).
     """
-    reason = mm_available()
+    with _quiet("pymmcore-plus"):
+        reason = mm_available()
     if reason:
         raise DeviceError(reason)
     if (config is None) == (python_devices is None):
         raise InputError("micromanager: give exactly one of 'config' or 'python_devices'")
+    with _quiet("pymmcore-plus"):
+        return _load_core(config, python_devices)
+
+
+def _load_core(config: str | None, python_devices: str | None) -> Any:
     try:
         if config is not None:
             from pymmcore_plus import CMMCorePlus
@@ -70,6 +79,19 @@ def open_core(config: str | None = None, python_devices: str | None = None) -> A
         return core
     except (RuntimeError, OSError) as exc:
         raise DeviceError(f"micromanager: cannot load the devices ({exc})") from None
+
+
+@contextlib.contextmanager
+def _quiet(name: str) -> Iterator[None]:
+    """The library's own log lines stay out of the terminal: its errors become microcal's
+    one-line errors (a Micro-Manager installation it cannot find, a device it cannot load)."""
+    logger = logging.getLogger(name)
+    level = logger.level
+    logger.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
 
 
 def _device_error(message: str, exc: RuntimeError) -> DeviceError:
