@@ -14,7 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import InputError
 
-__all__ = ["FloatArray", "as_array", "as_rows", "check_number"]
+__all__ = ["FloatArray", "as_array", "as_rows", "check_number", "did_you_mean"]
 
 FloatArray = NDArray[np.float64]
 
@@ -185,3 +185,13 @@ def check_number(
     ):
         raise InputError(f"{name}: expected a number {' and '.join(bounds)}, got {value!r}")
     return v
+
+
+def did_you_mean(value: object, choices: Sequence[str], *, quote: bool = True) -> str:
+    """``"did you mean 'seed'? "`` for the choice nearest a misspelt ``value``, else ``""``."""
+    import difflib
+
+    near = difflib.get_close_matches(str(value), list(choices), n=1)
+    if not near:
+        return ""
+    return f"did you mean {near[0]!r}? " if quote else f"did you mean {near[0]}? "

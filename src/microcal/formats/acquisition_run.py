@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import difflib
 import signal
 import sys
 from collections.abc import Iterator
@@ -18,7 +17,7 @@ from typing import Any, cast
 
 from numpy.typing import ArrayLike
 
-from .._validation import FloatArray
+from .._validation import FloatArray, did_you_mean
 from ..errors import InputError
 from ..kinematics.designs import DESIGNS
 from ..procedures.acquisition import AcquisitionConfig, RunStoppedError
@@ -175,8 +174,7 @@ def run_acquire(request: AcquireRequest) -> Iterator[str]:
         and req.design not in DESIGN_CHOICES
         and not Path(str(req.design)).is_file()
     ):
-        near = difflib.get_close_matches(str(req.design), DESIGN_CHOICES, n=1)
-        hint = f"did you mean {near[0]}? " if near else ""
+        hint = did_you_mean(req.design, DESIGN_CHOICES, quote=False)
         raise InputError(f"--design {req.design}: not a design ({hint}designs: "
                          f"{', '.join(DESIGN_CHOICES)}) and no such CSV file")  # fmt: skip
     if manifest is None and req.design in DESIGNS:

@@ -33,13 +33,13 @@ exposure_ms = 10
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import tomllib
 from pathlib import Path
 from typing import Any
 
 from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
 
+from .._validation import did_you_mean
 from ..devices.rig_spec import (
     LEGACY_MM_CAMERA_RECORD,
     LEGACY_MM_STAGE_RECORD,
@@ -276,8 +276,7 @@ def _check_keys(path: Path, where: str, table: object, model: type[BaseModel]) -
     names = list(model.model_fields)
     for key in table:
         if key not in names:
-            near = difflib.get_close_matches(str(key), names, n=1)
-            hint = f"did you mean {near[0]!r}? " if near else ""
+            hint = did_you_mean(key, names)
             raise FormatError(
                 f"{path}: {where}{key}: not a setting ({hint}settings: {', '.join(names)})"
             )
@@ -297,8 +296,8 @@ def _sim(path: Path, data: dict[str, Any]) -> SimRigSpec:
     _flatten("", given.pop("overrides", {}), overrides)
     preset = given.get("preset", "thesis")
     if preset not in PRESETS:
-        near = difflib.get_close_matches(preset, PRESETS, n=1)
-        hint = f" (did you mean {near[0]!r}?)" if near else ""
+        near = did_you_mean(preset, PRESETS).strip()
+        hint = f" ({near})" if near else ""
         raise FormatError(f"{path}: preset: expected one of {list(PRESETS)}, got {preset!r}{hint}")
     try:
         check_overrides(overrides)

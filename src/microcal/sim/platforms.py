@@ -14,13 +14,12 @@ or a rig file's ``[overrides]`` tables, which mirror those dotted names.
 from __future__ import annotations
 
 import dataclasses
-import difflib
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from .._validation import FloatArray, check_number
+from .._validation import FloatArray, check_number, did_you_mean
 from ..errors import InputError
 from ..geometry.camera_model import DIST_LENGTHS, CameraModel
 from ..thesis.cameras import thesis_cameras
@@ -130,8 +129,7 @@ def _set_dotted(obj: Any, dotted: str, value: Any, full: str = "") -> Any:
     head, _, rest = dotted.partition(".")
     names = [f.name for f in dataclasses.fields(obj)] if dataclasses.is_dataclass(obj) else []
     if head not in names:
-        near = difflib.get_close_matches(head, names, n=1)
-        hint = f"did you mean {near[0]!r}? " if near else ""
+        hint = did_you_mean(head, names)
         settings = f"({hint}settings here: {', '.join(names)})" if names else "(not a table)"
         raise InputError(f"override {full!r}: no setting {head!r} {settings}")
     current = getattr(obj, head)
