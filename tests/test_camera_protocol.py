@@ -12,7 +12,12 @@ import pytest
 from microcal import CameraModel, FormatError, InputError, project_points
 from microcal.formats import cameras_file
 from microcal.formats.cameras_file import cameras_to_dict, load_cameras, write_cameras
-from microcal.geometry import CameraModelProtocol, check_camera_model, triangulate_cameras
+from microcal.geometry import (
+    AffineCamera,
+    CameraModelProtocol,
+    check_camera_model,
+    triangulate_cameras,
+)
 from microcal.sim.synthetic_geometry import random_points
 from microcal.thesis.cameras import thesis_cameras
 from microcal.vision.measurement import PoseMeasurement, _triangulate
@@ -73,6 +78,13 @@ def parallel_side_camera() -> ParallelCamera:
     return ParallelCamera(side.R, m, offset)
 
 
+def affine_of(cam: CameraModel, dist: tuple[float, ...]) -> AffineCamera:
+    """microcal's affine camera with a pinhole camera's view and scale at the workspace."""
+    K = cam.K.copy()
+    K[:2, :2] /= float(cam.depth_um(np.array([4000.0, 4000.0, 2400.0]))[0])
+    return AffineCamera(K, np.array(dist), cam.R, cam.t_um, cam.image_size_px, cam.name)
+
+
 CAMERAS = {
     "thesis top": lambda: thesis_cameras()[0],
     "thesis side": lambda: thesis_cameras()[1],
@@ -80,6 +92,10 @@ CAMERAS = {
     "thesis side, distorted": lambda: thesis_cameras(DIST_TOP, DIST_SIDE)[1],
     "thesis top, strong distortion": lambda: thesis_cameras(DIST_STRONG)[0],
     "telecentric side": parallel_side_camera,
+    "affine top, distorted": lambda: affine_of(thesis_cameras()[0], (2e-3, 0.0, 1e-4, -5e-5, 0.0)),
+    "affine side, strong distortion": lambda: affine_of(
+        thesis_cameras()[1], (0.05, -0.02, 1e-3, 1e-3, 0.01)
+    ),
 }
 
 
@@ -234,9 +250,26 @@ def test_cameras_json_refuses_an_unknown_model(tmp_path, value):
         load_cameras(path)
     message = str(info.value)
     assert message == (
-        f"{path}: cameras.side.model: expected one of 'pinhole', got {value!r} "
+        f"{path}: cameras.side.model: expected one of 'pinhole', 'affine', got {value!r} "
         "(a camera model this version of microcal does not know)"
     )
+
+
+def test_cameras_json_round_trips_an_affine_camera(tmp_path):
+    cal = stereo_calibration()
+    tele = affine_of(thesis_cameras()[1], (2e-3, 0.0, 1e-4, -5e-5, 0.0))
+    cal.cameras["side"] = CameraCalibration(tele, 0.05, {}, 5)
+    cal.cameras["side"].model_choice = {"chosen": "affine", "reason": "r", "candidates": []}
+    path = write_cameras(tmp_path / "cameras.json", cameras_to_dict(cal, {}))
+    raw = json.loads(path.read_text())
+    assert raw["cameras"]["side"]["model"] == "affine"
+    assert raw["cameras"]["side"]["model_choice"]["chosen"] == "affine"
+    loaded = load_cameras(path)
+    assert isinstance(loaded["side"], AffineCamera)
+    assert isinstance(loaded["top"], CameraModel)
+    p = random_points(np.random.default_rng(3), 50)
+    # Metric: worst-case pixel difference of the projections, JSON keeps every digit.
+    assert np.abs(loaded["side"].project(p) - tele.project(p)).max() < 1e-9
 
 
 def test_cameras_json_errors_name_the_camera_and_key(tmp_path):

@@ -26,7 +26,7 @@ from .hashing import sha256_file
 from .json_file import FileSchema, parse_schema, read_versioned_json
 
 if TYPE_CHECKING:
-    from ..geometry.camera_model import CameraModel
+    from ..geometry.camera_kinds import AnyCamera
 
 __all__ = [
     "CALIBRATION_FORMAT",
@@ -84,7 +84,7 @@ class Calibration:
     provenance: dict[str, Any] = field(default_factory=dict)
     path: Path | None = None
 
-    def camera_models(self) -> dict[str, CameraModel]:
+    def camera_models(self) -> dict[str, AnyCamera]:
         """The cameras as typed models (validated when the file was loaded); {} for none."""
         if not self.cameras:
             return {}

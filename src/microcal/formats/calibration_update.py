@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
-from ..geometry import CameraModel
+from ..geometry import AnyCamera
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from .calibration_file import Calibration, load_calibration, provenance, write_calibration
 from .cameras_file import read_cameras
@@ -58,7 +58,7 @@ def check_fit_outputs(out: Path, mat: Path | None, manipulator: str = "m1") -> N
                      example="calibration.mat", option="--mat")  # fmt: skip
 
 
-def camera_models(calibration: Calibration) -> dict[str, CameraModel]:
+def camera_models(calibration: Calibration) -> dict[str, AnyCamera]:
     """The calibrated cameras a calibration holds (``fit --cameras`` put them there).
 
     Raises

@@ -18,6 +18,8 @@ import numpy as np
 from pydantic import ValidationError
 
 from ..errors import FormatError, InputError
+from ..geometry.affine_camera import AffineCamera
+from ..geometry.camera_kinds import AnyCamera
 from ..geometry.camera_model import CameraModel
 from ..vision.calibration_diagnostics import CameraDiagnostics
 from ..vision.stereo_calibration import StereoCalibration
@@ -43,10 +45,7 @@ DEFAULT_CAMERA_MODEL = "pinhole"
 
 #: Builds a camera model from its JSON object and its name. Raises pydantic's
 #: ``ValidationError`` for a malformed object or ``InputError`` for invalid values.
-#: It returns a ``CameraModel`` while the procedures that take the loaded cameras
-#: (``measure_poses``, ``VisionProbe``, ``virtual_point``) are typed for it; a second kind
-#: widens this, ``models_from_dict`` and those to ``CameraModelProtocol``.
-CameraLoader = Callable[[Mapping[str, Any], str], CameraModel]
+CameraLoader = Callable[[Mapping[str, Any], str], AnyCamera]
 
 
 class _PinholeCamera(FileSchema):
@@ -69,8 +68,16 @@ def _load_pinhole(cam: Mapping[str, Any], name: str) -> CameraModel:
     return CameraModel(K, dist, R, t_um, c.image_size_px, name, c.projection_sigma_px)
 
 
+def _load_affine(cam: Mapping[str, Any], name: str) -> AffineCamera:
+    """An affine camera has the pinhole's keys: K holds the magnification in px/µm (see
+    :class:`~microcal.geometry.affine_camera.AffineCamera`)."""
+    c = _PinholeCamera.model_validate(cam)
+    K, dist, R, t_um = (np.array(v) for v in (c.K, c.dist, c.R, c.t_um))
+    return AffineCamera(K, dist, R, t_um, c.image_size_px, name, c.projection_sigma_px)
+
+
 #: Camera model kind (cameras.json's ``"model"``) -> its loader.
-CAMERA_LOADERS: dict[str, CameraLoader] = {"pinhole": _load_pinhole}
+CAMERA_LOADERS: dict[str, CameraLoader] = {"pinhole": _load_pinhole, "affine": _load_affine}
 
 
 def cameras_to_dict(cal: StereoCalibration, provenance: dict[str, Any]) -> dict[str, Any]:
@@ -95,6 +102,8 @@ def cameras_to_dict(cal: StereoCalibration, provenance: dict[str, Any]) -> dict[
         }
         if c.lens_model:
             cameras[name]["lens_model"] = c.lens_model
+        if c.model_choice:
+            cameras[name]["model_choice"] = c.model_choice
         if c.diagnostics is not None:
             cameras[name]["diagnostics"] = _diagnostics_to_dict(c.diagnostics)
     return {
@@ -162,7 +171,7 @@ def save_stereo_calibration(
     return write_cameras(path, cameras_to_dict(cal, prov))
 
 
-def models_from_dict(data: dict[str, Any], where: str = "cameras") -> dict[str, CameraModel]:
+def models_from_dict(data: dict[str, Any], where: str = "cameras") -> dict[str, AnyCamera]:
     """Camera models from a cameras.json object (or the ``cameras`` part of calibration.json).
 
     Each camera's ``"model"`` (``"pinhole"`` when absent) picks its loader in
@@ -179,7 +188,7 @@ def models_from_dict(data: dict[str, Any], where: str = "cameras") -> dict[str, 
         parsed = _Cameras.model_validate(data)
     except ValidationError as exc:
         raise FormatError(f"{where}: {validation_message(exc)}") from None
-    models = {}
+    models: dict[str, AnyCamera] = {}
     for name, cam in parsed.cameras.items():
         kind = cam.get("model", DEFAULT_CAMERA_MODEL)
         loader = CAMERA_LOADERS.get(kind) if isinstance(kind, str) else None
@@ -206,12 +215,12 @@ def models_from_dict(data: dict[str, Any], where: str = "cameras") -> dict[str, 
     return models
 
 
-def _check_usable(models: dict[str, CameraModel], where: str) -> None:
+def _check_usable(models: dict[str, AnyCamera], where: str) -> None:
     """Refuse cameras that are valid numbers but no cameras (see ``geometry.camera_checks``)."""
     from ..geometry.camera_checks import distortion_problem, same_view
 
     # the checks are of the pinhole model's distortion and centre; other kinds bring their own
-    pinholes = {n: m for n, m in models.items() if getattr(m, "kind", "pinhole") == "pinhole"}
+    pinholes = {n: m for n, m in models.items() if isinstance(m, CameraModel)}
     for name, model in pinholes.items():
         problem = distortion_problem(model)
         if problem is not None:
@@ -227,7 +236,7 @@ def _check_usable(models: dict[str, CameraModel], where: str) -> None:
         )
 
 
-def read_cameras(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, CameraModel]]:
+def read_cameras(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, AnyCamera]]:
     """The ``cameras`` object of cameras.json (or of a calibration.json) and its models.
 
     Raises
@@ -245,6 +254,6 @@ def read_cameras(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str
     return section, models_from_dict({"format": CAMERAS_FORMAT, "cameras": section}, str(p))
 
 
-def load_cameras(path: str | os.PathLike[str]) -> dict[str, CameraModel]:
+def load_cameras(path: str | os.PathLike[str]) -> dict[str, AnyCamera]:
     """Read cameras.json (or a calibration.json that holds cameras)."""
     return read_cameras(path)[1]

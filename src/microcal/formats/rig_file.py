@@ -300,7 +300,7 @@ def _sim(path: Path, data: dict[str, Any]) -> SimRigSpec:
         hint = f" ({near})" if near else ""
         raise FormatError(f"{path}: preset: expected one of {list(PRESETS)}, got {preset!r}{hint}")
     try:
-        check_overrides(overrides)
+        check_overrides(overrides, preset)
         return SimRigSpec(**given, overrides=overrides)
     except InputError as exc:
         raise FormatError(f"{path}: {exc}") from None

@@ -5,6 +5,8 @@ coordinates in pixels (OpenCV's convention: (x, y) = (column, row), origin at th
 the top-left pixel), points are rows.
 """
 
+from .affine_camera import AffineCamera
+from .camera_kinds import CAMERA_KINDS, AnyCamera
 from .camera_model import CameraModel
 from .camera_protocol import CameraModelProtocol, check_camera_model
 from .projection_matrix import (
@@ -18,10 +20,14 @@ from .triangulation import (
     triangulate,
     triangulate_cameras,
     triangulate_optimal,
+    triangulate_views,
     triangulation_covariance,
 )
 
 __all__ = [
+    "CAMERA_KINDS",
+    "AffineCamera",
+    "AnyCamera",
     "CameraModel",
     "CameraModelProtocol",
     "camera_centre",
@@ -33,5 +39,6 @@ __all__ = [
     "triangulate",
     "triangulate_cameras",
     "triangulate_optimal",
+    "triangulate_views",
     "triangulation_covariance",
 ]

@@ -351,6 +351,26 @@ class CameraModel:
         """True if any distortion coefficient is non-zero."""
         return bool(np.any(self.dist != 0))
 
+    def depth_um(self, p_um: ArrayLike) -> FloatArray:
+        """(N,) depth of world points along the optical axis (``(R p + t)_z``), µm."""
+        p = as_rows(p_um, "p_um", 3)
+        return np.asarray(p @ self.R[2] + self.t_um[2], dtype=np.float64)
+
+    def plane_to_ideal_px(self, R_plane: ArrayLike, t_plane_um: ArrayLike) -> FloatArray:
+        """(3, 3) homography from a plane's (u, v, 1) in µm to ideal pixels.
+
+        The plane's point (u, v) is at ``R_plane [u, v, 0] + t_plane_um`` in {G}:
+        ``K [r1 r2 t]`` with ``r1``, ``r2`` the plane's axes and ``t`` its origin in the camera
+        frame.
+        """
+        Rp = as_array(R_plane, "R_plane", (3, 3))
+        tp = as_array(t_plane_um, "t_plane_um", (3,))
+        RR = self.R @ Rp
+        return np.asarray(
+            self.K @ np.column_stack([RR[:, 0], RR[:, 1], self.R @ tp + self.t_um]),
+            dtype=np.float64,
+        )
+
     # --- projection ---------------------------------------------------------------------
     def _to_normalized(self, p: FloatArray) -> tuple[FloatArray, FloatArray]:
         c = p @ self.R.T + self.t_um

@@ -28,10 +28,11 @@ noise alone.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Literal
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from .._validation import FloatArray, as_array, as_rows
 from ..errors import InputError
@@ -42,6 +43,7 @@ __all__ = [
     "triangulate",
     "triangulate_cameras",
     "triangulate_optimal",
+    "triangulate_views",
     "triangulation_covariance",
 ]
 
@@ -114,17 +116,29 @@ def _check_pair(
     return P1n, P2n, q1, q2
 
 
-def _linear(P1: FloatArray, P2: FloatArray, q1: FloatArray, q2: FloatArray) -> FloatArray:
-    # Rows of the four equations: (x1, y1, x2, y2) times the third row of their P, minus the
+def _linear(
+    Ps: tuple[FloatArray, ...], qs: tuple[FloatArray, ...], seen: FloatArray | None = None
+) -> FloatArray:
+    """Linear triangulation over any number of views (Eq 3.18 stacked), (N, 3).
+
+    ``seen`` (V, N) of 0 or 1 leaves a view's two equations out of a point's system; the
+    pixels of a view not seen must be finite (any value).
+    """
+    # Rows of the equations: (x, y) of each view times the third row of its P, minus the
     # first or second row. Arrays are laid out (column, row, point) so that every operation
     # runs over contiguous memory.
-    coords = np.empty((4, q1.shape[0]))
-    coords[0], coords[1] = q1[:, 0], q1[:, 1]
-    coords[2], coords[3] = q2[:, 0], q2[:, 1]
-    third = np.stack([P1[2], P1[2], P2[2], P2[2]])  # (4 rows, 4 columns of P)
-    first = np.stack([P1[0], P1[1], P2[0], P2[1]])
+    n = qs[0].shape[0]
+    coords = np.empty((2 * len(qs), n))
+    for v, q in enumerate(qs):
+        coords[2 * v], coords[2 * v + 1] = q[:, 0], q[:, 1]
+    third = np.stack([P[2] for P in Ps for _ in (0, 1)])  # (2V rows, 4 columns of P)
+    first = np.stack([P[i] for P in Ps for i in (0, 1)])
     A = coords[None, :, :] * third.T[:3, :, None] - first.T[:3, :, None]
     b = first[:, 3:4] - coords * third[:, 3:4]
+    if seen is not None:
+        rows = np.repeat(seen, 2, axis=0)
+        A = A * rows[None]
+        b = b * rows
     x, _ = _lstsq_columns(A, b)
     return np.ascontiguousarray(x.T)
 
@@ -160,7 +174,7 @@ def triangulate(
     if method != "linear":
         raise InputError(f"method: expected 'linear' or 'optimal', got {method!r}")
     P1n, P2n, q1, q2 = _check_pair(P1, P2, q1_px, q2_px)
-    return _linear(P1n, P2n, q1, q2)
+    return _linear((P1n, P2n), (q1, q2))
 
 
 def _whitening(cov: ArrayLike | float | None, n: int, name: str) -> FloatArray:
@@ -205,12 +219,13 @@ def _project_with_jacobian(P: FloatArray, p: FloatArray) -> tuple[FloatArray, Fl
 
 
 def _whitened_system(
-    Ps: tuple[FloatArray, FloatArray],
-    qs: tuple[FloatArray, FloatArray],
-    Ws: tuple[FloatArray, FloatArray],
+    Ps: tuple[FloatArray, ...],
+    qs: tuple[FloatArray, ...],
+    Ws: tuple[FloatArray, ...],
     p: FloatArray,
 ) -> tuple[FloatArray, FloatArray]:
-    """Whitened residuals (4, N) and Jacobian (3, 4, N) of the two views' reprojections."""
+    """Whitened residuals (2V, N) and Jacobian (3, 2V, N) of the V views' reprojections (a
+    view a point is not seen in has W = 0 there)."""
     res = []
     jac = []
     for P, q, W in zip(Ps, qs, Ws, strict=True):
@@ -256,14 +271,27 @@ def triangulate_optimal(
     P1n, P2n, q1, q2 = _check_pair(P1, P2, q1_px, q2_px)
     n = q1.shape[0]
     Ws = (_whitening(cov1_px2, n, "cov1_px2"), _whitening(cov2_px2, n, "cov2_px2"))
-    p = _linear(P1n, P2n, q1, q2)
-    res, jac = _whitened_system((P1n, P2n), (q1, q2), Ws, p)
+    p = _linear((P1n, P2n), (q1, q2))
+    return _gauss_newton((P1n, P2n), (q1, q2), Ws, p, max_iter, rtol)
+
+
+def _gauss_newton(
+    Ps: tuple[FloatArray, ...],
+    qs: tuple[FloatArray, ...],
+    Ws: tuple[FloatArray, ...],
+    p: FloatArray,
+    max_iter: int,
+    rtol: float,
+) -> FloatArray:
+    """Gauss-Newton on the whitened reprojection errors from ``p`` (N, 3), each point taking
+    only the steps that lower its cost."""
+    res, jac = _whitened_system(Ps, qs, Ws, p)
     cost = np.einsum("in,in->n", res, res)
-    active = np.ones(n, dtype=bool)
+    active = np.ones(p.shape[0], dtype=bool)
     for _ in range(max_iter):
         step, _ = _lstsq_columns(jac, -res)
         trial = p + step.T
-        new_res, new_jac = _whitened_system((P1n, P2n), (q1, q2), Ws, trial)
+        new_res, new_jac = _whitened_system(Ps, qs, Ws, trial)
         new_cost = np.einsum("in,in->n", new_res, new_res)
         better = active & (new_cost <= cost)
         p[better] = trial[better]
@@ -354,3 +382,100 @@ def triangulate_cameras(
     P2 = check_camera_model(camera2, "camera2").P
     p = triangulate_optimal(P1, P2, q1_px, q2_px, cov1_px2, cov2_px2)
     return p, triangulation_covariance(P1, P2, p, cov1_px2, cov2_px2)
+
+
+def triangulate_views(
+    cameras: Sequence[CameraModelProtocol],
+    q_px: Sequence[ArrayLike],
+    cov_px2: Sequence[ArrayLike | float],
+    *,
+    max_iter: int = 10,
+    rtol: float = 1e-13,
+) -> tuple[FloatArray, FloatArray, NDArray[np.int64]]:
+    """Optimal triangulation with its covariance from any number of views, any kind each.
+
+    A point may be missing from some views (NaN pixels there): it is triangulated from the
+    views that saw it, and its covariance counts only those. A point seen by fewer than two
+    views is NaN. With two views seeing every point this is :func:`triangulate_cameras`.
+
+    Parameters
+    ----------
+    cameras : sequence of V CameraModelProtocol
+        The calibrated cameras, in one world frame {G}; pinhole and affine may be mixed.
+    q_px : sequence of V (N, 2) float
+        Undistorted pixels of the same N points in each view; a row of NaN where the view
+        did not see the point.
+    cov_px2 : sequence of V (float, (2, 2) or (N, 2, 2))
+        Pixel noise of each view: a standard deviation in px, or covariances in px² (a
+        missing point's entry is ignored).
+    max_iter, rtol
+        As :func:`triangulate_optimal`.
+
+    Returns
+    -------
+    p_um : (N, 3) float
+        Points in {G}, µm; NaN where fewer than two views saw the point.
+    cov_um2 : (N, 3, 3) float
+        Their covariances (the Cramér-Rao bound of the views that saw each), µm².
+    n_views : (N,) int
+        How many views saw each point.
+
+    Raises
+    ------
+    InputError
+        Fewer than two cameras, or pixel arrays of different lengths.
+    """
+    if len(cameras) < 2 or len(cameras) != len(q_px) or len(cameras) != len(cov_px2):
+        raise InputError(
+            f"cameras, q_px, cov_px2: expected one entry each for two or more cameras, got "
+            f"{len(cameras)}, {len(q_px)} and {len(cov_px2)}"
+        )
+    Ps = tuple(
+        normalize_camera_matrix(check_camera_model(c, f"cameras[{i}]").P)
+        for i, c in enumerate(cameras)
+    )
+    qs = [as_rows(q, f"q_px[{i}]", 2, finite=False) for i, q in enumerate(q_px)]
+    n = qs[0].shape[0]
+    if any(q.shape[0] != n for q in qs):
+        raise InputError(
+            f"q_px: expected the same number of points in every view, got "
+            f"{[q.shape[0] for q in qs]}"
+        )
+    seen = np.array([np.all(np.isfinite(q), axis=1) for q in qs])  # (V, N)
+    n_views = seen.sum(axis=0).astype(np.int64)
+    p = np.full((n, 3), np.nan)
+    cov = np.full((n, 3, 3), np.nan)
+    ok = n_views >= 2
+    if not ok.any():
+        return p, cov, n_views
+    sub = seen[:, ok]
+    q_ok = tuple(np.where(s[:, None], q[ok], 0.0) for q, s in zip(qs, sub, strict=True))
+    Ws = tuple(
+        _masked_whitening(c, q_ok[0].shape[0], s, f"cov_px2[{i}]", ok)
+        for i, (c, s) in enumerate(zip(cov_px2, sub, strict=True))
+    )
+    p_ok = _linear(Ps, q_ok, sub.astype(np.float64))
+    p_ok = _gauss_newton(Ps, q_ok, Ws, p_ok, max_iter, rtol)
+    zeros = tuple(np.zeros_like(q) for q in q_ok)
+    _, jac = _whitened_system(Ps, zeros, Ws, p_ok)
+    _, Rinv = _lstsq_columns(jac, np.zeros((2 * len(Ps), p_ok.shape[0])), with_rinv=True)
+    assert Rinv is not None
+    p[ok] = p_ok
+    cov[ok] = np.einsum("ikn,jkn->nij", Rinv, Rinv)
+    return p, cov, n_views
+
+
+def _masked_whitening(
+    cov: ArrayLike | float, n: int, seen: NDArray[np.bool_], name: str, keep: NDArray[np.bool_]
+) -> FloatArray:
+    """Whitening of one view for the points ``keep`` selects, W = 0 where it did not see one."""
+    if np.ndim(cov) == 3:
+        arr = np.array(cov, dtype=np.float64)
+        if arr.shape[0] != keep.shape[0]:
+            raise InputError(f"{name}: expected {keep.shape[0]} covariances, got {arr.shape[0]}")
+        arr = arr[keep]
+        arr[~seen] = np.eye(2)
+        cov = arr
+    W = _whitening(cov, n, name).copy()
+    W[~seen] = 0.0
+    return W

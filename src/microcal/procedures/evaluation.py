@@ -25,7 +25,7 @@ from ..control.conditions import open_loop_conditions
 from ..control.feedforward import FeedForward
 from ..devices.base import Camera, Clock, Manipulator
 from ..errors import InputError
-from ..geometry import CameraModel
+from ..geometry import AnyCamera
 from ..kinematics.extra_inputs import by_symbol
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..metrics import decoupling_metrics, pose_statistics
@@ -230,7 +230,7 @@ def run_evaluation(
     manipulator: Manipulator,
     clock: Clock,
     cameras: Mapping[str, Camera],
-    models: dict[str, CameraModel],
+    models: dict[str, AnyCamera],
     board: Target,
     calibration: ManipulatorCalibration,
     *,
@@ -253,7 +253,7 @@ def run_evaluation(
     ----------
     cameras : mapping of name -> Camera
         The rig's cameras; each needs a model in ``models``.
-    models : dict of name -> CameraModel
+    models : dict of name -> camera model
         The calibrated cameras.
     calibration : ManipulatorCalibration
         The manipulator's calibration.

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from .._validation import FloatArray, check_number
 from ..devices.base import Camera, Clock
 from ..errors import DeviceTimeoutError, FrameError, InputError
-from ..geometry.camera_model import CameraModel
+from ..geometry.camera_kinds import AnyCamera
 from .render import Placement, Reflectance, render_placement, roi_of
 
 __all__ = ["CameraFaults", "ImageFormation", "SimCamera"]
@@ -115,11 +115,11 @@ class FrameTruth:
 
 
 class SimCamera(Camera):
-    """A camera that renders the scene through a :class:`CameraModel`.
+    """A camera that renders the scene through a camera model (pinhole or affine).
 
     Parameters
     ----------
-    model : CameraModel
+    model : CameraModel or AffineCamera
         The true camera (intrinsics, distortion, pose).
     scene : callable t_s -> list of Placement
         The targets in view at a given time.
@@ -134,7 +134,7 @@ class SimCamera(Camera):
 
     def __init__(
         self,
-        model: CameraModel,
+        model: AnyCamera,
         scene: Callable[[float], list[Placement]],
         clock: Clock,
         rng: np.random.Generator,
@@ -167,7 +167,7 @@ class SimCamera(Camera):
     def _blur_sigma(self, placement: Placement) -> float:
         f = self.formation
         centre = placement.R @ placement.target.centre_um + placement.t_um
-        depth = float((self.model.R @ centre + self.model.t_um)[2])
+        depth = float(self.model.depth_um(centre)[0])
         defocus = f.defocus_px_per_mm * abs(depth - f.focus_depth_um) / 1000.0
         return float(np.hypot(f.blur_sigma_px, defocus))
 

@@ -1,4 +1,4 @@
-"""The whole simulated platform: manipulator, two cameras, clock, scene and ground truth.
+"""The whole simulated platform: manipulator, cameras, clock, scene and ground truth.
 
 ``microcal.sim.platform(preset="thesis", seed=0)`` builds the thesis's platform (section 2.4
 and 5.1): a top camera of 1600 x 1200 px with the thesis's P, a side camera of 2452 x 2056 px
@@ -6,6 +6,17 @@ binned 2 x 2 with the thesis's P', both with a plausible lens distortion; a thre
 stick-slip manipulator with the true kinematics of
 :func:`~microcal.thesis.kinematics.thesis_kinematics`; the 4 x 3
 chessboard (pitch 400 µm) on the gripper, its inner-corner centroid being the end-effector.
+
+The other presets (:data:`PRESETS`) change the cameras only:
+
+- ``telecentric``: both cameras object-side telecentric (affine, parallel projection), each
+  with the magnification the thesis's camera has at the middle of the travel, the same pose,
+  image size, noise and depth of field, and a distortion of the size telecentric lenses are
+  sold with (0.1 % of the field radius at the corner).
+- ``thesis-3cam``: the thesis's two cameras and a third, ``front``, like the side camera
+  (sensor, lens, distance) but looking at the travel's middle from 55 degrees off the side
+  camera's axis, tilted towards -x: across the plane in which the top and side cameras see
+  depth, so that depth is seen by a second, independent baseline.
 
 Every value can be changed: ``platform(..., overrides={"top.formation.read_noise_e": 30})``
 or a rig file's ``[overrides]`` tables, which mirror those dotted names.
@@ -21,6 +32,8 @@ import numpy as np
 
 from .._validation import FloatArray, check_number, did_you_mean
 from ..errors import InputError
+from ..geometry.affine_camera import AffineCamera
+from ..geometry.camera_kinds import CAMERA_KINDS, AnyCamera
 from ..geometry.camera_model import DIST_LENGTHS, CameraModel
 from ..thesis.cameras import thesis_cameras
 from ..vision.targets import Target, parse_target
@@ -41,8 +54,16 @@ class CameraConfig:
     bit_depth: int = 8
     formation: ImageFormation = field(default_factory=ImageFormation)
     faults: CameraFaults = field(default_factory=CameraFaults)
+    projection: str = "pinhole"
+    """``"pinhole"`` (perspective, dist on normalised coordinates) or ``"affine"``
+    (telecentric, dist in units of half the image diagonal; see
+    :class:`~microcal.geometry.affine_camera.AffineCamera`)."""
 
     def __post_init__(self) -> None:
+        if self.projection not in CAMERA_KINDS:
+            raise InputError(
+                f"projection: expected one of {', '.join(CAMERA_KINDS)}, got {self.projection!r}"
+            )
         if len(self.dist) not in DIST_LENGTHS:
             raise InputError(
                 f"dist: expected {', '.join(map(str, DIST_LENGTHS))} coefficients, got "
@@ -119,9 +140,45 @@ class PlatformConfig:
         )
     )
     manipulator: ManipulatorConfig = field(default_factory=ManipulatorConfig)
+    front: CameraConfig | None = None
+    """A third camera (preset ``thesis-3cam``); None: none."""
 
 
-PRESETS = ("thesis",)
+#: The simulator's presets (see the module docstring).
+PRESETS = ("thesis", "telecentric", "thesis-3cam")
+
+#: Angle of the ``front`` camera's axis from the side camera's, degrees.
+FRONT_CAMERA_ANGLE_DEG = 55.0
+
+
+def preset_config(preset: str) -> PlatformConfig:
+    """The configuration a preset starts from (before any overrides).
+
+    Raises
+    ------
+    InputError
+        An unknown preset, naming the nearest.
+    """
+    if preset not in PRESETS:
+        hint = did_you_mean(preset, PRESETS).strip()
+        raise InputError(
+            f"preset: expected one of {list(PRESETS)}, got {preset!r}"
+            + (f" ({hint})" if hint else "")
+        )
+    config = PlatformConfig()
+    if preset == "telecentric":
+        config = dataclasses.replace(
+            config,
+            top=dataclasses.replace(
+                config.top, projection="affine", dist=(1e-3, 0.0, 1e-4, -1e-4, 0.0)
+            ),
+            side=dataclasses.replace(
+                config.side, projection="affine", dist=(8e-4, 0.0, -1e-4, 1e-4, 0.0)
+            ),
+        )
+    elif preset == "thesis-3cam":
+        config = dataclasses.replace(config, front=dataclasses.replace(config.side))
+    return config
 
 
 def _set_dotted(obj: Any, dotted: str, value: Any, full: str = "") -> Any:
@@ -133,6 +190,11 @@ def _set_dotted(obj: Any, dotted: str, value: Any, full: str = "") -> Any:
         settings = f"({hint}settings here: {', '.join(names)})" if names else "(not a table)"
         raise InputError(f"override {full!r}: no setting {head!r} {settings}")
     current = getattr(obj, head)
+    if rest and current is None:
+        raise InputError(
+            f"override {full!r}: there is no {head!r} on this preset (a preset with it: "
+            "thesis-3cam)"
+        )
     if rest:
         return dataclasses.replace(obj, **{head: _set_dotted(current, rest, value, full)})
     if isinstance(current, tuple) and isinstance(value, list):
@@ -153,8 +215,8 @@ def _set_dotted(obj: Any, dotted: str, value: Any, full: str = "") -> Any:
         raise InputError(f"override {full!r}: {str(exc).partition(': ')[2]}") from None
 
 
-def check_overrides(overrides: dict[str, Any]) -> PlatformConfig:
-    """The platform configuration with ``overrides`` applied: each name, type and range checked.
+def check_overrides(overrides: dict[str, Any], preset: str = "thesis") -> PlatformConfig:
+    """A preset's configuration with ``overrides`` applied: each name, type and range checked.
 
     Raises
     ------
@@ -162,7 +224,7 @@ def check_overrides(overrides: dict[str, Any]) -> PlatformConfig:
         ``override 'top.faults.drop_rate': expected a number >= 0 and <= 1, got 1.5``, or
         an unknown name (with the nearest one).
     """
-    config = PlatformConfig()
+    config = preset_config(preset)
     for key, value in overrides.items():
         config = _set_dotted(config, key, value)
     try:
@@ -206,7 +268,7 @@ class SimPlatform:
     seed: int
 
     @property
-    def camera_models(self) -> dict[str, CameraModel]:
+    def camera_models(self) -> dict[str, AnyCamera]:
         """The true camera models (ground truth)."""
         return {name: cam.model for name, cam in self.cameras.items()}
 
@@ -223,7 +285,8 @@ def platform(
     Parameters
     ----------
     preset : str
-        ``"thesis"``: the thesis's platform.
+        One of :data:`PRESETS`: ``"thesis"`` (the thesis's platform), ``"telecentric"``,
+        ``"thesis-3cam"`` (see the module docstring).
     seed : int
         Seed of every random draw (noise, faults, vibration); same seed, same frames.
     overrides : dict, optional
@@ -231,11 +294,9 @@ def platform(
     """
     from ..thesis.kinematics import thesis_kinematics  # the preset builds on this package
 
-    if preset not in PRESETS:
-        raise InputError(f"preset: expected one of {list(PRESETS)}, got {preset!r}")
-    config = check_overrides(overrides or {})
+    config = check_overrides(overrides or {}, preset)
     root = np.random.SeedSequence(seed)
-    s_manip, s_top, s_side = root.spawn(3)
+    s_manip, s_top, s_side, s_front = root.spawn(4)  # the first three as with two cameras
     clock = SimClock()
     mc = config.manipulator
     manipulator = SimManipulator(
@@ -246,14 +307,51 @@ def platform(
     )  # fmt: skip
     board = parse_target(config.board)
     scene = Scene(manipulator, board, np.eye(3))
-    models = thesis_cameras(np.array(config.top.dist), np.array(config.side.dist))
-    centre = np.array([5000.0, 4800.0, 2700.0])  # middle of the end-effector's travel in {G}
+    top, side = thesis_cameras()
+    views: list[tuple[CameraModel, CameraConfig, np.random.SeedSequence]] = [
+        (top, config.top, s_top), (side, config.side, s_side)
+    ]  # fmt: skip
+    if config.front is not None:
+        views.append((front_camera(side), config.front, s_front))
     cameras = {}
-    for model, cfg, seq in zip(models, (config.top, config.side), (s_top, s_side), strict=True):
-        focus = float((model.R @ centre + model.t_um)[2])
+    for model, cfg, seq in views:
+        focus = float(model.depth_um(TRAVEL_CENTRE_UM)[0])
+        camera = _with_projection(model, cfg)
         formation = dataclasses.replace(cfg.formation, focus_depth_um=focus)
-        cameras[model.name] = SimCamera(
-            model, scene, clock, np.random.default_rng(seq), pixel_size_um=cfg.pixel_size_um,
+        cameras[camera.name] = SimCamera(
+            camera, scene, clock, np.random.default_rng(seq), pixel_size_um=cfg.pixel_size_um,
             bit_depth=cfg.bit_depth, formation=formation, faults=cfg.faults,
         )  # fmt: skip
     return SimPlatform(config, clock, manipulator, cameras, scene, seed)
+
+
+#: The middle of the end-effector's travel in {G}, µm: where the cameras focus.
+TRAVEL_CENTRE_UM = np.array([5000.0, 4800.0, 2700.0])
+
+
+def _with_projection(model: CameraModel, cfg: CameraConfig) -> AnyCamera:
+    """The camera of a configuration: the pinhole model with its distortion, or the affine
+    camera of the same pose whose magnification is the pinhole's at the travel's middle."""
+    if cfg.projection == "pinhole":
+        return CameraModel(model.K, np.array(cfg.dist), model.R, model.t_um,
+                           model.image_size_px, model.name)  # fmt: skip
+    K = model.K.copy()
+    K[:2, :2] /= float(model.depth_um(TRAVEL_CENTRE_UM)[0])
+    return AffineCamera(K, np.array(cfg.dist), model.R, model.t_um, model.image_size_px,
+                        model.name)  # fmt: skip
+
+
+def front_camera(side: CameraModel) -> CameraModel:
+    """The ``thesis-3cam`` preset's third camera: the side camera's intrinsics and distance
+    from the travel's middle, its axis turned by :data:`FRONT_CAMERA_ANGLE_DEG` about {G}'s
+    y axis towards -x (its image x axis stays in {G}'s x-z plane)."""
+    a = np.radians(FRONT_CAMERA_ANGLE_DEG)
+    c, s = np.cos(a), np.sin(a)
+    turn = np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])  # about y, +z towards -x
+    axis = turn @ side.R[2]
+    distance = float(side.depth_um(TRAVEL_CENTRE_UM)[0])
+    x = np.cross([0.0, 1.0, 0.0], axis)
+    x /= np.linalg.norm(x)
+    R = np.vstack([x, np.cross(axis, x), axis])
+    t = -R @ (TRAVEL_CENTRE_UM - distance * axis)
+    return CameraModel(side.K, np.zeros(5), R, t, side.image_size_px, "front")

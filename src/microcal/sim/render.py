@@ -23,7 +23,7 @@ from functools import lru_cache
 import numpy as np
 
 from .._validation import FloatArray
-from ..geometry.camera_model import CameraModel
+from ..geometry.camera_kinds import AnyCamera
 from ..vision.targets import Target
 
 __all__ = ["Placement", "Reflectance", "render_placement", "roi_of"]
@@ -71,7 +71,7 @@ class Placement:
 
 
 def roi_of(
-    camera: CameraModel, placement: Placement, pad_px: float, offset_px: FloatArray | None = None
+    camera: AnyCamera, placement: Placement, pad_px: float, offset_px: FloatArray | None = None
 ) -> tuple[int, int, int, int] | None:
     """Pixel box (x0, y0, x1, y1), end exclusive, covering the placement; None if not in view."""
     world = placement.outline_um() @ placement.R.T + placement.t_um
@@ -176,12 +176,12 @@ def _reflectance(
     return value, board
 
 
-_GRID_CACHE: dict[tuple[bytes, bytes, tuple[int, ...]], tuple[FloatArray, ...]] = {}
+_GRID_CACHE: dict[tuple[str, bytes, bytes, tuple[int, ...]], tuple[FloatArray, ...]] = {}
 _GRID_CACHE_SIZE = 16
 
 
 def _ideal_grid(
-    camera: CameraModel, roi: tuple[int, int, int, int]
+    camera: AnyCamera, roi: tuple[int, int, int, int]
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Ideal pixel coordinates of a box of pixel centres, (h, w, 2), and their x and y steps.
 
@@ -191,7 +191,7 @@ def _ideal_grid(
     thesis's top camera the difference from undistorting the shifted pixels is about 1e-5 px
     at a 1 px shift, a thousandth of the rendering's corner bias.
     """
-    key = (camera.K.tobytes(), camera.dist.tobytes(), tuple(int(v) for v in roi))
+    key = (camera.kind, camera.K.tobytes(), camera.dist.tobytes(), tuple(int(v) for v in roi))
     hit = _GRID_CACHE.get(key)
     if hit is not None:
         return hit[0], hit[1], hit[2]
@@ -214,7 +214,7 @@ def _ideal_grid(
 
 
 def render_placement(
-    camera: CameraModel,
+    camera: AnyCamera,
     placement: Placement,
     roi: tuple[int, int, int, int],
     *,
@@ -226,7 +226,7 @@ def render_placement(
 
     Parameters
     ----------
-    camera : CameraModel
+    camera : CameraModel or AffineCamera
     placement : Placement
     roi : (x0, y0, x1, y1)
         Pixel box, end exclusive.
@@ -249,9 +249,7 @@ def render_placement(
         ideal = ideal0 - d_dx * offset_px[0] - d_dy * offset_px[1]
     shape = ideal.shape[:2]
     # Homography from the target plane to ideal pixels, and its inverse.
-    RR = camera.R @ placement.R
-    tt = camera.R @ placement.t_um + camera.t_um
-    H = camera.K @ np.column_stack([RR[:, 0], RR[:, 1], tt])
+    H = camera.plane_to_ideal_px(placement.R, placement.t_um)
     Hinv = np.linalg.inv(H)
 
     def to_board(ix: FloatArray, iy: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:

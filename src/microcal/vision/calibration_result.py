@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from .._validation import FloatArray
-from ..geometry import CameraModel
+from ..geometry import AnyCamera, CameraModel
 from .board_symmetry import turn_ids
 from .calibration_diagnostics import CameraDiagnostics
 from .detect import Detection
@@ -46,7 +46,7 @@ OUTLIER_ROUNDS = 3
 class CameraCalibration:
     """One calibrated camera and the figures that qualify it."""
 
-    model: CameraModel
+    model: AnyCamera
     rms_px: float
     per_view_rms_px: dict[str, float]
     views_used: int
@@ -60,6 +60,10 @@ class CameraCalibration:
     (each with its training and held-out RMS)."""
     diagnostics: CameraDiagnostics | None = None
     """Method (b): uncertainty, split-half check, coverage and verdict."""
+    model_choice: dict[str, object] = field(default_factory=dict)
+    """Method (a) with a choice of camera model: ``chosen``, ``reason`` and the
+    ``candidates`` tried (each with its training and held-out RMS and whether its fit is
+    ill-conditioned)."""
 
 
 @dataclass
@@ -79,7 +83,7 @@ class StereoCalibration:
     notes: list[str] = field(default_factory=list)
     """Warnings about the calibration as a whole, one sentence each."""
 
-    def models(self) -> dict[str, CameraModel]:
+    def models(self) -> dict[str, AnyCamera]:
         """The camera models by name."""
         return {name: c.model for name, c in self.cameras.items()}
 
@@ -172,8 +176,13 @@ def _renumbered(det: Detection, target: Target, turn_deg: int) -> Detection:
     return Detection(True, ids[order], det.q_px[order], det.quality_px, method=det.method)
 
 
-def _baseline(models: dict[str, CameraModel]) -> float:
-    centres = [m.centre_um for m in models.values()]
-    if len(centres) < 2:
+def _baseline(models: Mapping[str, AnyCamera]) -> float:
+    """Distance between the first two cameras' projection centres, µm; NaN when either is
+    affine (it has no centre)."""
+    first = list(models.values())[:2]
+    if len(first) < 2:
         return 0.0
-    return float(np.linalg.norm(centres[0] - centres[1]))
+    if not all(isinstance(m, CameraModel) for m in first):
+        return float("nan")
+    a, b = (m.centre_um for m in first if isinstance(m, CameraModel))
+    return float(np.linalg.norm(a - b))

@@ -11,14 +11,22 @@ error stands out are rejected with the reason; a symmetric target's views are nu
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
 from .._validation import FloatArray
 from ..errors import DegenerateDataError, InputError
-from ..geometry import CameraModel, decompose_projection_matrix, estimate_projection_matrix
+from ..geometry import (
+    AffineCamera,
+    AnyCamera,
+    CameraModel,
+    decompose_projection_matrix,
+    estimate_projection_matrix,
+)
+from ..geometry.affine_estimation import estimate_affine_matrix, refine_affine_camera
 from ..geometry.reprojection import reprojection_error
 from .board_symmetry import ambiguous_turns
 from .calibration_result import (
@@ -32,10 +40,10 @@ from .calibration_result import (
     _usable,
 )
 from .detect import Detection
-from .lens_models import opencv_reason
+from .lens_models import opencv_reason, predicts_better
 from .targets import Target
 
-__all__ = ["calibrate_known_displacements"]
+__all__ = ["CAMERA_MODEL_CHOICES", "ILL_CONDITIONED_FOCAL_SD", "calibrate_known_displacements"]
 
 
 def _align_views(
@@ -110,6 +118,25 @@ def _steps_in_plane(target: Target, disp: FloatArray) -> bool:
     return len(disp) > 0 and float(np.max(np.ptp(disp[:, :2], axis=0))) > target.pitch_um
 
 
+#: The camera models method (a) fits, and ``"auto"``: both, the better kept.
+CAMERA_MODEL_CHOICES = ("pinhole", "affine", "auto")
+
+#: A pinhole fit whose focal length is uncertain by more than this fraction (1 sigma) is
+#: ill-conditioned: the views cannot tell its distance from its focal length (a telecentric
+#: lens, or a field of a degree or two).
+ILL_CONDITIONED_FOCAL_SD = 0.02
+
+
+@dataclass
+class _KindFit:
+    """One camera model fitted to one camera's views, with its held-out figures."""
+
+    cal: CameraCalibration
+    held_out_mse_px2: FloatArray | None  # per used view, fitted without it
+    rejected: list[dict[str, str]]
+    ill_conditioned: str = ""
+
+
 def _calibrate_one_known(
     name: str,
     detections: Sequence[Detection],
@@ -118,21 +145,59 @@ def _calibrate_one_known(
     displacements_um: FloatArray,
     size: tuple[int, int],
     refine: bool,
+    camera_model: str = "pinhole",
 ) -> tuple[CameraCalibration, dict[int, int]]:
     used, rejected = _usable(detections, image_names)
     detections, turned = _align_views(detections, used, target)
     detections, turned = _turn_by_steps(detections, used, target, displacements_um, turned)
-    points = target.points_um()
+    kinds = ("pinhole", "affine") if camera_model == "auto" else (camera_model,)
+    fits: dict[str, _KindFit | DegenerateDataError] = {}
+    for kind in kinds:
+        try:
+            fits[kind] = _calibrate_kind(kind, name, detections, used, image_names, target,
+                                         displacements_um, size, refine)  # fmt: skip
+        except DegenerateDataError as exc:
+            fits[kind] = exc
+    chosen, choice = _choose_camera_model(fits, camera_model)
+    fit = fits[chosen]
+    assert isinstance(fit, _KindFit)
+    if fit.ill_conditioned:  # the pinhole model asked for: auto never keeps such a fit
+        raise DegenerateDataError(
+            f"camera {name}: the views do not fit one camera ({fit.ill_conditioned}); are the "
+            "steps in µm, one row per image in the images' sorted order? (for a telecentric "
+            "lens: --camera-model affine)"
+        )
+    fit.cal.views_rejected = rejected + fit.rejected
+    if camera_model == "auto":
+        fit.cal.model_choice = choice
+    return fit.cal, turned
 
-    def calibrate(views: list[int]) -> tuple[tuple[CameraModel, dict[str, list[float]],
+
+def _calibrate_kind(
+    kind: str,
+    name: str,
+    detections: Sequence[Detection],
+    used: list[int],
+    image_names: Sequence[str],
+    target: Target,
+    displacements_um: FloatArray,
+    size: tuple[int, int],
+    refine: bool,
+) -> _KindFit:
+    """One camera model fitted to the views ``used``, outlier views dropped, and its
+    leave-one-view-out figures (held-out error, the calibration's projection sigma)."""
+    points = target.points_um()
+    fitter = _FITTERS[kind]
+
+    def calibrate(views: list[int]) -> tuple[tuple[AnyCamera, dict[str, list[float]],
                                              dict[int, FloatArray]], dict[int, float]]:  # fmt: skip
         if len(views) < 2:
             raise DegenerateDataError(
                 f"camera {name}: the target was found in {len(views)} image(s); at least 2 at "
                 f"different depths are needed"
             )
-        model, std = _fit_known(*_known_points(detections, views, target, displacements_um),
-                                size, name, refine)  # fmt: skip
+        model, std = fitter(*_known_points(detections, views, target, displacements_um),
+                            size, name, refine)  # fmt: skip
         residuals = {
             i: _residuals(
                 model.project(points[detections[i].ids] + displacements_um[i]), detections[i].q_px
@@ -144,19 +209,93 @@ def _calibrate_one_known(
         }
         return (model, std, residuals), rms
 
-    (model, std, residuals), used, bad = _fit_rejecting_outliers(used, calibrate)
-    rejected += [{"image": image_names[i], "reason": r} for i, r in bad.items()]
-    all_err = np.concatenate([residuals[i][:, 2:] for i in used])
+    (model, std, residuals), kept, bad = _fit_rejecting_outliers(used, calibrate)
+    rejected = [{"image": image_names[i], "reason": r} for i, r in bad.items()]
+    all_err = np.concatenate([residuals[i][:, 2:] for i in kept])
     rms_all = float(np.sqrt(np.mean(np.sum(all_err**2, axis=1))))
     rms_views = {
         image_names[i]: float(np.sqrt(np.mean(np.sum(residuals[i][:, 2:] ** 2, axis=1))))
-        for i in used
+        for i in kept
     }
-    sigma = _jackknife_sigma_px(detections, used, target, displacements_um, size, refine, model)
+    sigma, held_out, reduced = _leave_one_out(kind, detections, kept, target,
+                                              displacements_um, size, refine, model)  # fmt: skip
     model = dataclasses.replace(model, projection_sigma_px=sigma)
-    by_name = {image_names[i]: residuals[i] for i in used}
-    cal = CameraCalibration(model, rms_all, rms_views, len(used), rejected, std, by_name)
-    return cal, turned
+    by_name = {image_names[i]: residuals[i] for i in kept}
+    cal = CameraCalibration(model, rms_all, rms_views, len(kept), [], std, by_name)
+    return _KindFit(cal, held_out, rejected, _ill_conditioned(model, std, reduced, rms_all))
+
+
+def _ill_conditioned(
+    model: AnyCamera, std: dict[str, list[float]], reduced: list[AnyCamera], rms_px: float
+) -> str:
+    """Why a pinhole fit cannot be trusted, or ``""``: points behind it, or a focal length
+    that the views do not determine (its standard deviation, the larger of the fit's and the
+    jackknife's over the fits without each view, above :data:`ILL_CONDITIONED_FOCAL_SD`)."""
+    if not isinstance(model, CameraModel):
+        return ""
+    f = float(model.K[0, 0])
+    if not np.isfinite(rms_px):
+        return (
+            f"ill-conditioned: the fit (focal length {f:.3g} px) puts the camera behind the "
+            "target; its distance and focal length cannot be told apart"
+        )
+    sds = [float(std["fx_fy_cx_cy_px"][0])] if std.get("fx_fy_cx_cy_px") else []
+    fs = np.array([m.K[0, 0] for m in reduced])
+    if len(fs) >= 3:
+        n = len(fs)
+        sds.append(float(np.sqrt((n - 1) / n * np.sum((fs - fs.mean()) ** 2))))
+    sd = max(sds, default=0.0)
+    if np.isfinite(sd) and sd <= ILL_CONDITIONED_FOCAL_SD * f:
+        return ""
+    fov = float(np.degrees(2 * np.arctan(np.hypot(*model.image_size_px) / 2 / f)))
+    return (
+        f"ill-conditioned: focal length {f:.4g} +- {sd:.2g} px ({sd / f:.0%}), diagonal field "
+        f"{fov:.2g} deg; its distance and focal length cannot be told apart"
+    )
+
+
+def _choose_camera_model(
+    fits: Mapping[str, _KindFit | DegenerateDataError], camera_model: str
+) -> tuple[str, dict[str, object]]:
+    """The model kept and the figures behind the choice (cameras.json's ``model_choice``).
+
+    ``auto``: the affine model (8 parameters without distortion) unless the pinhole model (11)
+    predicts the held-out views better beyond chance (the test that chooses lens models) and
+    its fit is not ill-conditioned.
+    """
+    candidates: list[dict[str, object]] = []
+    for kind, fit in fits.items():
+        if isinstance(fit, DegenerateDataError):
+            candidates.append({"model": kind, "failed": str(fit)})
+            continue
+        held = fit.held_out_mse_px2
+        held_rms = None if held is None else float(np.sqrt(np.mean(held)))
+        candidates.append({
+            "model": kind,
+            "train_rms_px": fit.cal.rms_px if np.isfinite(fit.cal.rms_px) else None,
+            "held_out_rms_px": held_rms if held_rms is not None and np.isfinite(held_rms) else None,
+            "ill_conditioned": fit.ill_conditioned or None,
+        })  # fmt: skip
+    ok = {k: f for k, f in fits.items() if isinstance(f, _KindFit)}
+    if not ok:
+        raise next(iter(fits.values()))  # type: ignore[misc]
+    if camera_model != "auto" or len(ok) == 1:
+        kind = next(iter(ok))
+        return kind, {"chosen": kind, "reason": "the only model that could be fitted",
+                      "candidates": candidates}  # fmt: skip
+    pin, aff = ok["pinhole"].held_out_mse_px2, ok["affine"].held_out_mse_px2
+    if pin is None or aff is None:
+        kind = "pinhole"
+        reason = "too few views to compare held-out errors; the pinhole model kept"
+    elif predicts_better(pin, aff) and not ok["pinhole"].ill_conditioned:
+        kind = "pinhole"
+        reason = "the pinhole model predicts the held-out views better beyond chance"
+    else:
+        kind = "affine"
+        reason = "the pinhole model does not predict the held-out views better beyond chance"
+        if ok["pinhole"].ill_conditioned:
+            reason += f" and its fit is {ok['pinhole'].ill_conditioned.split(':')[0]}"
+    return kind, {"chosen": kind, "reason": reason, "candidates": candidates}
 
 
 def _known_points(
@@ -178,6 +317,16 @@ def _fit_known(
     K = np.triu(K) / K[2, 2]
     if refine:
         K[0, 1] = 0.0  # OpenCV's model has no skew
+        w, h = size
+        if not (0 <= K[0, 2] < w and 0 <= K[1, 2] < h):
+            # An ill-posed DLT (a telecentric lens, a narrow field) puts the principal point
+            # anywhere; OpenCV starts only from inside the image: the image centre, and the
+            # translation that keeps the points' centroid where the DLT projects it.
+            centroid = p.mean(axis=0)
+            depth = float((R @ centroid + t)[2])
+            shift = np.array([(w - 1) / 2 - K[0, 2], (h - 1) / 2 - K[1, 2]])
+            K[0, 2], K[1, 2] = (w - 1) / 2, (h - 1) / 2
+            t = t - depth * np.array([shift[0] / K[0, 0], shift[1] / K[1, 1], 0.0])
     model = CameraModel(K, np.zeros(5), R, t, size, name)
     if not refine:
         return model, {}
@@ -197,46 +346,78 @@ def _fit_known(
     except cv2.error as exc:
         raise DegenerateDataError(
             f"camera {name}: the views do not fit one camera (OpenCV: {opencv_reason(exc)}); "
-            "are the steps in µm, one row per image in the images' sorted order?"
+            "are the steps in µm, one row per image in the images' sorted order? (for a "
+            "telecentric lens: --camera-model affine)"
         ) from None
     sd = np.asarray(sd_in).ravel()
     std = {"fx_fy_cx_cy_px": sd[:4].tolist(), "k1_k2_p1_p2_k3": sd[4:9].tolist()}
     return _camera_model(K2, d2, rvecs[0], tvecs[0], size, name), std
 
 
-def _jackknife_sigma_px(
+def _fit_known_affine(
+    p: FloatArray, q: FloatArray, size: tuple[int, int], name: str, refine: bool
+) -> tuple[AffineCamera, dict[str, list[float]]]:
+    """The linear affine estimate and, with ``refine``, its non-linear refinement with the
+    distortion terms the pinhole refinement frees (k1, k2, p1, p2)."""
+    start = AffineCamera.from_projection_matrix(estimate_affine_matrix(p, q), size, name=name)
+    if not refine:
+        return start, {}
+    fit = refine_affine_camera(p, q, start, ("k1", "k2", "p1", "p2"))
+    std = {
+        "mx_my_px_per_um": [fit.std["mx_px_per_um"], fit.std["my_px_per_um"]],
+        "k1_k2_p1_p2": [fit.std[k] for k in ("k1", "k2", "p1", "p2")],
+    }
+    return fit.camera, std
+
+
+_FITTERS: dict[str, Callable[..., tuple[AnyCamera, dict[str, list[float]]]]] = {
+    "pinhole": _fit_known,
+    "affine": _fit_known_affine,
+}
+
+
+def _leave_one_out(
+    kind: str,
     detections: Sequence[Detection],
     used: Sequence[int],
     target: Target,
     disp: FloatArray,
     size: tuple[int, int],
     refine: bool,
-    model: CameraModel,
-) -> float:
-    """The calibration's own projection error (px per axis), by the jackknife over views.
+    model: AnyCamera,
+) -> tuple[float, FloatArray | None, list[AnyCamera]]:
+    """The calibration's own projection error (px per axis) by the jackknife over views, and
+    each view's held-out mean squared error (px²), from the same fits without each view.
 
-    The camera is calibrated again without each view in turn; the spread of the calibrated
-    volume's projections over those calibrations, times (n - 1) / n, estimates the variance
-    of the calibration made from all n views. Unlike the covariance of the fit, it counts
-    what differs from view to view beyond pixel noise (a view's detection bias, the stage's
-    step error). 0 with fewer than 3 views or when a reduced set cannot be calibrated.
+    Unlike the covariance of the fit, the jackknife counts what differs from view to view
+    beyond pixel noise (a view's detection bias, the stage's step error): the spread of the
+    calibrated volume's projections over the reduced calibrations, times (n - 1) / n,
+    estimates the variance of the calibration made from all n views. (0, None, []) with fewer
+    than 3 views or when a reduced set cannot be calibrated. The reduced fits come last.
     """
     n = len(used)
     if n < 3:
-        return 0.0
+        return 0.0, None, []
     p_all, _ = _known_points(detections, used, target, disp)
-    projections = []
+    projections, held_out, reduced = [], [], []
     for j in used:
         rest = [i for i in used if i != j]
         try:
-            cam, _ = _fit_known(*_known_points(detections, rest, target, disp), size,
-                                model.name, refine)  # fmt: skip
+            cam, _ = _FITTERS[kind](*_known_points(detections, rest, target, disp), size,
+                                    model.name, refine)  # fmt: skip
         except (DegenerateDataError, cv2.error):
-            return 0.0
+            return 0.0, None, []
+        reduced.append(cam)
         projections.append(cam.project(p_all))
+        p_j, q_j = _known_points(detections, [j], target, disp)
+        mse = float(np.mean(np.sum((cam.project(p_j) - q_j) ** 2, axis=1)))
+        held_out.append(mse if np.isfinite(mse) else np.inf)  # a point behind the camera
     q = np.array(projections)
-    var = (n - 1) / n * np.sum((q - q.mean(axis=0)) ** 2, axis=0).sum(axis=1) / 2.0
-    return float(np.sqrt(np.mean(var)))
+    with np.errstate(invalid="ignore"):  # NaN where a reduced fit put a point behind it
+        var = (n - 1) / n * np.sum((q - q.mean(axis=0)) ** 2, axis=0).sum(axis=1) / 2.0
+    var = var[np.isfinite(var)]
+    sigma = float(np.sqrt(np.mean(var))) if var.size else 0.0
+    return sigma, np.array(held_out), reduced
 
 
 def calibrate_known_displacements(
@@ -247,6 +428,7 @@ def calibrate_known_displacements(
     image_size_px: Mapping[str, tuple[int, int]],
     *,
     refine: bool = True,
+    camera_model: str = "pinhole",
 ) -> StereoCalibration:
     """Method (a): the target at known displacements (thesis 5.1).
 
@@ -263,7 +445,16 @@ def calibrate_known_displacements(
     image_size_px : dict camera -> (w, h)
     refine : bool
         Refine the DLT by non-linear least squares with lens distortion (default).
+    camera_model : {"pinhole", "affine", "auto"}
+        The model of every camera: perspective (a lens with a projection centre), affine
+        (telecentric, or weak perspective), or ``"auto"``: both fitted, the affine kept unless
+        the pinhole predicts each view left out of its fit better beyond chance (the
+        candidates, their training and held-out RMS, in each camera's ``model_choice``).
     """
+    if camera_model not in CAMERA_MODEL_CHOICES:
+        raise InputError(
+            f"camera_model: expected one of {', '.join(CAMERA_MODEL_CHOICES)}, got {camera_model!r}"
+        )
     disp = np.asarray(displacements_um, dtype=np.float64)
     if disp.ndim != 2 or disp.shape[1] != 3:
         raise InputError(f"displacements_um: expected shape (V, 3), got {disp.shape}")
@@ -275,7 +466,7 @@ def calibrate_known_displacements(
                 f"camera {name}: {len(dets)} images but {len(disp)} displacements; one each"
             )
         cams[name], turned = _calibrate_one_known(
-            name, dets, image_names[name], target, disp, image_size_px[name], refine
+            name, dets, image_names[name], target, disp, image_size_px[name], refine, camera_model
         )
         turned_views += [
             {"image": image_names[name][i], "camera": name, "turn_deg": t}

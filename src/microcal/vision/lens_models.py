@@ -56,6 +56,7 @@ __all__ = [
     "fit_camera",
     "lens_model",
     "opencv_reason",
+    "predicts_better",
 ]
 
 _KEEP_ZERO = cv2.CALIB_FIX_K4 | cv2.CALIB_FIX_K5 | cv2.CALIB_FIX_K6
@@ -311,7 +312,7 @@ def _typical_rms(mse: FloatArray) -> float:
     return float(np.sqrt(np.exp(np.mean(np.log(np.maximum(mse, 1e-300))))))
 
 
-def _better(richer: FloatArray, simpler: FloatArray) -> bool:
+def predicts_better(richer: FloatArray, simpler: FloatArray) -> bool:
     """The richer model predicts the held-out views better, beyond chance: the views' mean
     log-ratio of squared errors (simpler over richer) exceeds twice its standard error and
     the log of 1 + :data:`HELD_OUT_TOLERANCE`."""
@@ -415,7 +416,7 @@ def choose_lens_model(
         fits.append(fit)
         errors.append(e)
         best = errors[chosen]
-        if e is not None and (best is None or (len(fits) > 1 and _better(e, best))):
+        if e is not None and (best is None or (len(fits) > 1 and predicts_better(e, best))):
             chosen, stale = len(fits) - 1, 0
         elif len(fits) > 1:
             stale += 1

@@ -1,10 +1,12 @@
-"""3D measurement of the end-effector from image pairs (thesis 4.2, Eq 4.13, Eq 3.18).
+"""3D measurement of the end-effector from two or more cameras (thesis 4.2, Eq 4.13, Eq 3.18).
 
 For each pose: find the board in every camera's frames (in a region predicted from the
 commanded joints once a few poses are known, else in the whole image), take the virtual
 point of each frame from the undistorted corners, average over the pose's frames, and
 triangulate the cameras' virtual points optimally into {G}, with the covariance of the
-result. A pose whose board is missing in a camera is marked failed with the reason.
+result. A camera that lost its frames or did not find the board leaves the others to
+measure (the pose's reason names it, its covariance counts the cameras that saw it); a pose
+seen by fewer than two cameras is marked failed with each camera's reason.
 
 The pixel covariance of a virtual point comes from the corners' residuals (independent
 corner noise); when poses have several frames, the frame-to-frame scatter pooled over the
@@ -21,7 +23,7 @@ from numpy.typing import NDArray
 
 from .._validation import FloatArray
 from ..errors import DetectionError
-from ..geometry import CameraModel, CameraModelProtocol, triangulate_cameras
+from ..geometry import AnyCamera, CameraModelProtocol, triangulate_views
 from .detect import detect
 from .roi import RoiPredictor, box_around
 from .targets import Target
@@ -53,7 +55,7 @@ class PoseMeasurement:
 
 
 def _vp_of_frames(
-    frames: Frames, target: Target, model: CameraModel, roi: tuple[int, int, int, int] | None
+    frames: Frames, target: Target, model: AnyCamera, roi: tuple[int, int, int, int] | None
 ) -> tuple[FloatArray, FloatArray, FloatArray] | str:
     """Virtual points (k, 2), their mean residual covariance (2, 2), and corners of frame 0."""
     vps, covs, corners0 = [], [], None
@@ -77,16 +79,48 @@ def _vp_of_frames(
     return np.array(vps), np.mean(covs, axis=0), corners0
 
 
+def _frames_of(
+    load_frames: Callable[[int, str], Frames], pose: int, name: str, size: tuple[int, int]
+) -> Frames | str:
+    """The frames of one camera at one pose, or why there are none usable."""
+    from ..errors import FormatError
+
+    try:
+        frames = load_frames(pose, name)
+    except FormatError as exc:
+        return str(exc)
+    if not frames:
+        return "no image"
+    w, h = size
+    if frames[0].shape[:2] != (h, w):
+        got_h, got_w = frames[0].shape[:2]
+        return f"image is {got_w}x{got_h} px, the camera's calibration {w}x{h}"
+    return frames
+
+
+def _check_cameras(cameras: Mapping[str, object]) -> list[str]:
+    names = list(cameras)
+    if len(names) < 2:
+        raise DetectionError(
+            f"measurement: expected 2 or more calibrated cameras, got {len(names)} ({names})"
+        )
+    return names
+
+
 def measure_poses(
     poses: Sequence[int],
     commands_um: FloatArray,
     load_frames: Callable[[int, str], Frames],
-    cameras: dict[str, CameraModel],
+    cameras: Mapping[str, AnyCamera],
     target: Target,
     *,
     progress: Callable[[int, int], None] | None = None,
 ) -> list[PoseMeasurement]:
     """Measure every pose of a run.
+
+    A pose is measured by every camera that found the board in its frames; with two or more
+    of them it is triangulated from those (its covariance counting only them, and its
+    ``reason`` naming the cameras left out), with fewer it fails naming each camera's reason.
 
     Parameters
     ----------
@@ -96,50 +130,49 @@ def measure_poses(
         The joint commands of those poses (for predicting where the board is).
     load_frames : callable (pose, camera) -> list of images
         The frames of one pose from one camera; raise ``FormatError`` for a broken file.
-    cameras : dict name -> CameraModel
-        Exactly two cameras, in {G}.
+    cameras : dict name -> camera model
+        Two or more cameras in {G}, of any kind.
     target : Target
         The end-effector board.
     progress : callable (done, total), optional
     """
-    from ..errors import FormatError
-
-    names = list(cameras)
-    if len(names) != 2:
-        raise DetectionError(f"measurement: expected 2 calibrated cameras, got {names}")
+    names = _check_cameras(cameras)
     predictors = {n: RoiPredictor() for n in names}
     results: list[PoseMeasurement] = []
     for k, pose in enumerate(poses):
         m = PoseMeasurement(pose, "ok")
+        lost: list[str] = []
         for name in names:
-            try:
-                frames = load_frames(pose, name)
-            except FormatError as exc:
-                m.status, m.reason = "failed", f"{name}: {exc}"
-                break
-            if not frames:
-                m.status, m.reason = "failed", f"{name}: no image"
-                break
-            w, h = cameras[name].image_size_px
-            if frames[0].shape[:2] != (h, w):
-                m.status = "failed"
-                got_h, got_w = frames[0].shape[:2]
-                m.reason = f"{name}: image is {got_w}x{got_h} px, the camera's calibration {w}x{h}"
-                break
-            got = _vp_of_frames(
-                frames, target, cameras[name], predictors[name].predict(commands_um[k])
-            )
+            got: Frames | str | tuple[FloatArray, FloatArray, FloatArray]
+            got = _frames_of(load_frames, pose, name, cameras[name].image_size_px)
+            if not isinstance(got, str):
+                got = _vp_of_frames(
+                    got, target, cameras[name], predictors[name].predict(commands_um[k])
+                )
             if isinstance(got, str):
-                m.status, m.reason = "failed", f"{name}: {got}"
-                break
+                lost.append(f"{name}: {got}")
+                continue
             vps, cov, corners = got
             predictors[name].add(commands_um[k], corners)
             m.vp_px[name], m.vp_cov_px2[name], m.corners_px[name] = vps, cov, corners
+        _judge(m, lost)
         results.append(m)
         if progress:
             progress(k + 1, len(poses))
     _triangulate(results, cameras, names)
     return results
+
+
+def _judge(m: PoseMeasurement, lost: list[str]) -> None:
+    """Failed with every camera's reason when fewer than two saw the board; else ok, and the
+    cameras left out named."""
+    if len(m.vp_px) < 2:
+        m.status, m.reason = "failed", "; ".join(lost)
+        m.vp_px.clear()
+        m.vp_cov_px2.clear()
+        m.corners_px.clear()
+    elif lost:
+        m.reason = "measured without " + "; ".join(lost)
 
 
 def _calibration_cov(camera: object) -> FloatArray:
@@ -165,7 +198,8 @@ def _pooled_frame_covariance(results: list[PoseMeasurement], name: str) -> Float
 def _triangulate(
     results: list[PoseMeasurement], cameras: Mapping[str, CameraModelProtocol], names: list[str]
 ) -> None:
-    """Optimal positions in {G} and their covariances for the poses measured in both cameras.
+    """Optimal positions in {G} and their covariances for the poses measured, each from the
+    cameras that saw it.
 
     The cameras are used through the camera-model protocol only (any kind of camera model).
     """
@@ -173,49 +207,60 @@ def _triangulate(
     if not ok:
         return
     pooled = {n: _pooled_frame_covariance(results, n) for n in names}
-    q = {n: np.array([m.vp_px[n].mean(axis=0) for m in ok]) for n in names}
-    cov = {}
+    q, cov = [], []
     for n in names:
-        per_pose = []
-        for m in ok:
-            k = len(m.vp_px[n])
+        q_n = np.full((len(ok), 2), np.nan)
+        cov_n = np.broadcast_to(np.eye(2), (len(ok), 2, 2)).copy()
+        for i, m in enumerate(ok):
+            if n not in m.vp_px:
+                continue
+            q_n[i] = m.vp_px[n].mean(axis=0)
             frame_cov = pooled[n]
             base = frame_cov if frame_cov is not None else m.vp_cov_px2[n]
-            per_pose.append(base / k + _calibration_cov(cameras[n]))
-        cov[n] = np.array(per_pose)
-    cam1, cam2 = cameras[names[0]], cameras[names[1]]
-    p, c = triangulate_cameras(cam1, cam2, q[names[0]], q[names[1]], cov[names[0]], cov[names[1]])
+            cov_n[i] = base / len(m.vp_px[n]) + _calibration_cov(cameras[n])
+        q.append(q_n)
+        cov.append(cov_n)
+    p, c, _ = triangulate_views([cameras[n] for n in names], q, cov)
     for m, pi, ci in zip(ok, p, c, strict=True):
         m.p_um, m.cov_um2 = pi, ci
 
 
 def measure_one(
     frames: Mapping[str, Frames],
-    cameras: dict[str, CameraModel],
+    cameras: Mapping[str, AnyCamera],
     target: Target,
     rois: dict[str, tuple[int, int, int, int] | None] | None = None,
     frame_cov_px2: dict[str, FloatArray] | None = None,
 ) -> PoseMeasurement:
-    """Measure one pose from its frames (per camera), triangulated on the spot.
+    """Measure one pose from its frames (per camera), triangulated on the spot from every
+    camera that found the board (two at least).
 
     ``frame_cov_px2`` gives the per-frame pixel covariance of each camera's virtual point
     when it is known (from a run's pooled scatter); otherwise the corners' residuals are used.
     """
-    names = list(cameras)
+    names = _check_cameras(cameras)
     m = PoseMeasurement(0, "ok")
+    lost = []
     for name in names:
+        if not frames.get(name):
+            lost.append(f"{name}: no image")
+            continue
         got = _vp_of_frames(frames[name], target, cameras[name], (rois or {}).get(name))
         if isinstance(got, str):
-            m.status, m.reason = "failed", f"{name}: {got}"
-            return m
+            lost.append(f"{name}: {got}")
+            continue
         m.vp_px[name], m.vp_cov_px2[name], m.corners_px[name] = got
-    q = [m.vp_px[n].mean(axis=0) for n in names]
+    _judge(m, lost)
+    if m.status != "ok":
+        return m
+    seen = [n for n in names if n in m.vp_px]
+    q = [m.vp_px[n].mean(axis=0)[None, :] for n in seen]
     cov = [
         (frame_cov_px2[n] if frame_cov_px2 and n in frame_cov_px2 else m.vp_cov_px2[n])
         / len(m.vp_px[n])
         + _calibration_cov(cameras[n])
-        for n in names
+        for n in seen
     ]
-    p, c = triangulate_cameras(cameras[names[0]], cameras[names[1]], q[0], q[1], cov[0], cov[1])
+    p, c, _ = triangulate_views([cameras[n] for n in seen], q, cov)
     m.p_um, m.cov_um2 = p[0], c[0]
     return m

@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._validation import FloatArray
-from ..geometry import CameraModel
+from ..geometry import AnyCamera
 from .measurement import measure_one
 from .roi import RoiPredictor
 from .targets import Target
@@ -35,7 +35,7 @@ class VisionProbe:
     """
 
     cameras: Mapping[str, FrameSource]
-    models: dict[str, CameraModel]
+    models: dict[str, AnyCamera]
     target: Target
     frames: int = 5
     frame_cov_px2: dict[str, FloatArray] | None = None

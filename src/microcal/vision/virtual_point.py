@@ -17,7 +17,7 @@ import numpy as np
 
 from .._validation import FloatArray
 from ..errors import DetectionError
-from ..geometry.camera_model import CameraModel
+from ..geometry.camera_kinds import AnyCamera
 from .detect import Detection
 from .targets import Target
 
@@ -47,7 +47,7 @@ class VirtualPoint:
 
 
 def virtual_point(
-    detection: Detection, target: Target, camera: CameraModel | None = None
+    detection: Detection, target: Target, camera: AnyCamera | None = None
 ) -> VirtualPoint:
     """Mean of the detected corners (Eq 4.13) with its uncertainty.
 
@@ -57,7 +57,7 @@ def virtual_point(
         A chessboard (or ChArUco) detection with all corners (a partial board would move the
         mean).
     target : Target
-    camera : CameraModel, optional
+    camera : CameraModel or AffineCamera, optional
         When given, corners are undistorted before averaging.
 
     Raises
