@@ -74,9 +74,6 @@ def _version(value: bool) -> None:
 
 
 @app.callback()
-def _root(
-    version: bool = typer.Option(
-        False, "--version", callback=_version, is_eager=True, help="Print the version."
-    ),
-) -> None:
+def _root(version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
+                                       help="Print the version.")) -> None:  # fmt: skip
     """Vision-based automatic calibration of microrobotic systems."""

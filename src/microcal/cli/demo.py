@@ -18,12 +18,15 @@ _Seed = Annotated[int, Option(min=0, help="Seed of all random draws.")]
 _Poses = Annotated[int, Option(min=20, max=20000, help="Poses to acquire (the thesis: 170).")]
 _Quick = Annotated[bool, Option(help="A short run: 40 poses, 2 frames each, 1 ISO cycle.")]
 _Out = Annotated[Path, Option("--out", "-o", help="Run directory (replaces an earlier demo).")]
+_Preset = Annotated[str, Option(help="Simulated platform: thesis, telecentric, thesis-3cam.")]
+_Model = Annotated[str, Option(help="Camera model: pinhole, affine or auto (by held-out error).")]
 
 
 @app.command(short_help="Run the whole calibration on the simulated platform.")
 def demo(
-    seed: _Seed = 0, poses: _Poses = 170, quick: _Quick = False, out: _Out = Path("demo-out")
-) -> None:
+    seed: _Seed = 0, poses: _Poses = 170, quick: _Quick = False, out: _Out = Path("demo-out"),
+    preset: _Preset = "thesis", camera_model: _Model = "auto",
+) -> None:  # fmt: skip
     """Run the whole calibration on the simulated thesis platform and write its report.
 
     Stereo calibration from rendered images, acquisition with vision settling, 3D
@@ -31,9 +34,10 @@ def demo(
     tests; writes the run directory, cameras.json, calibration.json, results.json and
     report.html, and compares the figures with the thesis's.
 
-    Example: microcal demo --seed 3 --out demo-3
+    Example: microcal demo --seed 3 --out demo-3 (or --preset telecentric)
     """
     from ..formats.demo_outputs import write_demo_outputs
+    from ..formats.options import check_camera_model
     from ..formats.run_manifest import start_demo_run
     from ..procedures.demo import run_demo
     from ..report.text_tables import demo_closing, demo_intro, demo_summary
@@ -41,13 +45,15 @@ def demo(
     wall0 = time.monotonic()
     console = Console()
     n_poses, frames = (QUICK_POSES, QUICK_FRAMES) if quick else (poses, 5)
-    plat, writer = start_demo_run(out, seed, n_poses, frames)
+    check_camera_model(camera_model)
+    plat, writer = start_demo_run(out, seed, n_poses, frames, preset)
     console.print(demo_intro(out, n_poses))
     with staged_progress(console) as progress:
         result = run_demo(
             seed=seed, poses=n_poses, frames_per_pose=frames, progress=progress,
             frames_per_view=4 if quick else 8, cycles=1 if quick else 3,
             decoupling_samples=5 if quick else 17, store=writer.store, plat=plat,
+            camera_model=camera_model,
         )  # fmt: skip
     print_parts(console, demo_summary(result, frames))
     write_demo_outputs(out, result, wall_s=time.monotonic() - wall0)

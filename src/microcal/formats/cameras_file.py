@@ -112,7 +112,7 @@ def cameras_to_dict(cal: StereoCalibration, provenance: dict[str, Any]) -> dict[
         "stereo": {
             "method": cal.method,
             "rms_px": cal.rms_px,
-            "baseline_um": cal.baseline_um,
+            "baseline_um": _finite(cal.baseline_um),
             "angle_deg": cal.angle_deg,
             "turned_views": cal.turned_views,
             "views_rejected": cal.views_rejected,

@@ -10,11 +10,12 @@ from typing import Literal
 
 import numpy as np
 
-from .._validation import FloatArray
+from .._validation import FloatArray, did_you_mean
 from ..devices.rig_spec import RigSpec, SimRigSpec
 from ..errors import InputError
 
 __all__ = [
+    "check_camera_model",
     "parse_images",
     "parse_limits",
     "parse_number",
@@ -71,13 +72,15 @@ def parse_settle(text: str) -> tuple[Literal["vision", "fixed"], float]:
     return "fixed", seconds
 
 
-def parse_images(specs: list[str], cameras: int | None = 2) -> dict[str, list[Path]]:
+def parse_images(
+    specs: list[str], cameras: int | None = 2, *, at_least: int = 1
+) -> dict[str, list[Path]]:
     """``CAMERA=GLOB`` options -> files per camera, sorted, one per view in every camera.
 
     Parameters
     ----------
     cameras : int, optional
-        How many cameras are expected (None: any number, at least one).
+        How many cameras are expected (None: any number, ``at_least`` of them).
     """
     out: dict[str, list[Path]] = {}
     for spec in specs:
@@ -93,7 +96,13 @@ def parse_images(specs: list[str], cameras: int | None = 2) -> dict[str, list[Pa
             raise InputError(f"--images {name}: no file matches {pattern!r}")
         out[name] = files
     if cameras is not None and len(out) != cameras:
-        raise InputError(f"--images: expected {cameras} cameras, got {sorted(out)}")
+        why = " (unknown poses, method b; any number with --known-displacements)"
+        raise InputError(
+            f"--images: expected {cameras} cameras, got {sorted(out)}"
+            + (why if len(out) > cameras and at_least > 1 else "")
+        )
+    if len(out) < at_least:
+        raise InputError(f"--images: expected {at_least} cameras or more, got {sorted(out)}")
     counts = {n: len(f) for n, f in out.items()}
     if len(set(counts.values())) != 1:
         raise InputError(f"--images: every camera needs one image per view, got {counts}")
@@ -107,3 +116,22 @@ def rig_with_seed(spec: RigSpec, seed: int | None) -> RigSpec:
     if not isinstance(spec, SimRigSpec):
         raise InputError("--seed: only the simulated rig has a seed; leave it out for hardware")
     return dataclasses.replace(spec, seed=seed)
+
+
+def check_camera_model(value: str, option: str = "--camera-model") -> str:
+    """A camera model's name for method (a): pinhole, affine or auto.
+
+    Raises
+    ------
+    InputError
+        ``--camera-model: expected pinhole, affine or auto, got 'telecentric'``.
+    """
+    from ..vision.known_displacements import CAMERA_MODEL_CHOICES
+
+    if value not in CAMERA_MODEL_CHOICES:
+        hint = did_you_mean(value, CAMERA_MODEL_CHOICES, quote=False).strip()
+        raise InputError(
+            f"{option}: expected {', '.join(CAMERA_MODEL_CHOICES[:-1])} or "
+            f"{CAMERA_MODEL_CHOICES[-1]}, got {value!r}" + (f" ({hint})" if hint else "")
+        )
+    return value

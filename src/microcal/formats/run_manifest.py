@@ -89,7 +89,9 @@ def clear_demo_dir(out: Path) -> None:
             path.unlink()
 
 
-def start_demo_run(out: Path, seed: int, poses: int, frames: int) -> tuple[Any, RunWriter]:
+def start_demo_run(
+    out: Path, seed: int, poses: int, frames: int, preset: str = "thesis"
+) -> tuple[Any, RunWriter]:
     """The demo's platform and the writer of its run directory (run.json, commands.csv).
 
     The manifest records the design the demo draws (``random`` with the demo's design seed
@@ -99,10 +101,10 @@ def start_demo_run(out: Path, seed: int, poses: int, frames: int) -> tuple[Any, 
     from ..sim import platform
     from ..thesis.experiment import WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
 
+    plat = platform(preset, seed=seed)  # an unknown preset fails before the folder is touched
     clear_demo_dir(out)
-    plat = platform("thesis", seed=seed)
     manifest = new_manifest(
-        rig=SimRigSpec(seed=seed).to_dict(),
+        rig=SimRigSpec(preset=preset, seed=seed).to_dict(),
         target=plat.scene.board.spec,
         cameras=list(plat.cameras),
         design={

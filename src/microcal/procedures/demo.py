@@ -96,8 +96,10 @@ def calibrate_on_platform(
     steps_um: FloatArray,
     frames_per_view: int = 8,
     progress: Callable[[int, int], None] | None = None,
+    camera_model: str = "auto",
 ) -> StereoCalibration:
-    """Method (a) on a simulated platform: the target at known steps, frames averaged per view.
+    """Method (a) on a simulated platform: the target at known steps, frames averaged per view,
+    each camera's model as ``camera_model`` says (``auto``: chosen by held-out error).
 
     The target's frame at zero displacement is {G}; the board on the gripper is hidden while
     the target is shown, and shown again afterwards.
@@ -116,7 +118,9 @@ def calibrate_on_platform(
     plat.scene.fixed = None
     plat.scene.show_board = True
     sizes = {n: c.model.image_size_px for n, c in plat.cameras.items()}
-    return calibrate_known_displacements(dets, names, target, steps_um, sizes)
+    return calibrate_known_displacements(
+        dets, names, target, steps_um, sizes, camera_model=camera_model
+    )
 
 
 def run_demo(
@@ -132,6 +136,7 @@ def run_demo(
     store: Store | None = None,
     creep_learn_poses: int = 5,
     plat: SimPlatform | None = None,
+    camera_model: str = "auto",
 ) -> DemoResult:
     """Run the calibration on the simulated thesis platform (see the module docstring).
 
@@ -140,7 +145,8 @@ def run_demo(
     calibrated cameras and by ground truth. ``settle_s`` is the fixed wait of those tests;
     the acquisition settles by vision. ``store`` receives every acquired pose as the
     acquisition gives it (see :func:`~microcal.procedures.acquisition.acquire`). ``plat`` is
-    the platform to run on, if the caller has built it already (``platform("thesis", seed)``).
+    the platform to run on, if the caller has built it already (``platform(preset, seed)``;
+    the thesis's by default). ``camera_model`` is the stereo calibration's (method (a)).
     """
 
     def tick(stage: str, done: int, total: int) -> None:
@@ -156,6 +162,7 @@ def run_demo(
         steps,
         frames_per_view,
         lambda done, total: tick("stereo calibration", done, total),
+        camera_model,
     )
     pts = np.random.default_rng(seed).uniform([0, 0, 0], [9000, 9000, 5000], (500, 3))
     truth_px = {

@@ -35,6 +35,7 @@ def calibrate_views(
     displacements_um: FloatArray | None = None,
     reference_view: int = 0,
     lens_model: str = "auto",
+    camera_model: str = "pinhole",
     progress: Callable[[int, int], None] | None = None,
 ) -> StereoCalibration:
     """Detect the target in every view of every camera and calibrate.
@@ -52,7 +53,17 @@ def calibrate_views(
     lens_model : str
         For method (b): ``"auto"`` (chosen per camera by held-out error) or a model's name
         (:data:`~microcal.vision.lens_models.LENS_MODELS`).
+    camera_model : str
+        For method (a): ``"pinhole"``, ``"affine"`` or ``"auto"`` (see
+        :func:`~microcal.vision.known_displacements.calibrate_known_displacements`); method
+        (b) calibrates pinhole cameras only.
     """
+    if displacements_um is None and camera_model == "affine":
+        raise InputError(
+            "--camera-model affine: an affine (telecentric) camera is calibrated from known "
+            "displacements (--known-displacements, method a); tilted views calibrate pinhole "
+            "cameras"
+        )
     if lens_model != "auto":
         named_lens_model(lens_model)  # an unknown name fails before any image is read
         if displacements_um is not None:
@@ -87,7 +98,9 @@ def calibrate_views(
         if cam not in sizes:
             raise FormatError(f"camera {cam}: none of its images could be read")
     if displacements_um is not None:
-        return calibrate_known_displacements(detections, names, target, displacements_um, sizes)
+        return calibrate_known_displacements(
+            detections, names, target, displacements_um, sizes, camera_model=camera_model
+        )
     return calibrate_unknown_poses(
         detections, names, target, sizes, reference_view=reference_view, lens_model=lens_model
     )

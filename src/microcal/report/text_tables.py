@@ -66,20 +66,33 @@ class TextTable:
     first_left: bool = False  # the first column is text (term names), read left-aligned
 
 
+SIGMA_CORNER = "σ corner px"  # noqa: RUF001
+
+
 def stereo_table(calibration: Any, digits: int = 4) -> TextTable:
     """Per camera: RMS, views used, focal lengths, the lens model with its held-out RMS and
     the projection uncertainty at the worst image corner (a ``StereoCalibration``)."""
     table = TextTable(
         f"Stereo calibration ({calibration.method})",
-        ["camera", "RMS px", "views", "fx px", "fy px", "lens model", "held-out px", "σ corner px"],  # noqa: RUF001,
+        [
+            "camera",
+            "model",
+            "RMS px",
+            "views",
+            "scale x",
+            "scale y",
+            "lens model",
+            "held-out px",
+            SIGMA_CORNER,
+        ],
     )
     for name, c in calibration.cameras.items():
         lens = c.lens_model.get("name", "") if c.lens_model else ""
         chosen = [d for d in c.lens_model.get("candidates", []) if d["name"] == lens]
         h = chosen[0]["held_out_rms_px"] if chosen else None
         sigma = f"{c.diagnostics.uncertainty_px['corners']:.3f}" if c.diagnostics else ""
-        table.rows.append([name, f"{c.rms_px:.{digits}f}", str(c.views_used),
-                           f"{c.model.K[0, 0]:.1f}", f"{c.model.K[1, 1]:.1f}", lens or "fixed",
+        table.rows.append([name, c.model.kind, f"{c.rms_px:.{digits}f}", str(c.views_used),
+                           *_scales(c.model), lens or "fixed",
                            "" if h is None else f"{h:.{digits}f}", sigma])  # fmt: skip
     return table
 
@@ -89,13 +102,47 @@ def demo_stereo_table(calibration: Any, truth_px: Mapping[str, float], target: s
     thesis = {"top": REPROJECTION_ERROR_TOP_PX, "side": REPROJECTION_ERROR_SIDE_PX}
     table = TextTable(
         f"1. Stereo calibration: {target} at 5 known heights ({calibration.method})",
-        ["camera", "RMS px", "thesis px", "vs true camera px", "fx px", "fy px"],
+        ["camera", "model", "RMS px", "thesis px", "vs true camera px", "scale x", "scale y"],
     )
     for name, c in calibration.cameras.items():
-        table.rows.append([name, f"{c.rms_px:.3f}", f"{thesis.get(name, float('nan')):.3f}",
-                           f"{truth_px[name]:.3f}", f"{c.model.K[0, 0]:.1f}",
-                           f"{c.model.K[1, 1]:.1f}"])  # fmt: skip
+        table.rows.append([name, c.model.kind, f"{c.rms_px:.3f}",
+                           f"{thesis.get(name, float('nan')):.3f}", f"{truth_px[name]:.3f}",
+                           *_scales(c.model)])  # fmt: skip
     return table
+
+
+def _scales(model: Any) -> list[str]:
+    """A camera's scale per image axis with its unit: focal length (px) of a pinhole camera,
+    magnification (px/µm) of an affine one."""
+    if model.kind == "affine":
+        return [f"{model.K[i, i]:.5f} px/µm" for i in (0, 1)]
+    return [f"{model.K[i, i]:.1f} px" for i in (0, 1)]
+
+
+def model_choice_lines(calibration: Any) -> list[str]:
+    """One line per camera whose model was chosen (``--camera-model auto``): the choice, its
+    reason and every candidate's training and held-out RMS."""
+    lines = []
+    for name, c in calibration.cameras.items():
+        choice = c.model_choice
+        if not choice:
+            continue
+        figures = []
+        for cand in choice.get("candidates", []):
+            if cand.get("failed"):
+                figures.append(f"{cand['model']} failed ({cand['failed']})")
+                continue
+            train, held = cand.get("train_rms_px"), cand.get("held_out_rms_px")
+            ill = f", {cand['ill_conditioned']}" if cand.get("ill_conditioned") else ""
+            figures.append(f"{cand['model']} held-out {_px(held)} (training {_px(train)}){ill}")
+        lines.append(
+            f"camera model of {name}: {choice['chosen']}, {choice['reason']}; " + "; ".join(figures)
+        )
+    return lines
+
+
+def _px(value: float | None) -> str:
+    return "-" if value is None else f"{value:.3f} px"
 
 
 def identification_table(
@@ -188,7 +235,8 @@ def demo_summary(result: Any, frames: int) -> list[TextTable | str]:
     from ..procedures.demo import CALIBRATION_TARGET
 
     out: list[TextTable | str] = [
-        demo_stereo_table(result.calibration, result.calibration_truth_px, CALIBRATION_TARGET)
+        demo_stereo_table(result.calibration, result.calibration_truth_px, CALIBRATION_TARGET),
+        *model_choice_lines(result.calibration),
     ]
     ok = result.measured_ok
     stds = np.array([m.std_um for m, good in zip(result.measurements, ok, strict=True) if good])
@@ -306,10 +354,13 @@ def stereo_lines(calibration: Any, out: Path) -> list[TextTable | str]:
         )
     lines += [f"left out of the stereo step {r['view']}: {r['reason']}"
               for r in calibration.views_rejected]  # fmt: skip
+    lines += model_choice_lines(calibration)
     lines += [f"warning: {n}" for n in calibration.notes]
+    baseline = calibration.baseline_um
     lines.append(
-        f"baseline {calibration.baseline_um:.0f} µm; angle between the cameras "
-        f"{calibration.angle_deg:.2f} deg; stereo RMS {calibration.rms_px:.4f} px; wrote {out}"
+        (f"baseline {baseline:.0f} µm; " if np.isfinite(baseline) else "")
+        + f"angle between the first two cameras {calibration.angle_deg:.2f} deg; stereo RMS "
+        f"{calibration.rms_px:.4f} px; wrote {out}"
     )
     return lines
 

@@ -13,13 +13,10 @@ The other presets (:data:`PRESETS`) change the cameras only:
   with the magnification the thesis's camera has at the middle of the travel, the same pose,
   image size, noise and depth of field, and a distortion of the size telecentric lenses are
   sold with (0.1 % of the field radius at the corner).
-- ``thesis-3cam``: the thesis's two cameras and a third, ``front``, like the side camera
-  (sensor, lens, distance) but looking at the travel's middle from 55 degrees off the side
-  camera's axis, tilted towards -x: across the plane in which the top and side cameras see
-  depth, so that depth is seen by a second, independent baseline.
-
-Every value can be changed: ``platform(..., overrides={"top.formation.read_noise_e": 30})``
-or a rig file's ``[overrides]`` tables, which mirror those dotted names.
+- ``thesis-3cam``: the thesis's two cameras and a third, ``front``, the side camera's twin
+  (sensor, lens, distance from the travel's middle) tilted 35 degrees off its axis towards
+  +y, mirroring the top camera (tilted as much towards -y): a second baseline across the
+  side camera's axis, so that depth (z) is seen twice and no longer dominates the error.
 """
 
 from __future__ import annotations
@@ -148,7 +145,7 @@ class PlatformConfig:
 PRESETS = ("thesis", "telecentric", "thesis-3cam")
 
 #: Angle of the ``front`` camera's axis from the side camera's, degrees.
-FRONT_CAMERA_ANGLE_DEG = 55.0
+FRONT_CAMERA_ANGLE_DEG = 35.0
 
 
 def preset_config(preset: str) -> PlatformConfig:
@@ -344,13 +341,13 @@ def _with_projection(model: CameraModel, cfg: CameraConfig) -> AnyCamera:
 def front_camera(side: CameraModel) -> CameraModel:
     """The ``thesis-3cam`` preset's third camera: the side camera's intrinsics and distance
     from the travel's middle, its axis turned by :data:`FRONT_CAMERA_ANGLE_DEG` about {G}'s
-    y axis towards -x (its image x axis stays in {G}'s x-z plane)."""
+    x axis towards +y, its image x axis along {G}'s x as the other cameras' are."""
     a = np.radians(FRONT_CAMERA_ANGLE_DEG)
     c, s = np.cos(a), np.sin(a)
-    turn = np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]])  # about y, +z towards -x
+    turn = np.array([[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]])  # about x, +z towards +y
     axis = turn @ side.R[2]
     distance = float(side.depth_um(TRAVEL_CENTRE_UM)[0])
-    x = np.cross([0.0, 1.0, 0.0], axis)
+    x = np.array([1.0, 0.0, 0.0]) - axis[0] * axis  # image x along {G}'s x, as the others'
     x /= np.linalg.norm(x)
     R = np.vstack([x, np.cross(axis, x), axis])
     t = -R @ (TRAVEL_CENTRE_UM - distance * axis)
