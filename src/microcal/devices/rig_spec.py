@@ -372,13 +372,13 @@ CameraSpec = AravisCameraSpec | MMCameraSpec
 
 @dataclass(frozen=True)
 class HardwareRigSpec:
-    """Real devices: one manipulator, two cameras, the board and the Micro-Manager core.
+    """Real devices: one manipulator, two or more cameras, the board and the Micro-Manager core.
 
     Attributes
     ----------
     manipulator : MCS2Spec or MMStageSpec
     cameras : mapping of name to AravisCameraSpec or MMCameraSpec
-        Two cameras, by the names the run uses (``top``, ``side``), in order.
+        Two or more cameras, by the names the run uses (``top``, ``side`` ...), in order.
     board : str
         The end-effector's target (``microcal.vision.targets.parse_target``).
     micromanager : MicroManagerSpec or None
@@ -394,9 +394,9 @@ class HardwareRigSpec:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "cameras", dict(self.cameras))
-        if len(self.cameras) != 2:
+        if len(self.cameras) < 2:
             raise InputError(
-                f"cameras: expected two cameras (e.g. [cameras.top], [cameras.side]), "
+                f"cameras: expected two cameras or more (e.g. [cameras.top], [cameras.side]), "
                 f"got {len(self.cameras)}"
             )
         if self.uses_micromanager and self.micromanager is None:

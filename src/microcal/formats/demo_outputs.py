@@ -52,9 +52,13 @@ def write_demo_outputs(out: Path, result: DemoResult, wall_s: float) -> None:
     results_path = out / "results.json"
     results_path.unlink(missing_ok=True)
     records = result.records
+    axis_rms = result.measurement_rms_axis_um.tolist()
     update_results(results_path, {
-        "stereo": {n: {"rms_px": c.rms_px} for n, c in result.calibration.cameras.items()},
-        "measurement": {"rms_error_um": result.measurement_rms_um},
+        "stereo": {n: {"rms_px": c.rms_px, "model": c.model.kind}
+                   for n, c in result.calibration.cameras.items()},
+        "measurement": {"rms_error_um": result.measurement_rms_um,
+                        "rms_error_axis_um": dict(zip("xyz", axis_rms, strict=True)),
+                        "mahalanobis_mean_sq": result.mahalanobis_mean_sq},
         "models": {k: {"validation": v.validation} for k, v in result.models.items()},
         "oracle": {f"{k}_um": v for k, v in result.oracle.items()},
         "acquisition": {

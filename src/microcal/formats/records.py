@@ -185,6 +185,8 @@ class MeasurementResult(FileSchema):
     """``measurement``: the 3D measurement against ground truth (simulator only)."""
 
     rms_error_um: float | None = None
+    rms_error_axis_um: dict[str, float] | None = None
+    mahalanobis_mean_sq: float | None = None
 
 
 class ModelResult(FileSchema):

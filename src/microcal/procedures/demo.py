@@ -71,9 +71,24 @@ class DemoResult:
     @property
     def measurement_rms_um(self) -> float:
         """RMS 3D error of the measured positions against ground truth."""
+        return float(np.sqrt(np.sum(self.measurement_rms_axis_um**2)))
+
+    @property
+    def measurement_rms_axis_um(self) -> FloatArray:
+        """(3,) RMS error per axis of {G} (x, y, z) against ground truth, µm."""
         ok = self.measured_ok
         p = np.array([m.p_um for m in self.measurements])[ok]
-        return float(np.sqrt(np.mean(np.sum((p - self.truth_um[ok]) ** 2, axis=1))))
+        out: FloatArray = np.sqrt(np.mean((p - self.truth_um[ok]) ** 2, axis=0))
+        return out
+
+    @property
+    def mahalanobis_mean_sq(self) -> float:
+        """Mean of ``e^T C^-1 e`` over the measured poses (e the error against the truth, C
+        the reported covariance): 3 when the covariance matches the scatter."""
+        ok = self.measured_ok
+        e = np.array([m.p_um for m in self.measurements])[ok] - self.truth_um[ok]
+        cov = np.array([m.cov_um2 for m in self.measurements])[ok]
+        return float(np.mean(np.einsum("ni,nij,nj->n", e, np.linalg.inv(cov), e)))
 
 
 def demo_design_seed(seed: int) -> int:

@@ -43,7 +43,12 @@ from .detect import Detection
 from .lens_models import opencv_reason, predicts_better
 from .targets import Target
 
-__all__ = ["CAMERA_MODEL_CHOICES", "ILL_CONDITIONED_FOCAL_SD", "calibrate_known_displacements"]
+__all__ = [
+    "CAMERA_MODEL_CHOICES",
+    "ILL_CONDITIONED_FOCAL_SD",
+    "calibrate_known_displacements",
+    "fit_known_points",
+]
 
 
 def _align_views(
@@ -374,6 +379,32 @@ _FITTERS: dict[str, Callable[..., tuple[AnyCamera, dict[str, list[float]]]]] = {
     "pinhole": _fit_known,
     "affine": _fit_known_affine,
 }
+
+
+def fit_known_points(
+    kind: str, p_um: FloatArray, q_px: FloatArray, size: tuple[int, int], name: str = "camera"
+) -> tuple[AnyCamera, dict[str, list[float]]]:
+    """One camera of ``kind`` (``"pinhole"`` or ``"affine"``) fitted to known points as
+    method (a) fits it (linear, then refined with distortion), with no view rejected and no
+    check of its conditioning: for studies of a model on data it may not suit.
+
+    Parameters
+    ----------
+    kind : str
+    p_um : (N, 3) float
+        Target points in {V}, µm.
+    q_px : (N, 2) float
+        Their detected pixels.
+    size : (int, int)
+        Image width and height.
+
+    Returns
+    -------
+    camera, standard deviations of its parameters
+    """
+    if kind not in _FITTERS:
+        raise InputError(f"kind: expected one of {', '.join(_FITTERS)}, got {kind!r}")
+    return _FITTERS[kind](np.asarray(p_um, float), np.asarray(q_px, float), size, name, True)
 
 
 def _leave_one_out(
