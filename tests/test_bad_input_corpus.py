@@ -407,6 +407,10 @@ def demo_cases() -> list[Case]:
              lambda w: _demo(w, "--quick", out=_demo_dir(w, "analysis/fit.py")), "--out"),
         Case("demo-out-empty-string-in-a-user-directory",
              lambda w: (w.copy("notes.txt"), ["demo", "--quick", "--out", ""])[1]),
+        Case("demo-preset-unknown", lambda w: _demo(w, "--quick", "--preset", "telecentrc"), "telecentric"),
+        Case("demo-preset-empty", lambda w: _demo(w, "--quick", "--preset", ""), "preset"),
+        Case("demo-camera-model-unknown", lambda w: _demo(w, "--quick", "--camera-model", "fisheye"), "--camera-model"),
+        Case("demo-camera-model-misspelt", lambda w: _demo(w, "--quick", "--camera-model", "afine"), "affine"),
         Case("demo-out-parent-is-a-file",
              lambda w: _demo(w, "--quick", out=w.copy("notes.txt") / "demo"), "notes.txt"),
         Case("demo-out-read-only-directory",
@@ -475,6 +479,10 @@ def stereo_cases() -> list[Case]:
     s = "stereo-calibrate-"
     return [
         Case(s + "target-missing", lambda w: _stereo(w, target=None), "--target"),
+        Case(s + "camera-model-unknown", lambda w: _stereo(w, "--camera-model", "orthographic"), "--camera-model"),
+        Case(s + "affine-without-known-displacements", lambda w: _stereo(w, "--camera-model", "affine"), "--known-displacements"),
+        Case(s + "three-cameras-without-known-displacements",
+             lambda w: [*_stereo(w), "--images", f"third={w / 'cal' / 'left*.png'}"], "--known-displacements"),
         Case(s + "target-unknown-kind", lambda w: _stereo(w, target="foo:7x5:30000"), "foo"),
         Case(s + "target-chessboard-1x1", lambda w: _stereo(w, target="chessboard:1x1:400"), "1x1"),
         Case(s + "target-dotgrid-0x3", lambda w: _stereo(w, target="dotgrid:0x3:10"), "0x3"),

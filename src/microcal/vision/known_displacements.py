@@ -292,7 +292,9 @@ def _choose_camera_model(
     if pin is None or aff is None:
         kind = "pinhole"
         reason = "too few views to compare held-out errors; the pinhole model kept"
-    elif predicts_better(pin, aff) and not ok["pinhole"].ill_conditioned:
+    elif (
+        not ok["pinhole"].ill_conditioned and np.all(np.isfinite(pin)) and predicts_better(pin, aff)
+    ):
         kind = "pinhole"
         reason = "the pinhole model predicts the held-out views better beyond chance"
     else:
