@@ -50,5 +50,7 @@ for preset in args.presets.split(","):
             v = [r[key] for r in r3d if key in r]
             print(f"   3D RMS with {key} cameras: median {np.median(v):.3f} µm, max {max(v):.3f}")
         ratio3 = [r["chosen"] / r["true"] for r in r3d]
-        print(f"   chosen/true 3D RMS: max {max(ratio3):.3f}; Mahalanobis mean square median "
-              f"{np.median(m2):.2f}")
+        print(
+            f"   chosen/true 3D RMS: max {max(ratio3):.3f}; Mahalanobis mean square median "
+            f"{np.median(m2):.2f}"
+        )

@@ -53,9 +53,10 @@ def test_the_thesis_preset_is_unchanged_by_the_third_camera():
 def test_an_override_of_a_camera_the_preset_lacks_is_refused():
     with pytest.raises(InputError, match=r"override 'front.bit_depth': there is no 'front' on"):
         sim.platform("thesis", overrides={"front.bit_depth": 12})
-    assert sim.platform("thesis-3cam", overrides={"front.bit_depth": 12}).cameras[
-        "front"
-    ].bit_depth == 12
+    assert (
+        sim.platform("thesis-3cam", overrides={"front.bit_depth": 12}).cameras["front"].bit_depth
+        == 12
+    )
     with pytest.raises(InputError, match=r"preset: expected one of .*got 'telecentrc' \(did you"):
         sim.platform("telecentrc")
 
