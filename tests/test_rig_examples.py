@@ -65,6 +65,13 @@ SIM_FAULTS_RECORD = {
     },
 }
 
+SIM_3CAM_RECORD = {
+    "driver": "sim",
+    "preset": "thesis-3cam",
+    "seed": 5,
+    "overrides": {"front.faults.drop_rate": 0.05},
+}
+
 MCS2_RIG = """
 driver = "hardware"
 [manipulator]
@@ -89,6 +96,7 @@ exposure_ms = 5
         ("smaract-gige.toml", SMARACT_GIGE_RECORD),
         ("micromanager.toml", MICROMANAGER_RECORD),
         ("sim-faults.toml", SIM_FAULTS_RECORD),
+        ("sim-3cam.toml", SIM_3CAM_RECORD),
     ],
 )
 def test_example_rig_files_parse_into_specs_with_the_run_json_record(name, record):

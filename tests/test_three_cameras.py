@@ -126,3 +126,35 @@ def test_measurement_needs_two_cameras(rendered):
 
     with pytest.raises(DetectionError, match=r"expected 2 or more calibrated cameras, got 1"):
         measure_poses([0], d[:1], _lose(frames, set()), {"top": plat.camera_models["top"]}, BOARD)
+
+
+def test_a_three_camera_rig_acquires_and_measures_through_the_commands(tmp_path):
+    """acquire with the example rig (front camera losing frames), then measure with cameras.json
+    of the true cameras: every pose measured, each by the cameras whose frames it has."""
+    from pathlib import Path
+
+    from typer.testing import CliRunner
+
+    from microcal.cli import app
+    from microcal.formats.cameras_file import cameras_to_dict, write_cameras
+    from microcal.formats.measurements import read_measurements
+    from microcal.vision.stereo_calibration import CameraCalibration, StereoCalibration
+
+    rig = Path(__file__).resolve().parents[1] / "examples" / "rigs" / "sim-3cam.toml"
+    run = tmp_path / "run"
+    runner = CliRunner()
+    got = runner.invoke(app, ["acquire", "--rig", str(rig), "--poses", "12", "--frames", "2",
+                              "--store", "roi", "--out", str(run)])  # fmt: skip
+    assert got.exit_code == 0, got.output
+    names = sorted(p.name for p in (run / "images").iterdir())
+    assert {n.split("_")[0] for n in names} == {"top", "side", "front"}
+    models = sim.platform("thesis-3cam", seed=5).camera_models
+    cal = StereoCalibration("true", {n: CameraCalibration(m, 0.0, {}, 0) for n, m in models.items()},
+                            0.0, 0.0)  # fmt: skip
+    cams = write_cameras(tmp_path / "cameras.json", cameras_to_dict(cal, {}))
+    got = runner.invoke(app, ["measure", str(run), "--cameras", str(cams)])
+    assert got.exit_code == 0, got.output
+    m = read_measurements(run / "measurements.csv")
+    assert len(m.pose) == 12
+    assert m.n_failed == 0
+    assert np.all(np.isfinite(m.p_um))
