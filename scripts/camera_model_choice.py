@@ -19,12 +19,13 @@ parser.add_argument("--seeds", type=int, default=10)
 parser.add_argument("--first-seed", type=int, default=0)
 parser.add_argument("--poses", type=int, default=30)
 parser.add_argument("--presets", default="telecentric,thesis")
+parser.add_argument("--frames-per-view", type=int, default=8)
 args = parser.parse_args()
 
 for preset in args.presets.split(","):
     picks, ratios, ill, r3d, m2 = [], [], [], [], []
     for seed in range(args.first_seed, args.first_seed + args.seeds):
-        t = camera_model_trial(preset, seed, poses=args.poses)
+        t = camera_model_trial(preset, seed, poses=args.poses, frames_per_view=args.frames_per_view)
         picks.append(set(t.chosen.values()))
         ratios.append(list(t.floor_ratio.values()))
         ill.append(all(t.pinhole_problem.values()))

@@ -37,11 +37,9 @@ from numpy.typing import ArrayLike
 
 from .._validation import FloatArray, as_array, as_rows
 from ..errors import InputError
-from .camera_model import _as_dist, distort_normalized, undistort_normalized
+from .camera_model import distort_normalized, undistort_normalized, validate_camera_fields
 
 __all__ = ["AffineCamera", "distortion_radius_px"]
-
-_ORTHONORMAL_TOL = 1e-9
 
 
 def distortion_radius_px(image_size_px: tuple[int, int]) -> float:
@@ -93,39 +91,7 @@ class AffineCamera:
     projection_sigma_px: float = 0.0
 
     def __post_init__(self) -> None:
-        K = as_array(self.K, "K", (3, 3))
-        if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
-            raise InputError(
-                f"K: expected upper triangular with K[2, 2] = 1, got rows {K.tolist()}"
-            )
-        if not (K[0, 0] > 0 and K[1, 1] > 0):
-            raise InputError(
-                f"K: expected magnifications mx > 0 and my > 0 px/µm, got {K[0, 0]}, {K[1, 1]}"
-            )
-        dist = _as_dist(self.dist)
-        R = as_array(self.R, "R", (3, 3))
-        ortho = float(np.abs(R @ R.T - np.eye(3)).max())
-        if ortho > _ORTHONORMAL_TOL or np.linalg.det(R) < 0:
-            raise InputError(
-                f"R: expected a rotation (R R^T = I within {_ORTHONORMAL_TOL}, det +1), "
-                f"got deviation {ortho:.2e} and det {np.linalg.det(R):+.6f}"
-            )
-        t = as_array(self.t_um, "t_um", (3,))
-        size = tuple(int(v) for v in self.image_size_px)
-        if len(size) != 2 or min(size) <= 0 or max(size) > 1_000_000:
-            raise InputError(
-                f"image_size_px: expected (width, height) of 1 to 10^6 px, got {self.image_size_px}"
-            )
-        for key, value in (("K", K), ("dist", dist), ("R", R), ("t_um", t)):
-            value.setflags(write=False)
-            object.__setattr__(self, key, value)
-        object.__setattr__(self, "image_size_px", size)
-        sigma = float(self.projection_sigma_px)
-        if not (np.isfinite(sigma) and sigma >= 0):
-            raise InputError(
-                f"projection_sigma_px: expected a finite value >= 0, got {self.projection_sigma_px}"
-            )
-        object.__setattr__(self, "projection_sigma_px", sigma)
+        validate_camera_fields(self, "magnifications mx > 0 and my > 0 px/µm", "mx", "my")
 
     # --- construction -------------------------------------------------------------------
     @classmethod

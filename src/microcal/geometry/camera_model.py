@@ -23,7 +23,7 @@ The thesis's cameras use the first five (the thesis's Eq 3.3-3.5).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -37,6 +37,7 @@ __all__ = [
     "distort_normalized",
     "tilt_matrix",
     "undistort_normalized",
+    "validate_camera_fields",
 ]
 
 _ORTHONORMAL_TOL = 1e-9
@@ -230,6 +231,42 @@ def undistort_normalized(
     return xy
 
 
+def validate_camera_fields(cam: Any, positive: str, x_name: str, y_name: str) -> None:
+    """Check and freeze the fields K, dist, R, t_um, image_size_px and projection_sigma_px
+    that every camera kind has (a frozen dataclass, set in place).
+
+    ``positive`` names what K's diagonal must be (``"fx > 0 and fy > 0"``), ``x_name`` and
+    ``y_name`` its two entries in the message.
+    """
+    K = as_array(cam.K, "K", (3, 3))
+    if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
+        raise InputError(f"K: expected upper triangular with K[2, 2] = 1, got rows {K.tolist()}")
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise InputError(f"K: expected {positive}, got {x_name}={K[0, 0]}, {y_name}={K[1, 1]}")
+    dist = _as_dist(cam.dist)
+    R = as_array(cam.R, "R", (3, 3))
+    ortho = float(np.abs(R @ R.T - np.eye(3)).max())
+    if ortho > _ORTHONORMAL_TOL or np.linalg.det(R) < 0:
+        raise InputError(
+            f"R: expected a rotation (R R^T = I within {_ORTHONORMAL_TOL}, det +1), "
+            f"got deviation {ortho:.2e} and det {np.linalg.det(R):+.6f}"
+        )
+    t = as_array(cam.t_um, "t_um", (3,))
+    given = cam.image_size_px
+    size = tuple(int(v) for v in given)
+    if len(size) != 2 or min(size) <= 0 or max(size) > 1_000_000:
+        raise InputError(f"image_size_px: expected (width, height) of 1 to 10^6 px, got {given}")
+    for key, value in (("K", K), ("dist", dist), ("R", R), ("t_um", t)):
+        value.setflags(write=False)
+        object.__setattr__(cam, key, value)
+    object.__setattr__(cam, "image_size_px", size)
+    given_sigma = cam.projection_sigma_px
+    sigma = float(given_sigma)
+    if not (np.isfinite(sigma) and sigma >= 0):
+        raise InputError(f"projection_sigma_px: expected a finite value >= 0, got {given_sigma}")
+    object.__setattr__(cam, "projection_sigma_px", sigma)
+
+
 @dataclass(frozen=True, eq=False)
 class CameraModel:
     """A calibrated camera: intrinsics, lens distortion and pose (thesis Eq 3.3-3.6).
@@ -273,37 +310,7 @@ class CameraModel:
     projection_sigma_px: float = 0.0
 
     def __post_init__(self) -> None:
-        K = as_array(self.K, "K", (3, 3))
-        if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
-            raise InputError(
-                f"K: expected upper triangular with K[2, 2] = 1, got rows {K.tolist()}"
-            )
-        if not (K[0, 0] > 0 and K[1, 1] > 0):
-            raise InputError(f"K: expected fx > 0 and fy > 0, got fx={K[0, 0]}, fy={K[1, 1]}")
-        dist = _as_dist(self.dist)
-        R = as_array(self.R, "R", (3, 3))
-        ortho = float(np.abs(R @ R.T - np.eye(3)).max())
-        if ortho > _ORTHONORMAL_TOL or np.linalg.det(R) < 0:
-            raise InputError(
-                f"R: expected a rotation (R R^T = I within {_ORTHONORMAL_TOL}, det +1), "
-                f"got deviation {ortho:.2e} and det {np.linalg.det(R):+.6f}"
-            )
-        t = as_array(self.t_um, "t_um", (3,))
-        size = tuple(int(v) for v in self.image_size_px)
-        if len(size) != 2 or min(size) <= 0 or max(size) > 1_000_000:
-            raise InputError(
-                f"image_size_px: expected (width, height) of 1 to 10^6 px, got {self.image_size_px}"
-            )
-        for key, value in (("K", K), ("dist", dist), ("R", R), ("t_um", t)):
-            value.setflags(write=False)
-            object.__setattr__(self, key, value)
-        object.__setattr__(self, "image_size_px", size)
-        sigma = float(self.projection_sigma_px)
-        if not (np.isfinite(sigma) and sigma >= 0):
-            raise InputError(
-                f"projection_sigma_px: expected a finite value >= 0, got {self.projection_sigma_px}"
-            )
-        object.__setattr__(self, "projection_sigma_px", sigma)
+        validate_camera_fields(self, "fx > 0 and fy > 0", "fx", "fy")
 
     # --- construction -------------------------------------------------------------------
     @classmethod
