@@ -34,9 +34,14 @@ for preset in args.presets.split(","):
         print(
             f"{preset} seed {seed}: chosen {t.chosen}; RMS/floor "
             + ", ".join(f"{n} {r:.3f}" for n, r in t.floor_ratio.items())
-            + f"; pinhole {'ill-conditioned' if ill[-1] else 'fine'}; 3D RMS µm "
-            + ", ".join(f"{k} {v:.3f}" for k, v in t.rms_3d_um.items())
-            + f"; Mahalanobis mean square {t.mahalanobis_mean_sq:.2f}",
+            + f"; pinhole {'ill-conditioned' if ill[-1] else 'fine'}"
+            + (
+                "; 3D RMS µm "
+                + ", ".join(f"{k} {v:.3f}" for k, v in t.rms_3d_um.items())
+                + f"; Mahalanobis mean square {t.mahalanobis_mean_sq:.2f}"
+                if args.poses
+                else ""
+            ),
             flush=True,
         )
     chosen = [next(iter(p)) if len(p) == 1 else "mixed" for p in picks]
