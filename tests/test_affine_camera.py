@@ -188,3 +188,17 @@ def test_projection_std_matches_monte_carlo():
     mc = np.sqrt(proj.var(axis=0, ddof=1).sum(axis=1) / 2)  # per axis, px
     # Metric: per-point 1-sigma projection error per axis, relative; 60 draws: ~10 % on a std.
     np.testing.assert_allclose(np.mean(std, axis=0), mc, rtol=0.3)
+
+
+def test_cameras_json_refuses_an_affine_distortion_that_folds(tmp_path):
+    from microcal import FormatError
+    from microcal.formats.cameras_file import models_from_dict
+
+    cam = telecentric(dist=(-0.6, 0.0, 0.0, 0.0, 0.0))  # folds back at 0.75 half diagonals
+    entry = {"model": "affine", "image_size_px": list(cam.image_size_px), "K": cam.K.tolist(),
+             "dist": cam.dist.tolist(), "R": cam.R.tolist(), "t_um": cam.t_um.tolist()}  # fmt: skip
+    with pytest.raises(FormatError, match=r"cameras.top: its lens distortion folds back"):
+        models_from_dict({"format": "microcal.cameras/1", "cameras": {"top": entry}})
+    entry["dist"] = [1e-3, 0.0, 1e-4, -1e-4, 0.0]
+    got = models_from_dict({"format": "microcal.cameras/1", "cameras": {"top": entry}})
+    assert isinstance(got["top"], AffineCamera)

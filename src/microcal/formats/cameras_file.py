@@ -219,9 +219,11 @@ def _check_usable(models: dict[str, AnyCamera], where: str) -> None:
     """Refuse cameras that are valid numbers but no cameras (see ``geometry.camera_checks``)."""
     from ..geometry.camera_checks import distortion_problem, same_view
 
-    # the checks are of the pinhole model's distortion and centre; other kinds bring their own
+    # every kind's distortion; the centre only of cameras that have one (pinhole)
     pinholes = {n: m for n, m in models.items() if isinstance(m, CameraModel)}
-    for name, model in pinholes.items():
+    # a kind registered from outside (not one of microcal's) brings its own checks
+    own = {n: m for n, m in models.items() if type(m) in (CameraModel, AffineCamera)}
+    for name, model in own.items():
         problem = distortion_problem(model)
         if problem is not None:
             raise FormatError(

@@ -12,6 +12,8 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from .affine_camera import AffineCamera
+from .camera_kinds import AnyCamera
 from .camera_model import CameraModel, distort_normalized
 
 __all__ = ["MAX_EDGE_STRETCH", "distortion_problem", "same_view"]
@@ -30,7 +32,7 @@ EDGE_MARGIN = 0.05
 MAX_EDGE_STRETCH = 3.0
 
 
-def distortion_problem(model: CameraModel, directions: int = 72, steps: int = 600) -> str | None:
+def distortion_problem(model: AnyCamera, directions: int = 72, steps: int = 600) -> str | None:
     """What makes a camera's lens distortion absurd, or None when it is a lens.
 
     Along rays from the principal point the distorted image must move outwards until it
@@ -41,7 +43,8 @@ def distortion_problem(model: CameraModel, directions: int = 72, steps: int = 60
 
     Parameters
     ----------
-    model : CameraModel
+    model : CameraModel or AffineCamera
+        (an affine camera's distortion coordinates are in half image diagonals)
     directions, steps : int
         Rays searched and radii per ray (log-spaced up to 84 degrees off axis).
     """
@@ -53,7 +56,8 @@ def distortion_problem(model: CameraModel, directions: int = 72, steps: int = 60
     rays = np.stack([np.cos(theta), np.sin(theta)], axis=1)
     xy = radius[None, :, None] * rays[:, None, :]
     xy_d, jac = distort_normalized(xy.reshape(-1, 2), model.dist)
-    px = (xy_d @ model.K[:2, :2].T + model.K[:2, 2]).reshape(directions, steps, 2)
+    scale = model.radius_px * np.eye(2) if isinstance(model, AffineCamera) else model.K[:2, :2]
+    px = (xy_d @ scale.T + model.K[:2, 2]).reshape(directions, steps, 2)
     r_d = np.linalg.norm(xy_d, axis=1).reshape(directions, steps)
     det = np.linalg.det(jac).reshape(directions, steps)
     mx, my = EDGE_MARGIN * w, EDGE_MARGIN * h  # a fit's extrapolation to the very edge may bend
