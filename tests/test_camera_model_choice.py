@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from microcal import DegenerateDataError
-from microcal.procedures.camera_model_trial import _calibration_views, camera_model_trial
-from microcal.procedures.demo import CALIBRATION_STEPS_UM, CALIBRATION_TARGET
+from microcal.procedures.camera_model_trial import camera_model_trial
+from microcal.procedures.demo import CALIBRATION_STEPS_UM, CALIBRATION_TARGET, target_views
 from microcal.sim import platform
 from microcal.vision.known_displacements import calibrate_known_displacements
 from microcal.vision.targets import parse_target
@@ -50,10 +50,10 @@ def test_telecentric_affine_fit_reaches_the_noise_floor_and_the_true_cameras():
 @pytest.fixture(scope="module")
 def telecentric_views():
     plat = platform("telecentric", seed=404)
-    dets, _ = _calibration_views(plat, 2)
-    names = {n: [f"{n}_{k}" for k in range(5)] for n in dets}
-    sizes = {n: c.model.image_size_px for n, c in plat.cameras.items()}
     steps = np.array([[0.0, 0.0, z] for z in CALIBRATION_STEPS_UM])
+    views = target_views(plat, parse_target(CALIBRATION_TARGET), steps, 2)
+    dets, names = views.detections, views.names
+    sizes = {n: c.model.image_size_px for n, c in plat.cameras.items()}
     return dets, names, sizes, steps
 
 

@@ -19,13 +19,12 @@ from .._validation import FloatArray
 from ..errors import DegenerateDataError
 from ..geometry import AnyCamera
 from ..sim import SimPlatform, platform
-from ..sim.render import Placement
-from ..vision.detect import Detection, detect
+from ..vision.detect import Detection
 from ..vision.known_displacements import calibrate_known_displacements, fit_known_points
 from ..vision.measurement import PoseMeasurement, measure_poses
 from ..vision.stereo_calibration import StereoCalibration
 from ..vision.targets import Target, parse_target
-from .demo import CALIBRATION_STEPS_UM, CALIBRATION_TARGET
+from .demo import CALIBRATION_STEPS_UM, CALIBRATION_TARGET, target_views
 
 __all__ = ["CameraModelTrial", "camera_model_trial"]
 
@@ -49,33 +48,6 @@ class CameraModelTrial:
     def floor_ratio(self) -> dict[str, float]:
         """Reprojection RMS over the rendered noise floor, per camera."""
         return {n: self.rms_px[n] / self.noise_floor_px[n] for n in self.rms_px}
-
-
-def _calibration_views(
-    plat: SimPlatform, frames_per_view: int
-) -> tuple[dict[str, list[Detection]], dict[str, list[FloatArray]]]:
-    """Detections of the dot grid per camera and step, and each detection's error against
-    the grid's true projection (averaged over the frames as the image is)."""
-    grid = parse_target(CALIBRATION_TARGET)
-    scene = plat.scene
-    scene.show_board = False
-    dets: dict[str, list[Detection]] = {n: [] for n in plat.cameras}
-    errors: dict[str, list[FloatArray]] = {n: [] for n in plat.cameras}
-    for z in CALIBRATION_STEPS_UM:
-        scene.fixed = Placement(grid, np.eye(3), np.array([0.0, 0.0, z]))
-        for n, cam in plat.cameras.items():
-            images, truth = [], []
-            for _ in range(frames_per_view):
-                images.append(cam.grab().astype(np.float32))
-                assert cam.last_truth is not None
-                truth.append(cam.last_truth.features_px[0])
-            det = detect(np.mean(images, axis=0), grid)
-            dets[n].append(det)
-            if det.found:
-                errors[n].append(det.q_px - np.mean(truth, axis=0)[det.ids])
-    scene.fixed = None
-    scene.show_board = True
-    return dets, errors
 
 
 def _rms_3d(measured: list[PoseMeasurement], truth: FloatArray) -> float:
@@ -104,10 +76,11 @@ def camera_model_trial(
     plat = platform(preset, seed=seed)
     grid = parse_target(CALIBRATION_TARGET)
     steps = np.array([[0.0, 0.0, z] for z in CALIBRATION_STEPS_UM])
-    dets, errors = _calibration_views(plat, frames_per_view)
-    names = {n: [f"{n}_{k + 1:02d}" for k in range(len(steps))] for n in plat.cameras}
+    views = target_views(plat, grid, steps, frames_per_view)
+    dets, errors = views.detections, views.truth_error_px
     sizes = {n: c.model.image_size_px for n, c in plat.cameras.items()}
-    cal = calibrate_known_displacements(dets, names, grid, steps, sizes, camera_model="auto")
+    cal = calibrate_known_displacements(dets, views.names, grid, steps, sizes,
+                                        camera_model="auto")  # fmt: skip
     floor = {
         n: float(np.sqrt(np.mean(np.sum(np.vstack(e) ** 2, axis=1)))) for n, e in errors.items()
     }

@@ -105,6 +105,52 @@ def demo_design(seed: int, poses: int) -> FloatArray:
     return make_design("random", poses, WORKSPACE_MIN_UM, WORKSPACE_MAX_UM, demo_design_seed(seed))
 
 
+@dataclass
+class TargetViews:
+    """A target's views at known steps on a simulated platform, per camera: the detections,
+    the image names, and each found detection's error against the target's true projection
+    (averaged over the frames as the image is; simulator truth, for studies)."""
+
+    detections: dict[str, list[Detection]]
+    names: dict[str, list[str]]
+    truth_error_px: dict[str, list[FloatArray]]
+
+
+def target_views(
+    plat: SimPlatform,
+    target: Target,
+    steps_um: FloatArray,
+    frames_per_view: int = 8,
+    progress: Callable[[int, int], None] | None = None,
+) -> TargetViews:
+    """The target at each known step, ``frames_per_view`` frames averaged per view, detected.
+
+    The target's frame at zero displacement is {G}; the board on the gripper is hidden while
+    the target is shown, and shown again afterwards.
+    """
+    plat.scene.show_board = False
+    views = TargetViews({n: [] for n in plat.cameras}, {n: [] for n in plat.cameras},
+                        {n: [] for n in plat.cameras})  # fmt: skip
+    for k, step in enumerate(steps_um):
+        plat.scene.fixed = Placement(target, np.eye(3), step)
+        for n, cam in plat.cameras.items():
+            images, truth = [], []
+            for _ in range(frames_per_view):
+                images.append(cam.grab().astype(np.float32))
+                assert cam.last_truth is not None
+                truth.append(cam.last_truth.features_px[0])
+            det = detect(np.mean(images, axis=0), target)
+            views.detections[n].append(det)
+            views.names[n].append(f"{n}_{k + 1:02d}")
+            if det.found:
+                views.truth_error_px[n].append(det.q_px - np.mean(truth, axis=0)[det.ids])
+        if progress:
+            progress(k + 1, len(steps_um))
+    plat.scene.fixed = None
+    plat.scene.show_board = True
+    return views
+
+
 def calibrate_on_platform(
     plat: SimPlatform,
     target: Target,
@@ -113,28 +159,12 @@ def calibrate_on_platform(
     progress: Callable[[int, int], None] | None = None,
     camera_model: str = "auto",
 ) -> StereoCalibration:
-    """Method (a) on a simulated platform: the target at known steps, frames averaged per view,
-    each camera's model as ``camera_model`` says (``auto``: chosen by held-out error).
-
-    The target's frame at zero displacement is {G}; the board on the gripper is hidden while
-    the target is shown, and shown again afterwards.
-    """
-    plat.scene.show_board = False
-    dets: dict[str, list[Detection]] = {n: [] for n in plat.cameras}
-    names: dict[str, list[str]] = {n: [] for n in plat.cameras}
-    for k, step in enumerate(steps_um):
-        plat.scene.fixed = Placement(target, np.eye(3), step)
-        for n, cam in plat.cameras.items():
-            image = np.mean([cam.grab().astype(np.float32) for _ in range(frames_per_view)], axis=0)
-            dets[n].append(detect(image, target))
-            names[n].append(f"{n}_{k + 1:02d}")
-        if progress:
-            progress(k + 1, len(steps_um))
-    plat.scene.fixed = None
-    plat.scene.show_board = True
+    """Method (a) on a simulated platform (the views of :func:`target_views`), each camera's
+    model as ``camera_model`` says (``auto``: chosen by held-out error)."""
+    views = target_views(plat, target, steps_um, frames_per_view, progress)
     sizes = {n: c.model.image_size_px for n, c in plat.cameras.items()}
     return calibrate_known_displacements(
-        dets, names, target, steps_um, sizes, camera_model=camera_model
+        views.detections, views.names, target, steps_um, sizes, camera_model=camera_model
     )
 
 
