@@ -10,6 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
+from microcal.errors import DegenerateDataError
 from microcal.sim.calibration_views import (
     render_calibration_views,
     render_stereo_calibration_views,
@@ -17,7 +18,7 @@ from microcal.sim.calibration_views import (
     wide_angle_stereo_pair,
 )
 from microcal.vision.calibration_diagnostics import diagnose
-from microcal.vision.detect import detect
+from microcal.vision.detect import Detection, detect
 from microcal.vision.lens_models import LENS_MODELS, choose_lens_model
 from microcal.vision.stereo_calibration import calibrate_unknown_poses
 from microcal.vision.targets import parse_target
@@ -183,3 +184,77 @@ def test_stereo_drops_a_pair_whose_pose_disagrees_and_says_why():
     assert [r["view"] for r in cal.views_rejected] == [f"{a}04 + {b}04"]
     assert "relative rotation" in cal.views_rejected[0]["reason"]
     assert cal.baseline_um == pytest.approx(120_000.0, rel=0.005)
+
+
+def _three_cameras():
+    cams = wide_angle_stereo_pair()
+    R, _ = cv2.Rodrigues(np.deg2rad([4.0, -6.0, 1.0]).reshape(3, 1))
+    centre = np.array([60_000.0, -50_000.0, 0.0])
+    cams["low"] = wide_angle_camera(
+        "low",
+        fx=530.0,
+        fy=531.0,
+        cx=322.0,
+        cy=242.0,
+        dist=(-0.35, 0.2, 2e-4, 3e-4, -0.1),
+        R=R,
+        t_um=-R @ centre,
+    )
+    return cams  # fmt: skip
+
+
+def test_three_cameras_in_one_joint_refinement_with_views_each_seen_by_a_subset():
+    target = parse_target("chessboard:7x4:25000")
+    cams = _three_cameras()
+    n = 15
+    views = render_stereo_calibration_views(cams, target, n, seed=41, flip_fraction=0.3)
+    dets = {c: [detect(im, target) for im in views.images[c]] for c in cams}
+    for k in range(0, 5):  # the third camera misses the first views, the second the last
+        dets["low"][k] = Detection.none("target not found")
+    for k in range(10, n):
+        dets["right"][k] = Detection.none("target not found")
+    names = {c: [f"{c}{k:02d}" for k in range(n)] for c in cams}
+    cal = calibrate_unknown_poses(dets, names, target, dict.fromkeys(cams, SIZE))
+    assert "joint refinement" in cal.method
+    assert cal.views_rejected == []
+    # Metric: each camera's pose relative to the first against the truth: rotation angle, deg;
+    # distance between the projection centres' errors, µm (over 60-120 mm baselines).
+    got = cal.models()
+    for c in ("right", "low"):
+        R_true = cams[c].R @ cams["left"].R.T
+        R_got = got[c].R @ got["left"].R.T
+        angle = np.degrees(np.arccos(np.clip((np.trace(R_got @ R_true.T) - 1) / 2, -1, 1)))
+        assert angle < 0.15, c
+        d_true = cams[c].centre_um - cams["left"].centre_um
+        d_got = got[c].centre_um - got["left"].centre_um
+        assert np.linalg.norm(d_got) == pytest.approx(np.linalg.norm(d_true), rel=0.005), c
+    assert cal.rms_px < 0.08
+    # Each camera's numbering agrees with the truth's relation in the views it saw.
+    turned = {t["image"] for t in cal.turned_views}
+    for c in ("right", "low"):
+        for k in range(n):
+            if not dets[c][k].found or not dets["left"][k].found:
+                continue
+            left_rev = _reversed(dets["left"][k], views.corners_px["left"][k])
+            this_rev = _reversed(dets[c][k], views.corners_px[c][k])
+            assert (f"{c}{k:02d}" in turned) == (left_rev != this_rev), (c, k)
+
+
+def test_a_camera_that_shares_no_view_with_the_others_is_refused_with_its_name():
+    target = parse_target("chessboard:7x4:25000")
+    cams = _three_cameras()
+    views = render_stereo_calibration_views(cams, target, 10, seed=43)
+    dets = {c: [detect(im, target) for im in views.images[c]] for c in cams}
+    for k in range(10):  # "low" sees only the views nobody else sees
+        if k < 5:
+            dets["low"][k] = Detection.none("target not found")
+        else:
+            dets["left"][k] = dets["right"][k] = Detection.none("target not found")
+    names = {c: [f"{c}{k:02d}" for k in range(10)] for c in cams}
+    with pytest.raises(DegenerateDataError, match="low share no view"):
+        calibrate_unknown_poses(dets, names, target, dict.fromkeys(cams, SIZE))
+
+
+def _reversed(det, truth):
+    """Detected corner k is true corner n - 1 - k (the board's numbering turned by 180)."""
+    return np.linalg.norm(det.q_px - truth[::-1][det.ids], axis=1).max() < 1.0

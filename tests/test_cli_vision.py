@@ -12,6 +12,11 @@ import tifffile
 from conftest import run_microcal
 from microcal import sim
 from microcal.geometry import CameraModel
+from microcal.sim.calibration_views import (
+    render_stereo_calibration_views,
+    wide_angle_camera,
+    wide_angle_stereo_pair,
+)
 from microcal.sim.camera import ImageFormation, SimCamera
 from microcal.sim.clock import SimClock
 from microcal.sim.render import Placement
@@ -168,12 +173,35 @@ def test_ordinary_photographs_any_format(tmp_path):
     assert data["stereo"]["baseline_um"] == pytest.approx(60_000, rel=0.05)
 
 
+def test_three_cameras_from_tilted_views(tmp_path):
+    cams = wide_angle_stereo_pair()
+    R, _ = cv2.Rodrigues(np.deg2rad([3.0, -5.0, 0.0]).reshape(3, 1))
+    cams["low"] = wide_angle_camera("low", R=R, t_um=-R @ np.array([50_000.0, -40_000.0, 0.0]))
+    target = parse_target("chessboard:7x4:25000")
+    views = render_stereo_calibration_views(cams, target, 12, seed=47)
+    for name, images in views.images.items():
+        for k, image in enumerate(images):
+            cv2.imwrite(str(tmp_path / f"{name}_{k:02d}.png"), image)
+    args = [a for n in cams for a in ("--images", f"{n}={tmp_path}/{n}_*.png")]
+    out = run_microcal("stereo-calibrate", "--target", "chessboard:7x4:25000", *args,
+                       "--out", tmp_path / "cams.json")  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    data = json.loads((tmp_path / "cams.json").read_text())
+    assert list(data["cameras"]) == ["left", "right", "low"]
+    assert data["stereo"]["baseline_um"] == pytest.approx(120_000, rel=0.005)
+    centre = -np.array(data["cameras"]["low"]["R"]).T @ np.array(data["cameras"]["low"]["t_um"])
+    left = -np.array(data["cameras"]["left"]["R"]).T @ np.array(data["cameras"]["left"]["t_um"])
+    # Metric: the third camera's distance from the first against the true 64 mm, relative.
+    assert np.linalg.norm(centre - left) == pytest.approx(np.hypot(50_000, 40_000), rel=0.005)
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
         (["--target", "chessboard:4x:400", "--images", "a=x", "--images", "b=y"], "expected KIND:COLSxROWS:PITCH_UM"),
         (["--target", "chessboard:4x3:400", "--images", "a=/nonexistent/*.tiff", "--images", "b=y"], "--images a: no file matches"),
         (["--target", "chessboard:4x3:400", "--images", "top"], "--images: expected CAMERA=GLOB"),
+        (["--target", "chessboard:4x3:400", "--images", f"a={__file__}"], "expected 2 cameras or more"),
     ],
 )  # fmt: skip
 def test_stereo_calibrate_user_errors(args, message):

@@ -26,7 +26,7 @@ def stereo_calibrate(
     known_displacements: _Steps = None, reference_view: _Reference = 0, lens_model: _Lens = "auto",
     camera_model: _Model = "auto",
 ) -> None:  # fmt: skip
-    """Calibrate two cameras (any number with --known-displacements) from images of a target.
+    """Calibrate two or more cameras from images of a target, all in one frame.
 
     With --known-displacements the thesis's method (DLT per camera, refined; pinhole or
     affine); without, unknown target poses (lens model chosen by held-out error). Multi-page
@@ -46,7 +46,7 @@ def stereo_calibrate(
 
     tgt = parse_target(target)
     check_json_output(out, CAMERAS_FORMAT, "cameras.json")
-    files = parse_images(images, None if known_displacements else 2, at_least=2)
+    files = parse_images(images)
     n_views = len(next(iter(files.values())))
     disp = None
     if known_displacements is not None:

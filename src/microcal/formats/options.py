@@ -72,15 +72,13 @@ def parse_settle(text: str) -> tuple[Literal["vision", "fixed"], float]:
     return "fixed", seconds
 
 
-def parse_images(
-    specs: list[str], cameras: int | None = 2, *, at_least: int = 1
-) -> dict[str, list[Path]]:
+def parse_images(specs: list[str], *, at_least: int = 2) -> dict[str, list[Path]]:
     """``CAMERA=GLOB`` options -> files per camera, sorted, one per view in every camera.
 
     Parameters
     ----------
-    cameras : int, optional
-        How many cameras are expected (None: any number, ``at_least`` of them).
+    at_least : int
+        How many cameras are needed at least.
     """
     out: dict[str, list[Path]] = {}
     for spec in specs:
@@ -95,14 +93,11 @@ def parse_images(
         if not files:
             raise InputError(f"--images {name}: no file matches {pattern!r}")
         out[name] = files
-    if cameras is not None and len(out) != cameras:
-        why = " (unknown poses, method b; any number with --known-displacements)"
-        raise InputError(
-            f"--images: expected {cameras} cameras, got {sorted(out)}"
-            + (why if len(out) > cameras and at_least > 1 else "")
-        )
     if len(out) < at_least:
-        raise InputError(f"--images: expected {at_least} cameras or more, got {sorted(out)}")
+        raise InputError(
+            f"--images: expected {at_least} cameras or more, got {sorted(out)}; give one "
+            "--images CAMERA=GLOB per camera"
+        )
     counts = {n: len(f) for n, f in out.items()}
     if len(set(counts.values())) != 1:
         raise InputError(f"--images: every camera needs one image per view, got {counts}")

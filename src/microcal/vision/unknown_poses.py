@@ -1,13 +1,16 @@
-"""Method (b): the target held in unknown poses; per-camera, then stereo calibration.
+"""Method (b): the target held in unknown poses; per-camera calibration, then one joint
+refinement of all cameras.
 
 Each camera is calibrated alone, its lens model chosen by held-out error
 (:mod:`~microcal.vision.lens_models`) and diagnosed
 (:mod:`~microcal.vision.calibration_diagnostics`); the corner numbering of a board that looks
 the same turned is made to agree between the cameras by the stereo geometry
-(:mod:`~microcal.vision.view_consistency`); then the cameras are related by stereo
-calibration with those intrinsics fixed. {V} is the target's frame in a chosen reference
-view. Outlier views, view pairs whose relative pose disagrees with the others' and pairs
-that stand out in the stereo solve are dropped with the reason.
+(:mod:`~microcal.vision.view_consistency`); then all cameras' poses and the target's pose in
+every view are refined together with those intrinsics fixed
+(:mod:`~microcal.vision.joint_poses`), each view seen by any two or more of the cameras.
+{V} is the target's frame in a chosen reference view. Outlier views, observations whose
+relative pose disagrees with the other views' and views that stand out in the joint
+refinement are dropped with the reason.
 """
 
 from __future__ import annotations
@@ -15,13 +18,14 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
 
-from .._validation import FloatArray
 from ..errors import DegenerateDataError, InputError
 from ..geometry import CameraModel
+from .board_symmetry import turn_transform
 from .calibration_diagnostics import diagnose
 from .calibration_result import (
     CameraCalibration,
@@ -34,7 +38,8 @@ from .calibration_result import (
     _usable,
 )
 from .detect import Detection
-from .lens_models import LENS_MODELS, LensModelChoice, choose_lens_model, dist_of_length
+from .joint_poses import JointPoses, Observation, Pose, initial_poses, refine_jointly
+from .lens_models import LENS_MODELS, LensModelChoice, choose_lens_model
 from .lens_models import lens_model as named_lens_model
 from .targets import Target
 from .view_consistency import normal_spread_deg, resolve_turns
@@ -45,9 +50,6 @@ __all__ = ["calibrate_unknown_poses"]
 MIN_COMMON_POINTS = 6
 #: Method (b) refuses views whose board normals all lie within this angle (degrees).
 MIN_TILT_SPREAD_DEG = 5.0
-
-#: With these flags OpenCV's stereo solve reads all 14 coefficients of each camera (fixed).
-_ALL_TERMS = cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL | cv2.CALIB_TILTED_MODEL
 
 
 @dataclass
@@ -125,6 +127,71 @@ def _calibrate_one_unknown(
     return _Mono(cal, choice, used)
 
 
+def _agree_numbering(
+    target: Target,
+    mono: Mapping[str, _Mono],
+    detections: Mapping[str, Sequence[Detection]],
+    image_names: Mapping[str, Sequence[str]],
+) -> tuple[dict[str, dict[int, Detection]], dict[str, dict[int, Pose]], list[dict[str, Any]],
+           list[dict[str, str]], list[str]]:  # fmt: skip
+    """Number each camera's corners as the first camera that saw the same view does.
+
+    Camera by camera, each view is resolved against the earlier camera that shares most views
+    with it (turns compose: they are all about the board's normal through its centre); a view
+    no earlier camera saw keeps its numbering. Returns the renumbered detections and board
+    poses per camera and view, the turned images, the refused observations and notes.
+    """
+    names = list(mono)
+    raw = {c: {i: (m.choice.fit.rvecs[k], np.ravel(m.choice.fit.tvecs[k]))
+               for k, i in enumerate(m.used)} for c, m in mono.items()}  # fmt: skip
+    turns: dict[str, dict[int, int]] = {}
+    rejected: list[dict[str, str]] = []
+    notes: list[str] = []
+    for idx, c in enumerate(names):
+        turns[c], refused = {}, set()
+        for r in sorted(names[:idx], key=lambda r: -len(set(turns[r]) & set(raw[c]))):
+            todo = [v for v in raw[c] if v not in turns[c] and v not in refused and v in turns[r]]
+            if not todo:
+                continue
+            shared = sorted(set(turns[r]) & set(raw[c]))
+            res = resolve_turns(
+                target,
+                {v: raw[r][v][0] for v in shared},
+                {v: raw[c][v][0] for v in shared},
+                ({v: raw[r][v][1] for v in shared}, {v: raw[c][v][1] for v in shared}),
+            )
+            if res.note and res.note not in notes:
+                notes.append(res.note)
+            for v in todo:
+                if v in res.turns:
+                    turns[c][v] = (res.turns[v] + turns[r][v]) % 360
+                else:
+                    refused.add(v)
+                    label = f"{image_names[r][v]} + {image_names[c][v]}"
+                    rejected.append(
+                        {"view": label, "reason": res.disagree.get(v, "no turn agrees")}
+                    )
+        for v in raw[c]:
+            if v not in turns[c] and v not in refused:
+                turns[c][v] = 0
+    dets: dict[str, dict[int, Detection]] = {}
+    poses: dict[str, dict[int, Pose]] = {}
+    for c in names:
+        dets[c], poses[c] = {}, {}
+        for v, t in turns[c].items():
+            Rs, ts = turn_transform(target, t)
+            R = cv2.Rodrigues(np.asarray(raw[c][v][0], dtype=np.float64))[0] @ Rs.T
+            dets[c][v] = _renumbered(detections[c][v], target, t)
+            poses[c][v] = (R, raw[c][v][1] - R @ ts)
+    turned = [
+        {"image": image_names[c][v], "camera": c, "turn_deg": t}
+        for c in names
+        for v, t in sorted(turns[c].items())
+        if t != 0
+    ]
+    return dets, poses, turned, rejected, notes
+
+
 def calibrate_unknown_poses(
     detections: Mapping[str, Sequence[Detection]],
     image_names: Mapping[str, Sequence[str]],
@@ -134,23 +201,26 @@ def calibrate_unknown_poses(
     reference_view: int = 0,
     lens_model: str = "auto",
 ) -> StereoCalibration:
-    """Method (b): the target in unknown poses; per-camera then stereo calibration.
+    """Method (b): the target in unknown poses; per-camera calibration, then one joint
+    refinement of all cameras' poses.
 
     Parameters
     ----------
     detections : dict camera -> list of Detection
-        View i of every camera shows the target in the same pose.
+        Two or more cameras; view i of every camera shows the target in the same pose (a
+        camera that did not find it in a view leaves the others to relate it).
     image_names, target, image_size_px
         As for :func:`calibrate_known_displacements`.
     reference_view : int
-        The view whose target frame (as the first camera numbers it) becomes {V}.
+        The view whose target frame (as the first camera numbers it) becomes {V}; the first
+        camera must see it.
     lens_model : str
         ``"auto"`` (chosen per camera by held-out error) or the name of one of
         :data:`~microcal.vision.lens_models.LENS_MODELS`.
     """
     names = list(detections)
-    if len(names) != 2:
-        raise InputError(f"calibrate_unknown_poses: expected 2 cameras, got {len(names)}")
+    if len(names) < 2:
+        raise InputError(f"calibrate_unknown_poses: expected 2 or more cameras, got {len(names)}")
     if len(target.points_um()) < MIN_COMMON_POINTS:
         raise InputError(
             f"target {target.spec}: {len(target.points_um())} features are too few for method "
@@ -165,7 +235,6 @@ def calibrate_unknown_poses(
         )
         for name in names
     }
-    a, b = names
     for name, m in mono.items():
         spread = normal_spread_deg(dict(enumerate(m.choice.fit.rvecs)))
         if spread < MIN_TILT_SPREAD_DEG:
@@ -174,83 +243,66 @@ def calibrate_unknown_poses(
                 f"views; tilt it by 20 to 40 degrees in different directions between views "
                 "(method b cannot tell focal length from distance otherwise)"
             )
-    view_names = image_names[a]
-    poses = {
-        name: {i: m.choice.fit.rvecs[k] for k, i in enumerate(m.used)} for name, m in mono.items()
-    }
-    tvecs = {
-        name: {i: m.choice.fit.tvecs[k] for k, i in enumerate(m.used)} for name, m in mono.items()
-    }
-    rejected: list[dict[str, str]] = []
-    resolution = resolve_turns(target, poses[a], poses[b], (tvecs[a], tvecs[b]))
-    pair = {i: f"{view_names[i]} + {image_names[b][i]}" for i in range(n_views)}
-    rejected += [{"view": pair[i], "reason": r} for i, r in resolution.disagree.items()]
-    det_b = {i: _renumbered(detections[b][i], target, t) for i, t in resolution.turns.items()}
-    turned = [
-        {"image": image_names[b][i], "camera": b, "turn_deg": t}
-        for i, t in sorted(resolution.turns.items())
-        if t != 0
-    ]
-    common = sorted(resolution.turns)
-    if reference_view not in common:
+    dets, poses, turned, rejected, notes = _agree_numbering(target, mono, detections, image_names)
+    first = names[0]
+    if reference_view not in poses[first]:
         raise DegenerateDataError(
-            f"reference view {reference_view} is not usable in both cameras; "
-            f"usable in both: {common}"
+            f"reference view {reference_view} is not usable in camera {first}; usable: "
+            f"{sorted(poses[first])}"
         )
+    label = {i: " + ".join(image_names[c][i] for c in names) for i in range(n_views)}
     obj = target.points_um()
-    fa, fb = mono[a].choice.fit, mono[b].choice.fit
-    pairs: dict[int, tuple[FloatArray, FloatArray, FloatArray]] = {}
-    for i in common:
-        d1, d2 = detections[a][i], det_b[i]
-        ids = np.intersect1d(d1.ids, d2.ids)
-        if len(ids) < MIN_COMMON_POINTS:
-            rejected.append({"view": pair[i], "reason": f"only {len(ids)} points seen by both"})
-            continue
-        pairs[i] = (obj[ids], d1.q_px[np.searchsorted(d1.ids, ids)],
-                    d2.q_px[np.searchsorted(d2.ids, ids)])  # fmt: skip
+    seen: dict[int, list[Observation]] = {}
+    for c in names:
+        for v, d in dets[c].items():
+            if len(d.ids) >= MIN_COMMON_POINTS:
+                seen.setdefault(v, []).append(Observation(c, v, obj[d.ids], d.q_px))
+    joint = {v: o for v, o in seen.items() if len(o) >= 2}
+    intrinsics = {c: (m.choice.fit.K, m.choice.fit.dist) for c, m in mono.items()}
 
-    def stereo(views: list[int]) -> tuple[tuple[float, FloatArray, FloatArray], dict[int, float]]:
-        if not views:
-            raise DegenerateDataError("no view is usable in both cameras for the stereo step")
-        rms, _, _, _, _, R, T, _, _, _, _, per_view = cv2.stereoCalibrateExtended(
-            [pairs[i][0].astype(np.float32) for i in views],
-            [pairs[i][1].astype(np.float32) for i in views],
-            [pairs[i][2].astype(np.float32) for i in views],
-            fa.K, dist_of_length(fa.dist, 14), fb.K, dist_of_length(fb.dist, 14),
-            image_size_px[a], None, None,
-            flags=cv2.CALIB_FIX_INTRINSIC | _ALL_TERMS,
-        )  # fmt: skip
-        errors = np.asarray(per_view, dtype=np.float64).reshape(len(views), -1)
-        by_view = {i: float(np.sqrt(np.mean(e**2))) for i, e in zip(views, errors, strict=True)}
-        return (float(rms), R, T), by_view
-
-    (rms, R, T), kept, bad = _fit_rejecting_outliers(sorted(pairs), stereo)
-    rejected += [{"view": pair[i], "reason": "stereo " + r} for i, r in bad.items()]
-    pairs = {i: pairs[i] for i in kept}
-    if reference_view not in pairs:
-        raise DegenerateDataError(
-            f"reference view {reference_view} was left out of the stereo step; choose another"
+    def refine(views: list[int]) -> tuple[JointPoses, dict[int, float]]:
+        observations = [o for v in views for o in joint[v]]
+        lost = [c for c in names if c not in {o.camera for o in observations}]
+        if lost:
+            raise DegenerateDataError(
+                f"camera(s) {', '.join(lost)} share no view of the target with another camera; "
+                "take views that two or more cameras see at once"
+            )
+        start = initial_poses(
+            {c: {v: poses[c][v] for v in views if v in poses[c]} for c in names}, first
         )
-    k_ref = mono[a].used.index(reference_view)
-    m1 = _camera_model(fa.K, fa.dist, fa.rvecs[k_ref], tvecs[a][reference_view],
-                       image_size_px[a], a)  # fmt: skip
-    R2 = R @ m1.R
-    t2 = R @ m1.t_um + np.ravel(T)
-    rvec2, _ = cv2.Rodrigues(R2)
-    m2 = _camera_model(fb.K, fb.dist, rvec2, t2, image_size_px[b], b)
+        result = refine_jointly(observations, intrinsics, *start, first=first)
+        return result, result.per_view_rms_px
+
+    fit, kept, bad = _fit_rejecting_outliers(sorted(joint), refine)
+    rejected += [{"view": label[i], "reason": "joint refinement " + r} for i, r in bad.items()]
+    if reference_view not in kept:
+        raise DegenerateDataError(
+            f"reference view {reference_view} was left out of the joint refinement; choose "
+            "another (--reference-view)"
+        )
+    models = {}
+    for c in names:
+        R, t = (
+            fit.cameras[c][0] @ fit.views[reference_view][0],
+            (fit.cameras[c][0] @ fit.views[reference_view][1] + fit.cameras[c][1]),
+        )
+        K, dist = intrinsics[c]
+        rvec, _ = cv2.Rodrigues(R)
+        models[c] = _camera_model(K, dist, rvec, t, image_size_px[c], c)
     cams = {name: m.calibration for name, m in mono.items()}
-    cams[a].model, cams[b].model = m1, m2
-    for cal in cams.values():  # the intrinsics' share of the projection error, per axis
-        d = cal.diagnostics
-        if d is not None and np.isfinite(d.uncertainty_map_px).any():
-            sigma = float(np.sqrt(np.nanmean(d.uncertainty_map_px**2) / 2.0))
+    for name, cal in cams.items():  # the intrinsics' share of the projection error, per axis
+        cal.model = models[name]
+        diag = cal.diagnostics
+        if diag is not None and np.isfinite(diag.uncertainty_map_px).any():
+            sigma = float(np.sqrt(np.nanmean(diag.uncertainty_map_px**2) / 2.0))
             cal.model = dataclasses.replace(cal.model, projection_sigma_px=sigma)
     return StereoCalibration(
-        "unknown poses (per-camera + stereo)",
+        "unknown poses (per-camera + joint refinement)",
         cams,
-        rms,
-        _baseline({"a": m1, "b": m2}),
+        fit.rms_px,
+        _baseline(models),
         turned,
         rejected,
-        notes=[resolution.note] if resolution.note else [],
+        notes=notes,
     )
