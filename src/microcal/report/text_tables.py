@@ -350,12 +350,12 @@ def stereo_lines(calibration: Any, out: Path) -> list[TextTable | str]:
     for cam in dict.fromkeys(t["camera"] for t in calibration.turned_views):
         turned = [f"{t['image']} ({t['turn_deg']} deg)" for t in calibration.turned_views
                   if t["camera"] == cam]  # fmt: skip
-        whom = "the other camera's" if calibration.method.startswith("unknown") else "its views'"
+        whom = "the other cameras'" if calibration.method.startswith("unknown") else "its views'"
         lines.append(
             f"turned the corner numbering of camera {cam} in {', '.join(turned)} to agree with "
             f"{whom} (the board looks the same turned)"
         )
-    lines += [f"left out of the stereo step {r['view']}: {r['reason']}"
+    lines += [f"left out of the cameras' joint refinement {r['view']}: {r['reason']}"
               for r in calibration.views_rejected]  # fmt: skip
     lines += model_choice_lines(calibration)
     lines += [f"warning: {n}" for n in calibration.notes]
