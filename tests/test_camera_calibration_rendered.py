@@ -17,6 +17,7 @@ from microcal.sim.calibration_views import (
     wide_angle_camera,
     wide_angle_stereo_pair,
 )
+from microcal.vision.board_symmetry import turn_ids
 from microcal.vision.calibration_diagnostics import diagnose
 from microcal.vision.detect import Detection, detect
 from microcal.vision.lens_models import LENS_MODELS, choose_lens_model
@@ -251,10 +252,53 @@ def test_a_camera_that_shares_no_view_with_the_others_is_refused_with_its_name()
         else:
             dets["left"][k] = dets["right"][k] = Detection.none("target not found")
     names = {c: [f"{c}{k:02d}" for k in range(10)] for c in cams}
-    with pytest.raises(DegenerateDataError, match="low share no view"):
+    with pytest.raises(DegenerateDataError, match="low share no usable view"):
         calibrate_unknown_poses(dets, names, target, dict.fromkeys(cams, SIZE))
 
 
 def _reversed(det, truth):
     """Detected corner k is true corner n - 1 - k (the board's numbering turned by 180)."""
     return np.linalg.norm(det.q_px - truth[::-1][det.ids], axis=1).max() < 1.0
+
+
+def test_three_cameras_agree_on_a_symmetric_board_through_one_another():
+    target = parse_target("chessboard:6x4:30000")  # looks the same turned by 180 degrees
+    cams = _three_cameras()
+    n = 16
+    views = render_stereo_calibration_views(cams, target, n, seed=45, flip_fraction=0.4)
+    dets = {c: [detect(im, target) for im in views.images[c]] for c in cams}
+    for k in range(11, n):  # views 11-15: seen by "right" and "low" only
+        dets["left"][k] = Detection.none("target not found")
+    for k in range(0, 5):
+        dets["low"][k] = Detection.none("target not found")
+    for k in range(5, 11):  # "right" numbered the views all three see from the other end
+        d = dets["right"][k]
+        ids = turn_ids(target, 180)[d.ids]
+        order = np.argsort(ids)
+        dets["right"][k] = Detection(True, ids[order], d.q_px[order], d.quality_px)
+    names = {c: [f"{c}{k:02d}" for k in range(n)] for c in cams}
+    cal = calibrate_unknown_poses(dets, names, target, dict.fromkeys(cams, SIZE))
+    assert cal.views_rejected == []
+    turned = {t["image"] for t in cal.turned_views}
+    rev = {c: [_reversed(dets[c][k], views.corners_px[c][k]) if dets[c][k].found else None
+               for k in range(n)] for c in cams}  # fmt: skip
+    # The numbering each view follows: the left camera's, else the right one's as turned.
+    reference = [
+        rev["left"][k] if rev["left"][k] is not None else rev["right"][k] != (f"right{k:02d}" in turned)
+        for k in range(n)
+    ]  # fmt: skip
+    composed = 0
+    for c in ("right", "low"):
+        for k in range(n):
+            if rev[c][k] is None:
+                continue
+            assert (f"{c}{k:02d}" in turned) == (rev[c][k] != reference[k]), (c, k)
+            composed += c == "low" and 5 <= k <= 10 and f"right{k:02d}" in turned
+    # "low" shares most views with "right": its views 5-10 were numbered through right's
+    # turned ones (the turns composed).
+    assert composed == 6
+    got = cal.models()
+    for c in ("right", "low"):  # Metric: distance from the first camera, relative.
+        d_true = np.linalg.norm(cams[c].centre_um - cams["left"].centre_um)
+        d_got = np.linalg.norm(got[c].centre_um - got["left"].centre_um)
+        assert d_got == pytest.approx(d_true, rel=0.005), c

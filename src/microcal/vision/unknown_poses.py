@@ -25,7 +25,7 @@ import numpy as np
 
 from ..errors import DegenerateDataError, InputError
 from ..geometry import CameraModel
-from .board_symmetry import turn_transform
+from .board_symmetry import ambiguous_turns, turn_transform
 from .calibration_diagnostics import diagnose
 from .calibration_result import (
     CameraCalibration,
@@ -48,6 +48,8 @@ __all__ = ["calibrate_unknown_poses"]
 
 #: Common ids a view pair needs to enter the stereo solve.
 MIN_COMMON_POINTS = 6
+#: A symmetric board's turn is told between two cameras from at least this many shared views.
+MIN_SHARED_VIEWS_FOR_TURNS = 2
 #: Method (b) refuses views whose board normals all lie within this angle (degrees).
 MIN_TILT_SPREAD_DEG = 5.0
 
@@ -136,24 +138,37 @@ def _agree_numbering(
            list[dict[str, str]], list[str]]:  # fmt: skip
     """Number each camera's corners as the first camera that saw the same view does.
 
-    Camera by camera, each view is resolved against the earlier camera that shares most views
-    with it (turns compose: they are all about the board's normal through its centre); a view
-    no earlier camera saw keeps its numbering. Returns the renumbered detections and board
+    Camera by camera, each view is resolved against the earlier cameras, the one sharing most
+    views first, then the others for the views it left (turns compose: they are all about the
+    board's normal through its centre); a view no earlier camera saw keeps its numbering. For
+    a board that looks the same turned, a camera pair sharing fewer than
+    :data:`MIN_SHARED_VIEWS_FOR_TURNS` views cannot tell the turn: such observations are
+    refused with the reason. Returns the renumbered detections and board
     poses per camera and view, the turned images, the refused observations and notes.
     """
     names = list(mono)
     raw = {c: {i: (m.choice.fit.rvecs[k], np.ravel(m.choice.fit.tvecs[k]))
                for k, i in enumerate(m.used)} for c, m in mono.items()}  # fmt: skip
+    symmetric = len(ambiguous_turns(target)) > 1
     turns: dict[str, dict[int, int]] = {}
     rejected: list[dict[str, str]] = []
     notes: list[str] = []
     for idx, c in enumerate(names):
-        turns[c], refused = {}, set()
+        turns[c] = {}
+        refusal: dict[int, dict[str, str]] = {}  # the first reason per view; others may agree
         for r in sorted(names[:idx], key=lambda r: -len(set(turns[r]) & set(raw[c]))):
-            todo = [v for v in raw[c] if v not in turns[c] and v not in refused and v in turns[r]]
+            todo = [v for v in raw[c] if v not in turns[c] and v in turns[r]]
             if not todo:
                 continue
             shared = sorted(set(turns[r]) & set(raw[c]))
+            pair = {v: f"{image_names[r][v]} + {image_names[c][v]}" for v in todo}
+            if symmetric and len(shared) < MIN_SHARED_VIEWS_FOR_TURNS:
+                for v in todo:
+                    refusal.setdefault(v, {"view": pair[v], "reason": (
+                        f"camera {c} shares {len(shared)} view with camera {r}: too few to tell "
+                        f"how a board that looks the same turned is numbered (at least "
+                        f"{MIN_SHARED_VIEWS_FOR_TURNS})")})  # fmt: skip
+                continue
             res = resolve_turns(
                 target,
                 {v: raw[r][v][0] for v in shared},
@@ -166,13 +181,14 @@ def _agree_numbering(
                 if v in res.turns:
                     turns[c][v] = (res.turns[v] + turns[r][v]) % 360
                 else:
-                    refused.add(v)
-                    label = f"{image_names[r][v]} + {image_names[c][v]}"
-                    rejected.append(
-                        {"view": label, "reason": res.disagree.get(v, "no turn agrees")}
-                    )
+                    reason = res.disagree.get(v, "no turn agrees")
+                    refusal.setdefault(v, {"view": pair[v], "reason": reason})
         for v in raw[c]:
-            if v not in turns[c] and v not in refused:
+            if v in turns[c]:
+                continue
+            if v in refusal:
+                rejected.append(refusal[v])
+            else:  # no earlier camera saw it: its numbering is the one the others follow
                 turns[c][v] = 0
     dets: dict[str, dict[int, Detection]] = {}
     poses: dict[str, dict[int, Pose]] = {}
@@ -250,7 +266,6 @@ def calibrate_unknown_poses(
             f"reference view {reference_view} is not usable in camera {first}; usable: "
             f"{sorted(poses[first])}"
         )
-    label = {i: " + ".join(image_names[c][i] for c in names) for i in range(n_views)}
     obj = target.points_um()
     seen: dict[int, list[Observation]] = {}
     for c in names:
@@ -258,28 +273,38 @@ def calibrate_unknown_poses(
             if len(d.ids) >= MIN_COMMON_POINTS:
                 seen.setdefault(v, []).append(Observation(c, v, obj[d.ids], d.q_px))
     joint = {v: o for v, o in seen.items() if len(o) >= 2}
+    if reference_view not in joint:
+        raise DegenerateDataError(
+            f"reference view {reference_view} is usable in fewer than two cameras; choose one "
+            f"that two or more see (--reference-view; such views: {sorted(joint)})"
+        )
+    label = {v: " + ".join(image_names[o.camera][v] for o in obs) for v, obs in joint.items()}
     intrinsics = {c: (m.choice.fit.K, m.choice.fit.dist) for c, m in mono.items()}
+    left_out = len(rejected)
 
     def refine(views: list[int]) -> tuple[JointPoses, dict[int, float]]:
         observations = [o for v in views for o in joint[v]]
         lost = [c for c in names if c not in {o.camera for o in observations}]
         if lost:
+            n_out = left_out + len(joint) - len(views)
+            why = f" ({n_out} views or observations left out as disagreeing or outliers)"
             raise DegenerateDataError(
-                f"camera(s) {', '.join(lost)} share no view of the target with another camera; "
-                "take views that two or more cameras see at once"
+                f"camera(s) {', '.join(lost)} share no usable view of the target with another "
+                f"camera{why if n_out else ''}; take views that two or more cameras see at once"
             )
-        start = initial_poses(
-            {c: {v: poses[c][v] for v in views if v in poses[c]} for c in names}, first
-        )
-        result = refine_jointly(observations, intrinsics, *start, first=first)
+        by_camera: dict[str, dict[int, Pose]] = {c: {} for c in names}
+        for o in observations:  # only what the refinement sees links the cameras
+            by_camera[o.camera][o.view] = poses[o.camera][o.view]
+        result = refine_jointly(observations, intrinsics, *initial_poses(by_camera, first),
+                                first=first)  # fmt: skip
         return result, result.per_view_rms_px
 
     fit, kept, bad = _fit_rejecting_outliers(sorted(joint), refine)
     rejected += [{"view": label[i], "reason": "joint refinement " + r} for i, r in bad.items()]
     if reference_view not in kept:
         raise DegenerateDataError(
-            f"reference view {reference_view} was left out of the joint refinement; choose "
-            "another (--reference-view)"
+            f"reference view {reference_view} was left out of the joint refinement as an "
+            "outlier; choose another (--reference-view)"
         )
     models = {}
     for c in names:
