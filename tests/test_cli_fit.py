@@ -77,7 +77,10 @@ def test_temperature_terms(run_dir, tmp_path):
     assert abs(float(poly.errors_um.mean()) - v["mean_um"]) < 1e-6
     result = runner.invoke(app, ["fit", str(out2.parent), "--extra", "humidity"])
     assert result.exit_code == 2
-    assert "extra input: expected one of ['temperature'], got 'humidity'" in result.output
+    assert (
+        "extra input: expected one of ['approach_x', 'approach_y', 'approach_z', 'temperature'] or ['approach'], got 'humidity'"
+        in result.output
+    )
 
 
 def _write(path, rows):

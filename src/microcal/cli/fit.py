@@ -24,7 +24,7 @@ _Premove = Annotated[float, Option(help="Stepwise: p-value to leave.")]
 _Train = Annotated[int | None, Option(min=1, help="Fit on the first N poses (default: 110/170).")]
 _Folds = Annotated[int | None, Option(min=2, help="Validate by K-fold cross-validation.")]
 _FoldSeed = Annotated[int, Option(help="Seed of the cross-validation folds.")]
-_Extra = Annotated[list[str] | None, Option(help="Extra input (known: temperature), once each.")]
+_Extra = Annotated[list[str] | None, Option(help="Extra input: temperature, approach (sx,sy,sz).")]
 _Temperature = Annotated[bool, Option(help="Same as --extra temperature (T, T² terms).")]
 _Name = Annotated[str, Option(help="Name of the manipulator in the calibration file.")]
 _Cameras = Annotated[Path | None, Option(help="cameras.json to include (for evaluate).")]
@@ -55,7 +55,7 @@ def fit(
     path = source / "measurements.csv" if source.is_dir() else source
     meas = read_measurements(path, min_poses=MIN_DESIGN_POSES)
     names = [*(extra or []), *(["temperature"] if temperature else [])]
-    inputs = meas.extra_inputs(list(dict.fromkeys(names)), path)
+    inputs = meas.extra_inputs(names, path)
     entry, fits = calibrate_manipulator(
         manipulator, meas.d_um, meas.p_um, model.value, train=train, select=select.value,
         penter=penter, premove=premove, folds=folds, seed=seed, extra_inputs=inputs,

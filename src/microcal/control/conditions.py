@@ -6,7 +6,7 @@ from collections.abc import Callable
 
 from numpy.typing import ArrayLike
 
-from ..devices.base import Manipulator
+from ..devices.base import Clock, Manipulator
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from .feedforward import FeedForward
 
@@ -17,13 +17,15 @@ def open_loop_conditions(
     manipulator: Manipulator,
     calibration: ManipulatorCalibration,
     extra: Callable[[], ArrayLike] | None = None,
+    clock: Clock | None = None,
 ) -> dict[str, FeedForward | None]:
     """The open-loop conditions of thesis 5.3 for one calibrated manipulator.
 
     ``uncalibrated`` (None: joints commanded as given), ``matrix`` (the matrix compensator of
     the matrix model, Eq 4.16, or of the model itself when it is a matrix model) and, for a
     polynomial model, ``optimal`` (Eq 4.17-4.19). ``extra`` reads the values of the model's
-    extra inputs (the temperature) at every move.
+    extra inputs (the temperature) at every move; ``clock`` is needed by a model with
+    approach-direction terms (see :class:`FeedForward`).
     """
     model = calibration.model
     matrix = calibration.matrix_model or model
@@ -33,5 +35,5 @@ def open_loop_conditions(
         "matrix": FeedForward(manipulator, matrix, "matrix", matrix_extra),
     }
     if model.kind == "polynomial":
-        out["optimal"] = FeedForward(manipulator, model, "optimal", extra)
+        out["optimal"] = FeedForward(manipulator, model, "optimal", extra, clock)
     return out

@@ -4,23 +4,65 @@
 come from a compensator of the identified model (the matrix compensator, Eq 4.16, or the
 optimal one, Eq 4.17-4.19), are checked against the manipulator's soft limits (a target
 outside raises :class:`LimitError` and nothing moves), then commanded.
+
+A model with approach-direction terms (``sx, sy, sz``: reversal error) is driven with a
+fixed approach: every joint first goes to :data:`APPROACH_UM` below its command, then up to
+it, so each joint arrives moving up and the terms are evaluated at +1.
+:func:`extra_inputs_reader` reads the other extra inputs (the temperature) from the rig's
+sensors at every move.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from .._validation import FloatArray, as_array
-from ..devices.base import Manipulator
-from ..errors import DegenerateDataError
+from ..devices.base import Clock, Manipulator
+from ..errors import DegenerateDataError, InputError, LimitError
 from ..kinematics.compensators import Compensator
+from ..kinematics.extra_inputs import by_symbol, is_approach
 from ..kinematics.models import KinematicModel
 
-__all__ = ["FeedForward"]
+__all__ = ["APPROACH_UM", "FeedForward", "extra_inputs_reader", "has_approach_terms"]
+
+#: The last stretch of a fixed approach: each joint comes up this far to its command, µm.
+APPROACH_UM = 20.0
+
+
+def has_approach_terms(model: KinematicModel) -> bool:
+    """Whether the model has inputs for the joints' approach directions."""
+    return any(is_approach(by_symbol(s).name) for s in model.extra_inputs)
+
+
+def extra_inputs_reader(
+    model: KinematicModel, sensors: Mapping[str, Callable[[], float]] | None
+) -> Callable[[], FloatArray] | None:
+    """A callable giving the model's extra inputs, in the model's order, at each move.
+
+    Sensors are read by registry name; an approach direction is +1 (the fixed approach of
+    :class:`FeedForward`). None for a model without extra inputs.
+
+    Raises
+    ------
+    InputError
+        The model needs a sensor the rig lacks.
+    """
+    names = [by_symbol(s).name for s in model.extra_inputs]
+    if not names:
+        return None
+    read = dict(sensors or {})
+    missing = [n for n in names if not is_approach(n) and n not in read]
+    if missing:
+        raise InputError(f"the model needs {missing} but the rig has no such sensor")
+
+    def values() -> FloatArray:
+        return np.array([1.0 if is_approach(n) else float(read[n]()) for n in names])
+
+    return values
 
 
 class FeedForward:
@@ -35,6 +77,9 @@ class FeedForward:
         Solve the whole model (optimal) or only its linear part (matrix, Eq 4.16).
     extra : callable () -> extra inputs, optional
         For models with inputs besides the joints (the temperature): read at every move.
+    clock : Clock, optional
+        Needed for a model with approach-direction terms: the fixed approach waits for its
+        first move to end.
     """
 
     def __init__(
@@ -43,12 +88,20 @@ class FeedForward:
         model: KinematicModel,
         method: Literal["optimal", "matrix"] = "optimal",
         extra: Callable[[], ArrayLike] | None = None,
+        clock: Clock | None = None,
     ) -> None:
         self.manipulator = manipulator
         self.model = model
         self.method = method
         self.extra = extra
         self._compensator = Compensator(model, manipulator.limits_um)
+        self.approach_um = APPROACH_UM if has_approach_terms(model) else 0.0
+        if self.approach_um and clock is None:
+            raise InputError(
+                "FeedForward: a model with approach-direction terms needs the clock (its fixed "
+                "approach waits for the first move to end)"
+            )
+        self.clock = clock
 
     def joints_for(self, p_um: ArrayLike) -> FloatArray:
         """Joint commands for one position in {G}, (3,) µm; checked against the soft limits."""
@@ -76,5 +129,17 @@ class FeedForward:
             The model has no solution there (nothing moves).
         """
         d = self.joints_for(p_um)
+        if self.approach_um:
+            start = d - self.approach_um
+            low = self.manipulator.limits_um[:, 0]
+            if np.any(start < low):
+                raise LimitError(
+                    f"{self.manipulator.name}: joints {np.round(d, 3).tolist()} µm are less than "
+                    f"{self.approach_um:g} µm above the lower limits {low.tolist()}: the model's "
+                    "direction terms need each joint to arrive moving up; nothing was moved"
+                )
+            self.manipulator.move_to_um(start)
+            assert self.clock is not None
+            self.manipulator.wait_until_stopped(self.clock)
         self.manipulator.move_to_um(d)
         return d

@@ -28,7 +28,7 @@ import numpy as np
 
 from .._validation import FloatArray
 from ..errors import FormatError, InputError
-from ..kinematics.extra_inputs import EXTRA_INPUTS, extra_input
+from ..kinematics.extra_inputs import EXTRA_INPUTS, expand_names, extra_input
 from .atomic import write_text_atomic
 
 __all__ = [
@@ -63,7 +63,8 @@ class Measurements:
         return self.extra.get("temperature")
 
     def extra_inputs(self, names: list[str], path: str | os.PathLike[str]) -> dict[str, FloatArray]:
-        """Values of extra inputs by registry name, each recorded at every pose used.
+        """Values of extra inputs by registry name (a group such as ``approach`` stands for
+        its members), each recorded at every pose used.
 
         Raises
         ------
@@ -71,7 +72,7 @@ class Measurements:
             An input without its column, or with poses where it was not recorded.
         """
         out: dict[str, FloatArray] = {}
-        for name in names:
+        for name in expand_names(names):
             entry = extra_input(name)
             values = self.extra.get(name)
             if values is None:

@@ -6,8 +6,14 @@ records it from the rig's sensor of that name, measurement carries it to measure
 identification adds its terms, and compensation asks for its value; none of them names a
 particular input. Temperature (thesis Eq 4.10) is the first.
 
-To add one (approach direction, elapsed time...): add an :class:`ExtraInput` here and give
-the rig a sensor of that name.
+The **approach direction** of each joint (``approach_x``, ``approach_y``, ``approach_z``:
++1 when the joint last moved towards larger values, -1 towards smaller) is recorded by the
+acquisition itself, from the moves it commanded, not by a sensor; its terms ``sx, sy, sz``
+model reversal error (hysteresis). :data:`EXTRA_GROUPS` names such a set by one name
+(``--extra approach``).
+
+To add one (elapsed time...): add an :class:`ExtraInput` here and give the rig a sensor of
+that name.
 """
 
 from __future__ import annotations
@@ -20,7 +26,17 @@ import numpy as np
 from .._validation import FloatArray
 from ..errors import InputError
 
-__all__ = ["EXTRA_INPUTS", "ExtraInput", "by_symbol", "extra_input", "values_for"]
+__all__ = [
+    "APPROACH_INPUTS",
+    "EXTRA_GROUPS",
+    "EXTRA_INPUTS",
+    "ExtraInput",
+    "by_symbol",
+    "expand_names",
+    "extra_input",
+    "is_approach",
+    "values_for",
+]
 
 
 @dataclass(frozen=True)
@@ -55,7 +71,41 @@ EXTRA_INPUTS: dict[str, ExtraInput] = {
     "temperature": ExtraInput(
         "temperature", "T", "temperature_c", "°C", 2, "ambient temperature (thesis Eq 4.10)"
     ),
+    **{
+        f"approach_{axis}": ExtraInput(
+            f"approach_{axis}",
+            f"s{axis}",
+            f"approach_{axis}",
+            "±1",
+            1,
+            f"direction joint {axis} last moved in (+1 up, -1 down)",
+        )
+        for axis in "xyz"
+    },
 }
+
+#: The approach directions of the three joints, in joint order.
+APPROACH_INPUTS: tuple[str, ...] = ("approach_x", "approach_y", "approach_z")
+
+#: Names that stand for several inputs at once.
+EXTRA_GROUPS: dict[str, tuple[str, ...]] = {"approach": APPROACH_INPUTS}
+
+
+def expand_names(names: Sequence[str]) -> list[str]:
+    """Registry names with each group (``approach``) replaced by its members, in order, once
+    each; InputError for an unknown name."""
+    out: list[str] = []
+    for name in names:
+        for member in EXTRA_GROUPS.get(name, (name,)):
+            extra_input(member)
+            if member not in out:
+                out.append(member)
+    return out
+
+
+def is_approach(name: str) -> bool:
+    """Whether the input is a joint's approach direction (recorded by acquisition itself)."""
+    return name in APPROACH_INPUTS
 
 
 def extra_input(name: str) -> ExtraInput:
@@ -64,7 +114,8 @@ def extra_input(name: str) -> ExtraInput:
         return EXTRA_INPUTS[name]
     except KeyError:
         raise InputError(
-            f"extra input: expected one of {sorted(EXTRA_INPUTS)}, got {name!r}"
+            f"extra input: expected one of {sorted(EXTRA_INPUTS)} or {sorted(EXTRA_GROUPS)}, "
+            f"got {name!r}"
         ) from None
 
 

@@ -7,10 +7,15 @@ criteria and related test methods"), for positions (no orientation).
 - Pose repeatability, clause 7.2.2: the radius of the sphere around the mean attained pose,
   ``RP = l̄ + 3 S_l`` with ``l_j`` the distance of attained pose j from the mean, ``l̄`` their
   mean and ``S_l`` their standard deviation (n - 1 in the denominator).
+- Multi-directional pose accuracy variation, clause 7.2.3: the largest distance between the
+  barycentres of the poses attained when one commanded pose is approached from different
+  directions, ``vAP_P = max sqrt((x̄_h - x̄_k)² + (ȳ_h - ȳ_k)² + (z̄_h - z̄_k)²)`` over the
+  pairs of directions h, k.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,7 +24,13 @@ from numpy.typing import ArrayLike
 from .._validation import FloatArray, as_array
 from ..errors import InputError
 
-__all__ = ["PoseStatistics", "pose_accuracy", "pose_repeatability", "pose_statistics"]
+__all__ = [
+    "PoseStatistics",
+    "multi_directional_variation",
+    "pose_accuracy",
+    "pose_repeatability",
+    "pose_statistics",
+]
 
 
 def _arrivals(arrived_um: ArrayLike, minimum: int) -> FloatArray:
@@ -100,3 +111,26 @@ def pose_statistics(desired_um: ArrayLike, arrived_um: ArrayLike) -> PoseStatist
     ap, ap_p = pose_accuracy(c, a)
     rp = pose_repeatability(a) if a.shape[0] >= 2 else None
     return PoseStatistics(c, a.mean(axis=0), ap, ap_p, rp, int(a.shape[0]))
+
+
+def multi_directional_variation(arrived_by_direction: Sequence[ArrayLike]) -> float:
+    """Multi-directional pose accuracy variation ``vAP_P`` of one pose (ISO 9283 clause 7.2.3).
+
+    Parameters
+    ----------
+    arrived_by_direction : list of (n_k, 3) float
+        Per approach direction (two or more), the positions attained, µm.
+
+    Returns
+    -------
+    float
+        The largest distance between two directions' barycentres, µm.
+    """
+    if len(arrived_by_direction) < 2:
+        raise InputError(
+            f"arrived_by_direction: expected two or more approach directions, got "
+            f"{len(arrived_by_direction)}"
+        )
+    centres = np.array([_arrivals(a, 1).mean(axis=0) for a in arrived_by_direction])
+    gaps = np.linalg.norm(centres[:, None, :] - centres[None, :, :], axis=2)
+    return float(gaps.max())

@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 from .._validation import FloatArray
 from ..devices.base import Camera, Clock, Manipulator
 from ..errors import DeviceError, DeviceTimeoutError, FrameError, InputError, MicrocalError
-from ..kinematics.extra_inputs import extra_input
+from ..kinematics.extra_inputs import APPROACH_INPUTS, extra_input
 from ..vision.detect import detect
 from ..vision.roi import RoiPredictor, box_around
 from ..vision.targets import Target
@@ -74,6 +74,14 @@ class AcquisitionConfig:
     store_roi : bool
         Store only the region around the board (``roi_margin_squares`` squares around it);
         the offset goes to the record. A camera whose board is not found keeps full frames.
+    approach_um : float
+        0 (default): each pose is reached straight from the one before. Above 0: each joint
+        first goes this far past the pose on a random side (seeded by ``approach_seed`` and
+        the pose number, so a resumed run repeats it), then to the pose: the approach
+        directions vary independently of the positions, as a model of reversal error
+        (direction terms) needs. Either way each pose's record holds the direction each joint
+        last moved in (``approach_x`` ... , +1 / -1).
+    approach_seed : int
     """
 
     settle: Settle = "vision"
@@ -88,8 +96,12 @@ class AcquisitionConfig:
     creep_learn_poses: int = 5
     store_roi: bool = False
     roi_margin_squares: float = 3.0
+    approach_um: float = 0.0
+    approach_seed: int = 0
 
     def __post_init__(self) -> None:
+        if not (np.isfinite(self.approach_um) and self.approach_um >= 0):
+            raise InputError(f"approach_um: expected a distance >= 0 µm, got {self.approach_um!r}")
         if self.settle not in get_args(Settle):
             raise InputError(f"settle: expected 'vision' or 'fixed', got {self.settle!r}")
         if not _is_wait_s(self.fixed_s):
@@ -103,6 +115,28 @@ def _is_wait_s(value: object) -> bool:
     if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
         return False
     return math.isfinite(value) and float(value) >= 0
+
+
+def _moved(step_um: FloatArray, signs: FloatArray) -> FloatArray:
+    """The direction each joint last moved in after ``step_um``: +1, -1, or as before when
+    it did not move (steps below 1 nm count as none)."""
+    return np.where(step_um > 1e-3, 1.0, np.where(step_um < -1e-3, -1.0, signs))
+
+
+def approach_start_um(
+    d_um: FloatArray, pose: int, config: AcquisitionConfig, limits_um: FloatArray
+) -> FloatArray:
+    """Where a pose is approached from with ``config.approach_um`` > 0, (3,) µm.
+
+    Each joint sits ``approach_um`` past the pose on a side drawn from ``(approach_seed,
+    pose)``; a side that would leave the soft limits ``limits_um`` (3, 2) is the other one.
+    """
+    rng = np.random.default_rng([config.approach_seed, pose])
+    side = rng.choice([-1.0, 1.0], 3)
+    start = d_um + side * config.approach_um
+    outside = (start < limits_um[:, 0]) | (start > limits_um[:, 1])
+    out: FloatArray = np.where(outside, d_um - side * config.approach_um, start)
+    return out
 
 
 def _retry(what: Callable[[], Any], retries: int) -> Any:
@@ -293,6 +327,7 @@ def acquire(
     creep = CreepEstimator(learn_poses=cfg.creep_learn_poses)
     last: tuple[FloatArray, FloatArray] | None = None  # (joints, virtual point px) of the last pose
     previous_d = np.asarray(manipulator.position_um(), dtype=np.float64)
+    signs = np.full(3, np.nan)  # unknown until each joint has moved
     done = 0
     failed_in_a_row = 0
     for k, pose in enumerate(poses):
@@ -303,6 +338,12 @@ def acquire(
         t0 = clock.now_s()
         wall0 = time.time()
         try:
+            if cfg.approach_um > 0:
+                start = approach_start_um(d, pose, cfg, manipulator.limits_um)
+                _retry(functools.partial(manipulator.move_to_um, start), cfg.retries)
+                manipulator.wait_until_stopped(clock, timeout_s=cfg.move_timeout_s)
+                signs = _moved(start - previous_d, signs)
+                previous_d = start
             _retry(functools.partial(manipulator.move_to_um, d), cfg.retries)
             manipulator.wait_until_stopped(clock, timeout_s=cfg.move_timeout_s)
         except DeviceError as exc:
@@ -310,7 +351,10 @@ def acquire(
                 manipulator.stop()
             raise RunStoppedError(f"pose {pose}: {exc}") from None
         moved_s = clock.now_s() - t0
+        signs = _moved(d - previous_d, signs)
         record: dict[str, Any] = {"pose": pose, "commanded_um": d.tolist()}
+        for name, sign in zip(APPROACH_INPUTS, signs, strict=True):
+            record[extra_input(name).column] = float(sign) if np.isfinite(sign) else None
         try:
             if cfg.settle == "fixed":
                 clock.sleep(cfg.fixed_s)

@@ -23,8 +23,10 @@ from numpy.typing import NDArray
 
 from .._validation import FloatArray
 from ..control.conditions import open_loop_conditions
+from ..control.feedforward import extra_inputs_reader
 from ..errors import FormatError
 from ..kinematics.designs import make_design
+from ..kinematics.extra_inputs import APPROACH_INPUTS
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..metrics.error_summary import summarize_errors
 from ..sim import SimPlatform, platform
@@ -37,7 +39,7 @@ from ..vision.roi import frames_from_region
 from ..vision.stereo_calibration import StereoCalibration, calibrate_known_displacements
 from ..vision.targets import Target, parse_target
 from .acquisition import AcquisitionConfig, Store, acquire
-from .evaluation import run_decoupling, run_pose_accuracy
+from .evaluation import run_decoupling, run_multi_directional, run_pose_accuracy
 from .identification import Identification, calibrate_manipulator, default_train
 
 __all__ = ["DemoResult", "calibrate_on_platform", "demo_design", "demo_design_seed", "run_demo"]
@@ -182,6 +184,8 @@ def run_demo(
     creep_learn_poses: int = 5,
     plat: SimPlatform | None = None,
     camera_model: str = "auto",
+    direction_terms: bool = True,
+    approach_um: float = 0.0,
 ) -> DemoResult:
     """Run the calibration on the simulated thesis platform (see the module docstring).
 
@@ -192,6 +196,11 @@ def run_demo(
     acquisition gives it (see :func:`~microcal.procedures.acquisition.acquire`). ``plat`` is
     the platform to run on, if the caller has built it already (``platform(preset, seed)``;
     the thesis's by default). ``camera_model`` is the stereo calibration's (method (a)).
+    With ``direction_terms`` the polynomial model may take the joints' approach directions
+    (terms sx, sy, sz; the compensator then approaches every target from below);
+    ``approach_um`` > 0 approaches each acquired pose from a random side (see
+    :class:`~microcal.procedures.acquisition.AcquisitionConfig`). The evaluation adds ISO
+    9283's multi-directional test by ground truth (``vap_um`` per condition).
     """
 
     def tick(stage: str, done: int, total: int) -> None:
@@ -222,6 +231,7 @@ def run_demo(
     }
     d = demo_design(seed, poses)
     board = plat.scene.board
+    sensors = {"temperature": lambda: plat.manipulator.temperature_at(plat.clock.now_s())}
     kept: dict[int, tuple[dict[str, list[NDArray[np.generic]]], dict[str, Any]]] = {}
     truth = np.full((poses, 3), np.nan)
 
@@ -242,9 +252,13 @@ def run_demo(
         board,
         keep,
         config=AcquisitionConfig(
-            frames_per_pose=frames_per_pose, store_roi=True, creep_learn_poses=creep_learn_poses
+            frames_per_pose=frames_per_pose,
+            store_roi=True,
+            creep_learn_poses=creep_learn_poses,
+            approach_um=approach_um,
+            approach_seed=demo_design_seed(seed),
         ),
-        sensors={"temperature": lambda: plat.manipulator.temperature_at(plat.clock.now_s())},
+        sensors=sensors,
         progress=lambda done, total, _record: tick("acquisition (vision settle)", done, total),
     )
 
@@ -281,13 +295,22 @@ def run_demo(
     p = np.array([m.p_um for m in measurements])[ok]
     d_ok = d[ok]
     n_fit = default_train(len(d_ok))
+    approach = {
+        name: np.array([np.nan if r.get(name) is None else r[name] for r in result.records])[ok]
+        for name in APPROACH_INPUTS
+    }
     result.manipulator, result.models = calibrate_manipulator(
-        "m1", d_ok, p, "polynomial", train=n_fit
+        "m1", d_ok, p, "polynomial", train=n_fit, extra_inputs=approach if direction_terms else None
     )
     oracle = summarize_errors(np.linalg.norm(p[n_fit:] - result.truth_um[ok][n_fit:], axis=1))
     result.oracle = {"mean": oracle.mean, "std": oracle.std, "max": oracle.max}
     if evaluate:
-        conditions = open_loop_conditions(plat.manipulator, result.manipulator)
+        conditions = open_loop_conditions(
+            plat.manipulator,
+            result.manipulator,
+            extra=extra_inputs_reader(result.manipulator.model, sensors),
+            clock=plat.clock,
+        )
         probe = VisionProbe(plat.cameras, cal.models(), board, frames=frames_per_pose)
         kwargs: dict[str, Any] = {
             "settle_s": settle_s,
@@ -297,6 +320,13 @@ def run_demo(
         result.evaluation["pose_accuracy"] = run_pose_accuracy(
             plat.manipulator, plat.clock, probe, conditions, cycles=cycles, **kwargs
         )
+        vap = run_multi_directional(
+            plat.manipulator, plat.clock, None, conditions, cycles=cycles, **kwargs
+        )
+        for source, by_condition in vap.items():
+            for condition, figures in by_condition.items():
+                entry = result.evaluation["pose_accuracy"][source][condition]
+                entry |= {"vap_um": figures["vap_um"], "max_vap_um": figures["max_vap_um"]}
         result.evaluation["decoupling"] = run_decoupling(
             plat.manipulator,
             plat.clock,

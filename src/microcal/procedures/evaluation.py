@@ -22,22 +22,25 @@ from numpy.typing import ArrayLike
 
 from .._validation import FloatArray, check_limits
 from ..control.conditions import open_loop_conditions
-from ..control.feedforward import FeedForward
+from ..control.feedforward import FeedForward, extra_inputs_reader
 from ..devices.base import Camera, Clock, Manipulator
 from ..errors import InputError
 from ..geometry import AnyCamera
-from ..kinematics.extra_inputs import by_symbol
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
-from ..metrics import decoupling_metrics, pose_statistics
+from ..metrics import decoupling_metrics, multi_directional_variation, pose_statistics
 from ..thesis.experiment import DECOUPLING_PATH_UM, TABLE_5_2_POSES_UM
 from ..vision.probe import VisionProbe
 from ..vision.targets import Target
 
 __all__ = [
+    "APPROACH_SIDES",
+    "DETOUR_UM",
+    "approach_detours_um",
     "decoupling_path",
     "iso_cube_poses",
     "run_decoupling",
     "run_evaluation",
+    "run_multi_directional",
     "run_pose_accuracy",
 ]
 
@@ -184,6 +187,101 @@ def run_pose_accuracy(
     return out
 
 
+#: The detour before each approach of the multi-directional test, µm along each axis.
+DETOUR_UM = 300.0
+#: The sides each approach of the multi-directional test comes from, per axis (-1: below).
+#: ISO 9283 approaches along three directions parallel to the base axes; on a Cartesian
+#: stage a move along one axis leaves the other joints' reversal state as the move before
+#: left it, so microcal approaches along three diagonals instead: from below on every
+#: axis, from above on every axis, and mixed, so that every joint reverses between them.
+APPROACH_SIDES = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], [1.0, -1.0, 1.0]])
+
+
+def approach_detours_um(pose_um: FloatArray, low_um: FloatArray, high_um: FloatArray) -> FloatArray:
+    """The three points a pose is approached from in the multi-directional test, (3, 3) µm:
+    :data:`DETOUR_UM` to each side of :data:`APPROACH_SIDES`, displacements from home; a
+    side that would leave ``[low_um, high_um]`` is the other one."""
+    out = pose_um[None, :] + DETOUR_UM * APPROACH_SIDES
+    flipped = pose_um[None, :] - DETOUR_UM * APPROACH_SIDES
+    outside = (out < low_um) | (out > high_um)
+    out = np.where(outside, flipped, out)
+    if np.any((out < low_um) | (out > high_um)):
+        raise InputError(
+            f"multi-directional test: pose {pose_um.tolist()} µm leaves no room for a "
+            f"{DETOUR_UM:g} µm detour within {low_um.tolist()}..{high_um.tolist()} µm"
+        )
+    return out
+
+
+def run_multi_directional(
+    manipulator: Manipulator,
+    clock: Clock,
+    probe: VisionProbe | None,
+    conditions: dict[str, FeedForward | None],
+    *,
+    poses_um: FloatArray = TABLE_5_2_POSES_UM,
+    travel_um: tuple[FloatArray, FloatArray] | None = None,
+    cycles: int = 3,
+    settle_s: float = 5.0,
+    truth: Callable[[], FloatArray] | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
+) -> dict[str, dict[str, Any]]:
+    """ISO 9283 multi-directional pose accuracy variation (vAP, clause 7.2.3) per condition.
+
+    Each pose is approached, every cycle, from three directions: from a point
+    :data:`DETOUR_UM` away on every axis, to the sides of :data:`APPROACH_SIDES`
+    (:func:`approach_detours_um`, within ``travel_um`` = (low, high) displacements from home;
+    by default the soft limits less 50 µm). A compensator whose model has approach-direction
+    terms makes its own fixed last approach
+    (:class:`~microcal.control.feedforward.FeedForward`), which is what it is measured with.
+
+    Returns
+    -------
+    dict
+        ``{"vision" | "truth": {condition: {"vap_um": mean over the poses, "max_vap_um",
+        "poses": [{"desired_um", "vap_um"}]}}}``.
+    """
+    if travel_um is None:
+        travel_um = (manipulator.limits_um[:, 0] + 50.0, manipulator.limits_um[:, 1] - 50.0)
+    low, high = travel_um
+    detours = [approach_detours_um(p, np.asarray(low), np.asarray(high)) for p in poses_um]
+    out = _sources(probe, truth)
+    for name, command in _commanders(manipulator, conditions).items():
+        home_d = command(np.zeros(3))
+        _settle(manipulator, clock, settle_s)
+        home = _measure(probe, truth, home_d)
+        arrived: dict[str, list[list[list[FloatArray]]]] = {
+            s: [[[] for _ in range(3)] for _ in poses_um] for s in home
+        }
+        total, done = cycles * len(poses_um) * 3, 0
+        for _ in range(cycles):
+            for i, pose in enumerate(poses_um):
+                for k in range(3):
+                    command(detours[i][k])
+                    manipulator.wait_until_stopped(clock)
+                    d = command(pose)
+                    _settle(manipulator, clock, settle_s)
+                    for source, p in _measure(probe, truth, d).items():
+                        arrived[source][i][k].append(p - home[source])
+                    done += 1
+                    if progress:
+                        progress(f"multi-directional, {name}", done, total)
+        for source, per_pose in arrived.items():
+            rows = []
+            for pose, by_dir in zip(poses_um, per_pose, strict=True):
+                dirs = [np.array(a)[np.all(np.isfinite(a), axis=1)] for a in by_dir]
+                if all(len(a) for a in dirs):
+                    rows.append({"desired_um": pose.tolist(),
+                                 "vap_um": multi_directional_variation(dirs)})  # fmt: skip
+            vap = [r["vap_um"] for r in rows]
+            out[source][name] = {
+                "vap_um": float(np.mean(vap)) if vap else float("nan"),
+                "max_vap_um": float(np.max(vap)) if vap else float("nan"),
+                "poses": rows,
+            }
+    return out
+
+
 def run_decoupling(
     manipulator: Manipulator,
     clock: Clock,
@@ -274,18 +372,11 @@ def run_evaluation(
         raise InputError(f"evaluate: no camera calibration for the rig's camera(s) {missing}")
     if not np.isfinite(settle_s) or settle_s < 0:
         raise InputError(f"settle: expected a finite wait >= 0 s, got {settle_s}")
-    read_extra = None
-    if calibration.model.extra_inputs:
-        names = [by_symbol(s).name for s in calibration.model.extra_inputs]
-        missing = [n for n in names if n not in (sensors or {})]
-        if missing:
-            raise InputError(f"evaluate: the model needs {missing} but the rig has no such sensor")
-        read = dict(sensors or {})
-
-        def read_extra() -> FloatArray:
-            return np.array([read[n]() for n in names])
-
-    conditions = open_loop_conditions(manipulator, calibration, extra=read_extra)
+    try:
+        read_extra = extra_inputs_reader(calibration.model, sensors)
+    except InputError as exc:
+        raise InputError(f"evaluate: {exc}") from None
+    conditions = open_loop_conditions(manipulator, calibration, extra=read_extra, clock=clock)
     used = {n: models[n] for n in cameras}  # a calibrated camera the rig lacks is not used
     probe = VisionProbe({n: cameras[n] for n in used}, used, board, frames)
     kwargs: dict[str, Any] = {"settle_s": settle_s, "truth": truth, "progress": progress}
