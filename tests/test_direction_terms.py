@@ -150,3 +150,16 @@ def test_vap_by_truth_falls_with_direction_terms():
     assert out["direction"]["vap_um"] < 0.3
     assert out["direction"]["max_vap_um"] >= out["direction"]["vap_um"]
     assert len(out["direction"]["poses"]) == 8
+
+
+def test_solving_one_position_assumes_the_fixed_approach_and_says_so():
+    from microcal.procedures.compensation import solve_position
+    from microcal.report.text_tables import solution_lines
+
+    plat = sim.platform("thesis", seed=0)
+    cal, _ = _truth_fit(plat)
+    target = cal.model.predict_um(np.array([[3000.0, 2000.0, 1000.0, 1, 1, 1]]))[0]
+    sol = solve_position(cal, target)
+    assert sol.approach_from_below
+    np.testing.assert_allclose(sol.d_um, [3000.0, 2000.0, 1000.0], atol=1e-6)
+    assert any("moving up" in line for line in solution_lines(sol, cal))

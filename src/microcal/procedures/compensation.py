@@ -10,7 +10,7 @@ from numpy.typing import ArrayLike
 
 from .._validation import FloatArray, as_array
 from ..errors import InputError
-from ..kinematics.extra_inputs import by_symbol, values_for
+from ..kinematics.extra_inputs import by_symbol, is_approach, values_for
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 
 __all__ = ["Solution", "solve_position"]
@@ -29,11 +29,15 @@ class Solution:
     outside_range : (3, 2) float or None
         The joint range the model was identified on, when ``d_um`` leaves it (the model
         extrapolates there); None otherwise.
+    approach_from_below : bool
+        The model has approach-direction terms and the joints are solved for arriving moving
+        up (+1), as :class:`~microcal.control.feedforward.FeedForward` drives them.
     """
 
     d_um: FloatArray
     residual_um: FloatArray
     outside_range: FloatArray | None
+    approach_from_below: bool = False
 
 
 def solve_position(
@@ -61,10 +65,13 @@ def solve_position(
             f"--{unused[0]}: the model of {calibration.name!r} has no {unused[0]} input"
             + (f" (its extra inputs: {list(symbols)})" if symbols else "")
         )
-    extra = values_for(symbols, values or {})
+    given = dict(values or {})
+    approach = [by_symbol(s).name for s in symbols if is_approach(by_symbol(s).name)]
+    given |= dict.fromkeys(approach, 1.0)  # arriving moving up, as FeedForward does
+    extra = values_for(symbols, given)
     d = calibration.joints_for(target, extra=extra, limits_um=limits_um)[0]
     u = d if extra is None else np.concatenate([d, extra[0]])
     residual = calibration.predict_um(u)[0] - target
     rng = calibration.joint_range_um
     outside = rng is not None and bool(np.any((d < rng[:, 0]) | (d > rng[:, 1])))
-    return Solution(d, residual, rng if outside else None)
+    return Solution(d, residual, rng if outside else None, bool(approach))

@@ -395,6 +395,11 @@ def solution_lines(solution: Any, calibration: Any) -> list[str]:
             f"note: these joints lie outside the range the model was identified on {ranges} "
             "µm; the model extrapolates there"
         )
+    if getattr(solution, "approach_from_below", False):
+        lines.append(
+            "note: the model holds the reversal error: bring each joint to these values moving "
+            "up (e.g. from 20 µm below), or the tip lands off by that error"
+        )
     residual = ", ".join(f"{v:.2e}" for v in solution.residual_um)
     kind, name = calibration.model.kind, calibration.name
     lines.append(f"{kind} model of {name!r}: model(d) - target = {residual} µm")
