@@ -9,7 +9,7 @@ import pytest
 
 from conftest import run_microcal
 from microcal import InputError, LimitError, sim
-from microcal.control.feedforward import FeedForward
+from microcal.control.feedforward import FeedForward, extra_inputs_reader
 from microcal.errors import DegenerateDataError
 from microcal.formats.calibration_file import (
     Calibration,
@@ -33,11 +33,18 @@ def demo():
     return run_demo(seed=0, poses=170, evaluate=False)  # the tests below run their own
 
 
+def optimal(plat, demo):
+    """The optimal compensator of the demo's model (direction terms: a fixed approach)."""
+    model = demo.models["polynomial"].model
+    return FeedForward(plat.manipulator, model, "optimal", extra_inputs_reader(model, {}),
+                       plat.clock)  # fmt: skip
+
+
 def conditions(plat, demo):
     return {
         "uncalibrated": None,
         "matrix": FeedForward(plat.manipulator, demo.models["matrix"].model, "matrix"),
-        "optimal": FeedForward(plat.manipulator, demo.models["polynomial"].model, "optimal"),
+        "optimal": optimal(plat, demo),
     }
 
 
@@ -94,7 +101,7 @@ def test_decoupling_path_is_fig_5_5():
 
 def test_feed_forward_refuses_and_moves_nothing(demo):
     plat = sim.platform("thesis", seed=103)
-    ff = FeedForward(plat.manipulator, demo.models["polynomial"].model, "optimal")
+    ff = optimal(plat, demo)
     before = plat.manipulator.joints_um(plat.clock.now_s())
     far = demo.models["polynomial"].model.p_base_um + [0.0, 0.0, 9000.0]
     with pytest.raises(LimitError, match="nothing was moved"):
@@ -168,11 +175,13 @@ def test_identification_through_the_vision_pipeline_reaches_the_oracle(demo):
     # 170 poses rendered, measured (5 frames each) and identified with the thesis's split: the
     # polynomial model's mean validation error is within 0.35 µm of the oracle's (the true
     # positions against the same measurements: the measurement's own error). What is left is
-    # the model's: its estimation error and what no static polynomial follows (the
-    # simulator's reversal error and creep, 0.4-0.6 µm). Thesis: matrix 4.58, polynomial
+    # the model's estimation error and what it does not follow (creep); with the direction
+    # terms it follows the reversal error (0.4-0.6 µm) too, and it may take up a smooth share
+    # of the measurement's own error (the cameras' calibration error is smooth over the
+    # travel), so it can fall a little below the oracle. Thesis: matrix 4.58, polynomial
     # 2.59 µm.
     poly = demo.models["polynomial"].validation["mean_um"]
     matrix = demo.models["matrix"].validation["mean_um"]
-    assert demo.oracle["mean"] <= poly <= demo.oracle["mean"] + 0.35
+    assert 0.8 * demo.oracle["mean"] <= poly <= demo.oracle["mean"] + 0.35
     assert matrix > poly
     assert demo.measurement_rms_um <= 2.0

@@ -165,12 +165,15 @@ def identification_table(
 def pose_accuracy_table(
     pose_accuracy: Mapping[str, Any], conditions: list[str], *, thesis: bool, title: str = ""
 ) -> TextTable:
-    """Mean / worst AP_P per condition, by vision and ground truth; the thesis's if asked."""
+    """Mean / worst AP_P per condition, by vision and ground truth; the thesis's if asked;
+    and mean / worst vAP (ISO 9283 7.2.3) of each source that has it."""
     sources = [s for s in ("vision", "truth") if s in pose_accuracy]
+    vap = [s for s in sources if all("vap_um" in pose_accuracy[s][n] for n in conditions)]
     table = TextTable(
         title or "Pose accuracy AP_P (µm): mean / worst",
         ["condition", *(("ground truth" if s == "truth" else s) for s in sources)]
-        + (["thesis"] if thesis else []),
+        + (["thesis"] if thesis else [])
+        + [f"vAP {'truth' if s == 'truth' else s}" for s in vap],
     )
     for name in conditions:
         row = [name] + [
@@ -181,6 +184,8 @@ def pose_accuracy_table(
         if thesis:
             mean, worst = POSE_ACCURACY_UM[name]
             row.append(f"{mean:.2f} / {worst:.2f}")
+        row += [f"{pose_accuracy[s][name]['vap_um']:.2f} / "
+                f"{pose_accuracy[s][name]['max_vap_um']:.2f}" for s in vap]  # fmt: skip
         table.rows.append(row)
     return table
 
