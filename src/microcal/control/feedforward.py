@@ -24,7 +24,7 @@ from .._validation import FloatArray, as_array
 from ..devices.base import Clock, Manipulator
 from ..errors import DegenerateDataError, InputError, LimitError
 from ..kinematics.compensators import Compensator
-from ..kinematics.extra_inputs import by_symbol, is_approach
+from ..kinematics.extra_inputs import by_symbol, fixed_approach_values, values_for
 from ..kinematics.models import KinematicModel
 
 __all__ = ["APPROACH_UM", "FeedForward", "extra_inputs_reader", "has_approach_terms"]
@@ -35,7 +35,7 @@ APPROACH_UM = 20.0
 
 def has_approach_terms(model: KinematicModel) -> bool:
     """Whether the model has inputs for the joints' approach directions."""
-    return any(is_approach(by_symbol(s).name) for s in model.extra_inputs)
+    return bool(fixed_approach_values(model.extra_inputs))
 
 
 def extra_inputs_reader(
@@ -51,16 +51,21 @@ def extra_inputs_reader(
     InputError
         The model needs a sensor the rig lacks.
     """
-    names = [by_symbol(s).name for s in model.extra_inputs]
-    if not names:
+    symbols = model.extra_inputs
+    if not symbols:
         return None
+    approach = fixed_approach_values(symbols)
     read = dict(sensors or {})
-    missing = [n for n in names if not is_approach(n) and n not in read]
+    sensed = [by_symbol(s).name for s in symbols if by_symbol(s).name not in approach]
+    missing = [n for n in sensed if n not in read]
     if missing:
         raise InputError(f"the model needs {missing} but the rig has no such sensor")
 
     def values() -> FloatArray:
-        return np.array([1.0 if is_approach(n) else float(read[n]()) for n in names])
+        out = values_for(symbols, {n: float(read[n]()) for n in sensed} | approach)
+        assert out is not None
+        row: FloatArray = out[0]
+        return row
 
     return values
 

@@ -34,6 +34,7 @@ __all__ = [
     "by_symbol",
     "expand_names",
     "extra_input",
+    "fixed_approach_values",
     "is_approach",
     "values_for",
 ]
@@ -106,6 +107,13 @@ def expand_names(names: Sequence[str]) -> list[str]:
 def is_approach(name: str) -> bool:
     """Whether the input is a joint's approach direction (recorded by acquisition itself)."""
     return name in APPROACH_INPUTS
+
+
+def fixed_approach_values(symbols: Sequence[str]) -> dict[str, float]:
+    """The model's approach-direction inputs by registry name, each +1: every joint arriving
+    moving up, as a fixed approach from below makes it (empty for a model without them)."""
+    names = [by_symbol(s).name for s in symbols]
+    return {name: 1.0 for name in names if is_approach(name)}
 
 
 def extra_input(name: str) -> ExtraInput:

@@ -10,7 +10,7 @@ from numpy.typing import ArrayLike
 
 from .._validation import FloatArray, as_array
 from ..errors import InputError
-from ..kinematics.extra_inputs import by_symbol, is_approach, values_for
+from ..kinematics.extra_inputs import by_symbol, fixed_approach_values, values_for
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 
 __all__ = ["Solution", "solve_position"]
@@ -65,10 +65,8 @@ def solve_position(
             f"--{unused[0]}: the model of {calibration.name!r} has no {unused[0]} input"
             + (f" (its extra inputs: {list(symbols)})" if symbols else "")
         )
-    given = dict(values or {})
-    approach = [by_symbol(s).name for s in symbols if is_approach(by_symbol(s).name)]
-    given |= dict.fromkeys(approach, 1.0)  # arriving moving up, as FeedForward does
-    extra = values_for(symbols, given)
+    approach = fixed_approach_values(symbols)  # arriving moving up, as FeedForward drives
+    extra = values_for(symbols, dict(values or {}) | approach)
     d = calibration.joints_for(target, extra=extra, limits_um=limits_um)[0]
     u = d if extra is None else np.concatenate([d, extra[0]])
     residual = calibration.predict_um(u)[0] - target

@@ -14,6 +14,7 @@ from the same side.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -136,6 +137,21 @@ def _settle(manipulator: Manipulator, clock: Clock, settle_s: float) -> None:
     clock.sleep(settle_s)
 
 
+def _visit(
+    command: Command,
+    rel_um: FloatArray,
+    manipulator: Manipulator,
+    clock: Clock,
+    settle_s: float,
+    probe: VisionProbe | None,
+    truth: Callable[[], FloatArray] | None,
+) -> dict[str, FloatArray]:
+    """Command a displacement from home, settle, and measure: the position by each source."""
+    d = command(rel_um)
+    _settle(manipulator, clock, settle_s)
+    return _measure(probe, truth, d)
+
+
 def run_pose_accuracy(
     manipulator: Manipulator,
     clock: Clock,
@@ -158,16 +174,14 @@ def run_pose_accuracy(
     """
     out = _sources(probe, truth)
     for name, command in _commanders(manipulator, conditions).items():
-        home_d = command(np.zeros(3))
-        _settle(manipulator, clock, settle_s)
-        home = _measure(probe, truth, home_d)
+        visit = functools.partial(_visit, command, manipulator=manipulator, clock=clock,
+                                  settle_s=settle_s, probe=probe, truth=truth)  # fmt: skip
+        home = visit(np.zeros(3))
         arrivals: dict[str, list[list[FloatArray]]] = {k: [[] for _ in poses_um] for k in home}
         total = cycles * len(poses_um)
         for c in range(cycles):
             for i, pose in enumerate(poses_um):
-                d = command(pose)
-                _settle(manipulator, clock, settle_s)
-                for source, p in _measure(probe, truth, d).items():
+                for source, p in visit(pose).items():
                     arrivals[source][i].append(p - home[source])
                 if progress:
                     progress(f"pose accuracy, {name}", c * len(poses_um) + i + 1, total)
@@ -247,9 +261,9 @@ def run_multi_directional(
     detours = [approach_detours_um(p, np.asarray(low), np.asarray(high)) for p in poses_um]
     out = _sources(probe, truth)
     for name, command in _commanders(manipulator, conditions).items():
-        home_d = command(np.zeros(3))
-        _settle(manipulator, clock, settle_s)
-        home = _measure(probe, truth, home_d)
+        visit = functools.partial(_visit, command, manipulator=manipulator, clock=clock,
+                                  settle_s=settle_s, probe=probe, truth=truth)  # fmt: skip
+        home = visit(np.zeros(3))
         arrived: dict[str, list[list[list[FloatArray]]]] = {
             s: [[[] for _ in range(3)] for _ in poses_um] for s in home
         }
@@ -259,9 +273,7 @@ def run_multi_directional(
                 for k in range(3):
                     command(detours[i][k])
                     manipulator.wait_until_stopped(clock)
-                    d = command(pose)
-                    _settle(manipulator, clock, settle_s)
-                    for source, p in _measure(probe, truth, d).items():
+                    for source, p in visit(pose).items():
                         arrived[source][i][k].append(p - home[source])
                     done += 1
                     if progress:
@@ -306,9 +318,9 @@ def run_decoupling(
     for name, command in _commanders(manipulator, conditions).items():
         samples: dict[str, list[FloatArray]] = {k: [] for k in out}
         for k, rel in enumerate(path):
-            d = command(rel)
-            _settle(manipulator, clock, settle_s)
-            for source, p in _measure(probe, truth, d).items():
+            for source, p in _visit(
+                command, rel, manipulator, clock, settle_s, probe, truth
+            ).items():
                 samples[source].append(p)
             if progress:
                 progress(f"decoupling, {name}", k + 1, len(path))

@@ -400,10 +400,12 @@ def solution_lines(solution: Any, calibration: Any) -> list[str]:
             f"note: these joints lie outside the range the model was identified on {ranges} "
             "µm; the model extrapolates there"
         )
-    if getattr(solution, "approach_from_below", False):
+    if solution.approach_from_below:
+        from ..control.feedforward import APPROACH_UM
+
         lines.append(
             "note: the model holds the reversal error: bring each joint to these values moving "
-            "up (e.g. from 20 µm below), or the tip lands off by that error"
+            f"up (e.g. from {APPROACH_UM:g} µm below), or the tip lands off by that error"
         )
     residual = ", ".join(f"{v:.2e}" for v in solution.residual_um)
     kind, name = calibration.model.kind, calibration.name
