@@ -107,6 +107,7 @@ class FeedForward:
                 "approach waits for the first move to end)"
             )
         self.clock = clock
+        self._approach_symbols = {s for s in model.extra_inputs if fixed_approach_values([s])}
 
     def joints_for(self, p_um: ArrayLike) -> FloatArray:
         """Joint commands for one position in {G}, (3,) µm; checked against the soft limits."""
@@ -122,6 +123,17 @@ class FeedForward:
                 f"nothing was moved"
             )
         return np.asarray(result.d_um[0], dtype=np.float64)
+
+    def home_um(self) -> FloatArray:
+        """Where the model puts the end-effector at zero joints, (3,) µm in {G}: P_B, or for
+        a model with sensed inputs (the temperature) its prediction there at their values now
+        (its constant alone is at 0 °C)."""
+        sensed = [s for s in self.model.extra_inputs if s not in self._approach_symbols]
+        if not sensed or self.extra is None:
+            return self.model.p_base_um
+        u = np.concatenate([np.zeros(len(self.model.joints)), np.asarray(self.extra(), float)])
+        out: FloatArray = self.model.predict_um(u)[0]
+        return out
 
     def move_to_position_um(self, p_um: ArrayLike) -> FloatArray:
         """Move the end-effector to ``p_um`` in {G}; returns the joints commanded.

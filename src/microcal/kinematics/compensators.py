@@ -137,8 +137,28 @@ class Compensator:
         self._R, _ = _linear_part(model, np.zeros((1, len(model.extra_inputs))))
         self._constant_only = not model.extra_inputs
         self._p_base = model.p_base_um
+        used = np.asarray(model.selected.any(axis=0), dtype=bool)
+        waves = [
+            w
+            for t, keep in zip(model.terms, used.tolist(), strict=True)
+            if keep
+            for w in t.waves
+        ]
+        self._waves = bool(waves)
+        middle = np.zeros(3)
+        for j, joint in enumerate(model.joints[:3]):
+            mids = [(w.low + w.high) / 2 for w in waves if w.input == joint]
+            middle[j] = mids[0] if mids else 0.0
+        self._wave_middle = middle
 
     def _start(self, p: FloatArray, e: FloatArray) -> FloatArray:
+        if self._waves:
+            # wave terms are not zero at zero joints and share their span with the powers:
+            # start from the model linearised at the middle of its waves' intervals
+            u0 = np.hstack([np.broadcast_to(self._wave_middle, (p.shape[0], 3)), e])
+            J0 = self.model.jacobian(u0)
+            r0 = p - self.model.predict_um(u0)
+            return np.asarray(u0[:, :3] + _solve3(J0, r0), dtype=np.float64)
         if self._constant_only:
             offset = self._p_base
         else:

@@ -25,6 +25,7 @@ from .terms import (
     JOINTS,
     Term,
     design_matrix,
+    design_matrix_derivative,
     matrix_terms,
     parse_term,
     polynomial_terms,
@@ -35,6 +36,27 @@ __all__ = ["AXES", "KinematicModel", "fit_matrix_model", "fit_model", "fit_polyn
 #: Output axes of every model, in {G}.
 AXES: tuple[str, ...] = ("x", "y", "z")
 ModelKind = Literal["matrix", "polynomial"]
+
+
+class _Generic:
+    """A model with wave terms: evaluated term by term (the design matrix and its derivative)."""
+
+    def __init__(self, model: KinematicModel) -> None:
+        used = np.flatnonzero(model.selected.any(axis=0))
+        self.inputs = model.inputs
+        self.joints = model.joints
+        self.terms = [model.terms[a] for a in used]
+        self.coef = np.ascontiguousarray(model.coefficients[:, used])
+
+    def predict(self, u: FloatArray) -> FloatArray:
+        out: FloatArray = design_matrix(u, self.inputs, self.terms) @ self.coef.T
+        return out
+
+    def jacobian(self, u: FloatArray) -> FloatArray:
+        J = np.empty((u.shape[0], 3, len(self.joints)))
+        for b, joint in enumerate(self.joints):
+            J[:, :, b] = design_matrix_derivative(u, self.inputs, self.terms, joint) @ self.coef.T
+        return J
 
 
 class _Compiled:
@@ -198,8 +220,15 @@ class KinematicModel:
         return self._compiled.jacobian(self._inputs(u))
 
     @cached_property
-    def _compiled(self) -> _Compiled:
-        return _Compiled(self)
+    def _compiled(self) -> _Compiled | _Generic:
+        used = np.asarray(self.selected.any(axis=0), dtype=bool)
+        if all(
+            t.is_monomial
+            for t, keep in zip(self.terms, used.tolist(), strict=True)
+            if keep
+        ):
+            return _Compiled(self)
+        return _Generic(self)
 
     def prediction_std_um(self, u: ArrayLike) -> FloatArray:
         """Standard deviation of the prediction from the coefficients' uncertainty.
@@ -227,13 +256,17 @@ class KinematicModel:
         """(3, j) coefficients of the linear joint terms (the matrix R of Eq 4.5)."""
         R = np.zeros((3, len(self.joints)))
         for a, t in enumerate(self.terms):
-            if t.degree == 1 and t.inputs[0] in self.joints:
+            if t.is_monomial and t.degree == 1 and t.inputs[0] in self.joints:
                 R[:, self.joints.index(t.inputs[0])] = self.coefficients[:, a]
         return R
 
     @property
     def p_base_um(self) -> FloatArray:
-        """(3,) the constant term: the end-effector at zero inputs (P_B of Eq 4.5), µm."""
+        """(3,) the end-effector at zero inputs (P_B of Eq 4.5), µm: the constant term, or
+        for a model with wave terms (not zero at zero inputs) the prediction there."""
+        if not all(t.is_monomial for t in self.terms):
+            out0: FloatArray = self.predict_um(np.zeros(len(self.inputs)))[0]
+            return out0
         for a, t in enumerate(self.terms):
             if t.degree == 0:
                 out: FloatArray = self.coefficients[:, a].copy()

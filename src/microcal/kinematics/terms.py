@@ -1,10 +1,16 @@
-"""The term library of the black-box kinematic models (thesis Eq 4.5-4.10).
+"""The term library of the black-box kinematic models (thesis Eq 4.5-4.10, and beyond).
 
-A term is a product of powers of named inputs: ``dx``, ``dx^2``, ``dx*dy``, ``T^2``, and the
-constant ``1``. Inputs are the joint values ``dx, dy, dz`` (µm) and any further measured
-variable, such as the temperature ``T`` (°C). A model is linear in its coefficients, so its
-design matrix is the terms evaluated at the inputs, and its Jacobian with respect to the
-joints follows from the power rule.
+A term is a product of powers of named inputs: ``dx``, ``dx^2``, ``dx*dy``, ``T^2``, ``sx*dx``
+and the constant ``1``. Inputs are the joint values ``dx, dy, dz`` (µm) and any further
+measured variable, such as the temperature ``T`` (°C) or a joint's approach direction ``sx``
+(±1). A term may also carry **wave factors** along one input, the half-range cosine basis of
+an interval: ``cos3[dx:0:8000]`` is ``cos(3 pi (dx - 0) / (8000 - 0))``. Over the interval
+these follow any smooth error profile of one joint (guideway straightness, angular errors
+seen at the tool through an Abbe offset) that no low-order polynomial does, without the
+jump at the ends a periodic Fourier series has. A model is linear in its coefficients, so
+its design matrix is the terms evaluated at the inputs, and its Jacobian with respect to
+the joints follows from the power rule and the derivatives of the waves (``cos`` turns into
+``sin`` and back).
 """
 
 from __future__ import annotations
@@ -23,26 +29,77 @@ from ..errors import InputError
 __all__ = [
     "JOINTS",
     "Term",
+    "Wave",
     "design_matrix",
+    "design_matrix_derivative",
     "matrix_terms",
     "parse_term",
     "polynomial_terms",
+    "wave_terms",
 ]
 
 #: The joint inputs of a Cartesian three-axis manipulator, in the thesis's names.
 JOINTS: tuple[str, ...] = ("dx", "dy", "dz")
 
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+_WAVE = re.compile(r"^(cos|sin)([1-9][0-9]*)\[([A-Za-z_][A-Za-z0-9_]*):([^:\]]+):([^:\]]+)\]$")
+
+
+@dataclass(frozen=True)
+class Wave:
+    """A wave factor along one input: ``func(harmonic * pi * (u - low) / (high - low))``.
+
+    ``func`` is ``"cos"`` (the half-range cosine basis of ``[low, high]``) or ``"sin"`` (what
+    a cosine's derivative holds). Named ``cos3[dx:0:8000]``.
+    """
+
+    input: str
+    func: str
+    harmonic: int
+    low: float
+    high: float
+
+    def __post_init__(self) -> None:
+        if not _NAME.match(self.input) or self.func not in ("cos", "sin"):
+            raise InputError(f"wave: expected cos or sin of an input name, got {self.name}")
+        if self.harmonic < 1:
+            raise InputError(f"wave {self.name}: expected a harmonic >= 1")
+        if not (np.isfinite(self.low) and np.isfinite(self.high) and self.high > self.low):
+            raise InputError(f"wave {self.name}: expected finite low < high")
+
+    @property
+    def name(self) -> str:
+        """``cos3[dx:0:8000]``."""
+        return f"{self.func}{self.harmonic}[{self.input}:{self.low:.12g}:{self.high:.12g}]"
+
+    @property
+    def omega(self) -> float:
+        """Angular rate per unit of the input, rad per unit."""
+        return self.harmonic * np.pi / (self.high - self.low)
+
+    def value(self, u: FloatArray) -> FloatArray:
+        """The factor at ``u`` (N,)."""
+        phase = self.omega * (u - self.low)
+        out: FloatArray = np.cos(phase) if self.func == "cos" else np.sin(phase)
+        return out
+
+    def derivative(self) -> tuple[float, Wave]:
+        """``(c, w)`` with ``d value / du = c * w.value``."""
+        if self.func == "cos":
+            return -self.omega, Wave(self.input, "sin", self.harmonic, self.low, self.high)
+        return self.omega, Wave(self.input, "cos", self.harmonic, self.low, self.high)
 
 
 @dataclass(frozen=True)
 class Term:
-    """A monomial: ``powers`` pairs (input name, exponent >= 1); empty for the constant."""
+    """A product: ``powers`` pairs (input name, exponent >= 1) and ``waves`` (wave factors,
+    each on an input of its own); both empty for the constant."""
 
     powers: tuple[tuple[str, int], ...] = ()
+    waves: tuple[Wave, ...] = ()
 
     def __post_init__(self) -> None:
-        names = [n for n, _ in self.powers]
+        names = [n for n, _ in self.powers] + [w.input for w in self.waves]
         if len(set(names)) != len(names):
             raise InputError(f"term: expected each input once, got {names}")
         for name, power in self.powers:
@@ -53,20 +110,56 @@ class Term:
 
     @property
     def name(self) -> str:
-        """``1``, ``dx``, ``dx^2``, ``dx*dy`` ... (the inverse of :func:`parse_term`)."""
-        if not self.powers:
+        """``1``, ``dx``, ``dx^2``, ``dx*dy``, ``cos2[dx:0:8000]*sx`` ... (the inverse of
+        :func:`parse_term`)."""
+        if not self.powers and not self.waves:
             return "1"
-        return "*".join(n if p == 1 else f"{n}^{p}" for n, p in self.powers)
+        parts = [w.name for w in self.waves]
+        parts += [n if p == 1 else f"{n}^{p}" for n, p in self.powers]
+        return "*".join(parts)
 
     @property
     def degree(self) -> int:
-        """Total degree (0 for the constant)."""
-        return sum(p for _, p in self.powers)
+        """Total degree of the powers (0 for the constant); a wave factor counts one."""
+        return sum(p for _, p in self.powers) + len(self.waves)
+
+    @property
+    def is_monomial(self) -> bool:
+        """Whether the term is a product of powers only (no wave factor)."""
+        return not self.waves
 
     @property
     def inputs(self) -> tuple[str, ...]:
         """The inputs this term depends on."""
-        return tuple(n for n, _ in self.powers)
+        return tuple(w.input for w in self.waves) + tuple(n for n, _ in self.powers)
+
+    def value(self, u: FloatArray, index: dict[str, int]) -> FloatArray:
+        """The term at inputs ``u`` (N, k) whose columns ``index`` names; (N,)."""
+        out = np.ones(u.shape[0])
+        for name, power in self.powers:
+            out *= u[:, index[name]] ** power
+        for w in self.waves:
+            out *= w.value(u[:, index[w.input]])
+        return out
+
+    def derivative(self, wrt: str) -> list[tuple[float, Term]]:
+        """``d term / d wrt`` as a sum of ``coefficient * term``; empty when it is zero."""
+        out: list[tuple[float, Term]] = []
+        for i, (name, power) in enumerate(self.powers):
+            if name == wrt:
+                lowered = list(self.powers)
+                if power == 1:
+                    del lowered[i]
+                else:
+                    lowered[i] = (name, power - 1)
+                out.append((float(power), Term(tuple(lowered), self.waves)))
+        for i, w in enumerate(self.waves):
+            if w.input == wrt:
+                c, dw = w.derivative()
+                waves = list(self.waves)
+                waves[i] = dw
+                out.append((c, Term(self.powers, tuple(waves))))
+        return out
 
     def __str__(self) -> str:
         return self.name
@@ -84,7 +177,16 @@ def parse_term(text: str) -> Term:
     if text == "1":
         return Term()
     powers = []
+    waves = []
     for factor in text.split("*"):
+        wave = _WAVE.match(factor)
+        if wave:
+            try:
+                low, high = float(wave.group(4)), float(wave.group(5))
+            except ValueError:
+                low = high = float("nan")
+            waves.append(Wave(wave.group(3), wave.group(1), int(wave.group(2)), low, high))
+            continue
         name, _, exp = factor.partition("^")
         try:
             power = int(exp) if exp else 1
@@ -95,7 +197,7 @@ def parse_term(text: str) -> Term:
                 f"term {text!r}: expected a product of inputs such as 'dx', 'dx^2' or 'dx*dy'"
             )
         powers.append((name, power))
-    return Term(tuple(powers))
+    return Term(tuple(powers), tuple(waves))
 
 
 def matrix_terms(joints: Sequence[str] = JOINTS) -> tuple[Term, ...]:
@@ -136,6 +238,28 @@ def polynomial_terms(
     return tuple(terms)
 
 
+def wave_terms(
+    joints: Sequence[str], low: Sequence[float], high: Sequence[float], harmonics: int
+) -> tuple[Term, ...]:
+    """Half-range cosine terms along each joint: ``cos1 ... cos<harmonics>`` of its interval.
+
+    Parameters
+    ----------
+    joints : sequence of j str
+    low, high : sequence of j float
+        Each joint's interval (the travel the model is identified on).
+    harmonics : int
+        The highest harmonic, >= 1.
+    """
+    if harmonics < 1:
+        raise InputError(f"harmonics: expected >= 1, got {harmonics}")
+    return tuple(
+        Term((), (Wave(j, "cos", k, float(lo), float(hi)),))
+        for k in range(1, harmonics + 1)
+        for j, lo, hi in zip(joints, low, high, strict=True)
+    )
+
+
 def _columns(
     inputs: ArrayLike, input_names: Sequence[str], terms: Iterable[Term]
 ) -> tuple[FloatArray, dict[str, int], list[Term]]:
@@ -171,6 +295,23 @@ def design_matrix(
     u, index, term_list = _columns(inputs, input_names, terms)
     X = np.ones((u.shape[0], len(term_list)))
     for col, t in enumerate(term_list):
-        for name, power in t.powers:
-            X[:, col] *= u[:, index[name]] ** power
+        X[:, col] = t.value(u, index)
     return X
+
+
+def design_matrix_derivative(
+    inputs: ArrayLike, input_names: Sequence[str], terms: Iterable[Term], wrt: str
+) -> FloatArray:
+    """Derivative of :func:`design_matrix` with respect to one input.
+
+    Returns
+    -------
+    dX : (N, m) float
+        ``dX[n, a] = d term_a / d wrt`` at sample n.
+    """
+    u, index, term_list = _columns(inputs, input_names, terms)
+    dX = np.zeros((u.shape[0], len(term_list)))
+    for col, t in enumerate(term_list):
+        for c, d in t.derivative(wrt):
+            dX[:, col] += c * d.value(u, index)
+    return dX

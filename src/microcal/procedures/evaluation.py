@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -79,6 +79,16 @@ def decoupling_path(
     return np.array(points), np.array(segment)
 
 
+class PositionProbe(Protocol):
+    """What measures the end-effector for an evaluation (a :class:`VisionProbe`, or on the
+    simulator a projection of the truth)."""
+
+    def measure(self, d_um: FloatArray) -> FloatArray:
+        """Position in {G} now, (3,) µm (NaN when it cannot be measured); ``d_um`` are the
+        joints commanded, a hint for where to look."""
+        ...
+
+
 Command = Callable[[FloatArray], FloatArray]  # displacement from home -> joints commanded
 
 
@@ -91,8 +101,12 @@ def _uncompensated(manipulator: Manipulator) -> Command:
 
 
 def _compensated(ff: FeedForward) -> Command:
+    home: list[FloatArray] = []  # the model's home, taken once per condition
+
     def command(rel: FloatArray) -> FloatArray:
-        return ff.move_to_position_um(ff.model.p_base_um + rel)
+        if not home:
+            home.append(ff.home_um())
+        return ff.move_to_position_um(home[0] + rel)
 
     return command
 
@@ -107,7 +121,7 @@ def _commanders(
 
 
 def _sources(
-    probe: VisionProbe | None, truth: Callable[[], FloatArray] | None
+    probe: PositionProbe | None, truth: Callable[[], FloatArray] | None
 ) -> dict[str, dict[str, Any]]:
     if probe is None and truth is None:
         raise InputError(
@@ -122,7 +136,7 @@ def _sources(
 
 
 def _measure(
-    probe: VisionProbe | None, truth: Callable[[], FloatArray] | None, d_um: FloatArray
+    probe: PositionProbe | None, truth: Callable[[], FloatArray] | None, d_um: FloatArray
 ) -> dict[str, FloatArray]:
     got = {}
     if probe is not None:
@@ -143,7 +157,7 @@ def _visit(
     manipulator: Manipulator,
     clock: Clock,
     settle_s: float,
-    probe: VisionProbe | None,
+    probe: PositionProbe | None,
     truth: Callable[[], FloatArray] | None,
 ) -> dict[str, FloatArray]:
     """Command a displacement from home, settle, and measure: the position by each source."""
@@ -155,7 +169,7 @@ def _visit(
 def run_pose_accuracy(
     manipulator: Manipulator,
     clock: Clock,
-    probe: VisionProbe | None,
+    probe: PositionProbe | None,
     conditions: dict[str, FeedForward | None],
     *,
     poses_um: FloatArray = TABLE_5_2_POSES_UM,
@@ -230,7 +244,7 @@ def approach_detours_um(pose_um: FloatArray, low_um: FloatArray, high_um: FloatA
 def run_multi_directional(
     manipulator: Manipulator,
     clock: Clock,
-    probe: VisionProbe | None,
+    probe: PositionProbe | None,
     conditions: dict[str, FeedForward | None],
     *,
     poses_um: FloatArray = TABLE_5_2_POSES_UM,
@@ -297,7 +311,7 @@ def run_multi_directional(
 def run_decoupling(
     manipulator: Manipulator,
     clock: Clock,
-    probe: VisionProbe | None,
+    probe: PositionProbe | None,
     conditions: dict[str, FeedForward | None],
     *,
     samples_per_axis: int = 17,

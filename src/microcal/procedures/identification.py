@@ -26,6 +26,7 @@ from ..kinematics import (
     validate_split,
 )
 from ..kinematics.extra_inputs import extra_input
+from ..kinematics.families import FAMILIES, choose_family, fit_family
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..thesis.experiment import SPLIT
 
@@ -96,6 +97,7 @@ def identify(
     folds: int | None = None,
     seed: int = 0,
     extra_inputs: Mapping[str, FloatArray] | None = None,
+    family: str = "quadratic",
 ) -> Identification:
     """Fit and validate a kinematic model.
 
@@ -118,6 +120,11 @@ def identify(
         Values of extra inputs of the registry (:mod:`microcal.kinematics.extra_inputs`),
         by name; their terms (for the temperature T and T², Eq 4.10) join the polynomial
         model.
+    family : str
+        The polynomial model's candidate terms (:data:`~microcal.kinematics.families.FAMILIES`):
+        ``quadratic`` (the thesis's, default), a richer one, or ``auto``: the family whose
+        fit predicts held-out fitting poses best (k-fold, before the validation poses are
+        touched); the choice and every candidate's score join the model's ``selection``.
     """
     u = np.asarray(d_um, dtype=np.float64)
     positions = np.asarray(p_um, dtype=np.float64)
@@ -128,22 +135,35 @@ def identify(
         extra[entry.symbol] = entry.degree
     if model == "matrix" and extra:
         raise InputError(f"extra inputs {sorted(extra_inputs or {})} need the polynomial model")
-
-    def fit(u_fit: FloatArray, p_fit: FloatArray) -> KinematicModel:
-        if model == "matrix":
-            return fit_matrix_model(u_fit, p_fit)
-        if model == "polynomial":
-            return fit_polynomial_model(
-                u_fit, p_fit, select=select, penter=penter, premove=premove, extra=extra
-            )
-        raise InputError(f"model: expected 'matrix' or 'polynomial', got {model!r}")
-
+    if family != "auto" and family not in FAMILIES:
+        raise InputError(f"family: expected one of {[*FAMILIES, 'auto']}, got {family!r}")
     n = u.shape[0]
     n_fit = default_train(n) if train is None else train
     if n - n_fit < 1 or n_fit < 1:
         raise DegenerateDataError(
             f"train: expected between 1 and {n - 1} poses for fitting ({n} usable), got {n_fit}"
         )
+    inputs = ("dx", "dy", "dz", *extra)
+    joint_range = np.column_stack([u[:, :3].min(axis=0), u[:, :3].max(axis=0)])
+    chosen = None
+    if model == "polynomial" and family == "auto":
+        chosen = choose_family(u[:n_fit], positions[:n_fit], inputs, extra, joint_range, seed=seed)
+
+    def fit(u_fit: FloatArray, p_fit: FloatArray) -> KinematicModel:
+        if model == "matrix":
+            return fit_matrix_model(u_fit, p_fit)
+        if model != "polynomial":
+            raise InputError(f"model: expected 'matrix' or 'polynomial', got {model!r}")
+        if family == "quadratic" or (select == "all" and chosen is None):
+            return fit_polynomial_model(
+                u_fit, p_fit, select=select, penter=penter, premove=premove, extra=extra
+            )
+        fam = chosen.family if chosen is not None else FAMILIES[family]
+        fitted = fit_family(u_fit, p_fit, fam, inputs, extra, joint_range)
+        if chosen is None:
+            return fitted
+        return dataclasses.replace(fitted, selection=fitted.selection | chosen.as_dict())
+
     val = validate_split(fit, u, positions, n_fit)
     validation: dict[str, object] = {
         "method": f"first {n_fit} fit, last {n - n_fit} validate",

@@ -59,6 +59,9 @@ class SimManipulator(Manipulator):
         Ambient temperature at time zero (default: the kinematics' reference).
     temperature_drift_c_per_h : float
         Linear drift of the ambient temperature (default 0).
+    temperature_swing_c, temperature_period_h, temperature_phase : float
+        A periodic swing of the ambient temperature (a room's air conditioning cycling):
+        amplitude (default 0), period and phase.
     faults : ManipulatorFaults
     """
 
@@ -76,6 +79,9 @@ class SimManipulator(Manipulator):
         temperature_c: float | None = None,
         temperature_drift_c_per_h: float = 0.0,
         faults: ManipulatorFaults | None = None,
+        temperature_swing_c: float = 0.0,
+        temperature_period_h: float = 1.0,
+        temperature_phase: float = 0.0,
     ) -> None:
         super().__init__(name, ("x", "y", "z"), limits_um)
         self.truth = truth
@@ -88,6 +94,9 @@ class SimManipulator(Manipulator):
             truth.reference_temperature_c if temperature_c is None else temperature_c
         )
         self.temperature_drift_c_per_h = float(temperature_drift_c_per_h)
+        self.temperature_swing_c = float(temperature_swing_c)
+        self.temperature_period_h = float(temperature_period_h)
+        self.temperature_phase = float(temperature_phase)
         self.faults = faults or ManipulatorFaults()
         self._start = np.clip(np.zeros(3), self.limits_um[:, 0], self.limits_um[:, 1])
         self._target = self._start.copy()
@@ -143,7 +152,11 @@ class SimManipulator(Manipulator):
 
     def temperature_at(self, t_s: float) -> float:
         """Ambient temperature at time ``t_s``, °C."""
-        return self.temperature_c0 + self.temperature_drift_c_per_h * t_s / 3600.0
+        h = t_s / 3600.0
+        swing = self.temperature_swing_c * np.sin(
+            2 * np.pi * h / self.temperature_period_h + self.temperature_phase
+        )
+        return float(self.temperature_c0 + self.temperature_drift_c_per_h * h + swing)
 
     def true_position_um(self, t_s: float | None = None) -> FloatArray:
         """True end-effector position in {G} at time ``t_s`` (now by default), (3,) µm."""

@@ -7,7 +7,7 @@ stick-slip manipulator with the true kinematics of
 :func:`~microcal.thesis.kinematics.thesis_kinematics`; the 4 x 3
 chessboard (pitch 400 µm) on the gripper, its inner-corner centroid being the end-effector.
 
-The other presets (:data:`PRESETS`) change the cameras only:
+The other presets (:data:`PRESETS`) change the cameras only, but for ``population``:
 
 - ``telecentric``: both cameras object-side telecentric (affine, parallel projection), each
   with the magnification the thesis's camera has at the middle of the travel, the same pose,
@@ -17,6 +17,9 @@ The other presets (:data:`PRESETS`) change the cameras only:
   (sensor, lens, distance from the travel's middle) tilted 35 degrees off its axis towards
   +y, mirroring the top camera (tilted as much towards -y): a second baseline across the
   side camera's axis, so that depth (z) is seen twice and no longer dominates the error.
+- ``population``: every seed another platform: its true kinematics (with errors outside the
+  polynomial family), its room's temperature cycle and its cameras' placement and
+  magnification drawn by :func:`~microcal.sim.population.draw_population`.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ from ..vision.targets import Target, parse_target
 from .camera import CameraFaults, ImageFormation, SimCamera
 from .clock import SimClock
 from .manipulator import ManipulatorFaults, SimManipulator
+from .population import draw_population
 from .render import Placement
 
 __all__ = ["PlatformConfig", "Scene", "SimPlatform", "check_overrides", "platform"]
@@ -142,7 +146,7 @@ class PlatformConfig:
 
 
 #: The simulator's presets (see the module docstring).
-PRESETS = ("thesis", "telecentric", "thesis-3cam")
+PRESETS = ("thesis", "telecentric", "thesis-3cam", "population")
 
 #: Angle of the ``front`` camera's axis from the side camera's, degrees.
 FRONT_CAMERA_ANGLE_DEG = 35.0
@@ -283,7 +287,7 @@ def platform(
     ----------
     preset : str
         One of :data:`PRESETS`: ``"thesis"`` (the thesis's platform), ``"telecentric"``,
-        ``"thesis-3cam"`` (see the module docstring).
+        ``"thesis-3cam"``, ``"population"`` (see the module docstring).
     seed : int
         Seed of every random draw (noise, faults, vibration); same seed, same frames.
     overrides : dict, optional
@@ -296,12 +300,21 @@ def platform(
     s_manip, s_top, s_side, s_front = root.spawn(4)  # the first three as with two cameras
     clock = SimClock()
     mc = config.manipulator
+    n_cameras = 2 if config.front is None else 3
+    draw = draw_population(root.spawn(1)[0], n_cameras) if preset == "population" else None
     manipulator = SimManipulator(
-        thesis_kinematics(), clock, np.random.default_rng(s_manip),
+        thesis_kinematics() if draw is None else draw.truth, clock,
+        np.random.default_rng(s_manip),
         limits_um=mc.limits_um, speed_um_s=mc.speed_um_s, loop_settle_s=mc.loop_settle_s,
         sensor_noise_um=mc.sensor_noise_um, temperature_c=mc.temperature_c,
-        temperature_drift_c_per_h=mc.temperature_drift_c_per_h, faults=mc.faults,
+        temperature_drift_c_per_h=mc.temperature_drift_c_per_h
+        + (0.0 if draw is None else draw.temperature_drift_c_per_h),
+        faults=mc.faults,
     )  # fmt: skip
+    if draw is not None:  # the room's temperature cycle
+        manipulator.temperature_swing_c = draw.temperature_swing_c
+        manipulator.temperature_period_h = draw.temperature_period_h
+        manipulator.temperature_phase = draw.temperature_phase
     board = parse_target(config.board)
     scene = Scene(manipulator, board, np.eye(3))
     top, side = thesis_cameras()
@@ -310,6 +323,11 @@ def platform(
     ]  # fmt: skip
     if config.front is not None:
         views.append((front_camera(side), config.front, s_front))
+    if draw is not None:
+        views = [
+            (placed(model, draw.camera_rotation_deg[i], draw.camera_magnification[i]), cfg, seq)
+            for i, (model, cfg, seq) in enumerate(views)
+        ]
     cameras = {}
     for model, cfg, seq in views:
         focus = float(model.depth_um(TRAVEL_CENTRE_UM)[0])
@@ -336,6 +354,24 @@ def _with_projection(model: CameraModel, cfg: CameraConfig) -> AnyCamera:
     K[:2, :2] /= float(model.depth_um(TRAVEL_CENTRE_UM)[0])
     return AffineCamera(K, np.array(cfg.dist), model.R, model.t_um, model.image_size_px,
                         model.name)  # fmt: skip
+
+
+def placed(model: CameraModel, rotation_deg: FloatArray, magnification: float) -> CameraModel:
+    """The camera turned about the travel's middle by ``rotation_deg`` (about {G}'s x, y, z,
+    in that order, degrees) and its focal length scaled by ``magnification``."""
+    Q = np.eye(3)
+    for axis, angle in enumerate(np.radians(rotation_deg)):
+        c, s = np.cos(angle), np.sin(angle)
+        i, j = [a for a in range(3) if a != axis]
+        turn = np.eye(3)
+        turn[i, i] = turn[j, j] = c
+        turn[i, j], turn[j, i] = -s, s
+        Q = turn @ Q
+    R = model.R @ Q
+    t = model.R @ TRAVEL_CENTRE_UM + model.t_um - R @ TRAVEL_CENTRE_UM
+    K = model.K.copy()
+    K[:2, :2] *= magnification
+    return CameraModel(K, model.dist, R, t, model.image_size_px, model.name)
 
 
 def front_camera(side: CameraModel) -> CameraModel:

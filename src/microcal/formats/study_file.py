@@ -1,0 +1,53 @@
+"""study.json and study.html: a study's runs and their distributions (``microcal study``).
+
+study.json (keys in ``docs/formats.md``): ``format`` ``microcal.study/1``, the preset, the
+seeds, one entry per seed (its figures per model and the oracle's) and the summary (median
+and 90th percentile of every figure). Both files are written atomically; an output folder
+may be new or hold a study microcal wrote, nothing else of the same names.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from ..errors import InputError
+from .atomic import write_text_atomic
+from .json_file import check_json_output
+from .outputs import check_output
+
+__all__ = ["FORMAT", "check_study_folder", "write_study"]
+
+FORMAT = "microcal.study/1"
+#: The first line of a study page microcal wrote (how it knows the page is its own).
+PAGE_MARK = "<!-- microcal study page -->"
+
+
+def check_study_folder(out: str | os.PathLike[str]) -> Path:
+    """Refuse, before any work, a folder whose study.json or study.html microcal did not
+    write (or that cannot be written); returns the folder."""
+    folder = Path(out)
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"--out {folder}: is a file; give a folder such as study-population")
+    check_json_output(folder / "study.json", FORMAT, "study-population/study.json")
+
+    def foreign(p: Path) -> str | None:
+        with open(p, encoding="utf-8", errors="replace") as fh:
+            return None if fh.readline().strip() == PAGE_MARK else "a page microcal did not write"
+
+    check_output(folder / "study.html", kind="a study page", foreign=foreign,
+                 example="study-population/study.html")  # fmt: skip
+    return folder
+
+
+def write_study(out: str | os.PathLike[str], study: dict[str, Any], page: str) -> Path:
+    """Write study.json and study.html (``page``, the HTML of :func:`report.study_page`) into
+    the folder ``out`` (made if missing); returns the path of study.json."""
+    folder = check_study_folder(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = write_text_atomic(folder / "study.json",
+                             json.dumps({"format": FORMAT, **study}, indent=1) + "\n")  # fmt: skip
+    write_text_atomic(folder / "study.html", PAGE_MARK + "\n" + page)
+    return path

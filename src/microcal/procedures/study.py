@@ -1,0 +1,426 @@
+"""A study: the whole procedure on many seeded platforms of a preset, against the oracle.
+
+What a lab uses to plan (how many poses, which model, for its noise and travel) and what
+microcal's accuracy claims rest on: one manipulator proves little, the population of the
+``population`` preset does. For each seed, in its own process:
+
+1. **Acquisition** of ``poses`` random commands over the thesis's travel, each approached
+   from ``approach_um`` past it on a random side (so that the approach directions vary apart
+   from the positions), settled for ``settle_s``, with the journal's approach directions and
+   temperature. The fast path measures each pose by projecting the true end-effector
+   through the platform's true cameras with the virtual point's pixel noise (thesis Table
+   4-1) and triangulating (:class:`~microcal.sim.synthetic_run.ProjectedProbe`); with
+   ``render`` the demo's full pipeline runs instead (rendered calibration images and
+   frames, detection, measurement).
+2. **Identification** on the first poses (the thesis's share) of the matrix model, the
+   thesis's quadratic model (``quadratic``) and the model whose family is chosen by held-out
+   error (``auto``), each with the approach directions and the temperature as extra inputs;
+   validation on the rest, next to the **oracle**: the true kinematics with every part
+   whose form is known to it (static polynomial, reversal and its change along the travel,
+   thermal terms) re-estimated from the same measurements by least squares, the
+   non-polynomial errors (straightness, Abbe, periodic) taken as they truly are. It is the
+   floor: a model that knows the truth's form and is limited only by the same measurement
+   noise. (The truth itself, inverted exactly, would reach AP 0 by truth.)
+3. **Evaluation** (ISO 9283 pose accuracy at the Table 5-2 poses, ``cycles`` cycles, by truth
+   and by the probe) without compensation, with each model's compensator and with the
+   oracle's (its map inverted exactly, approached from below as the compensators are);
+   the multi-directional variation vAP by truth; and the **coverage** of the predicted
+   uncertainty: how often the true error of a compensated position lies in
+   the 95 % region of its predicted covariance (the model's coefficient covariance
+   propagated to the position, plus the lack of fit the validation residuals show beyond
+   the measurement noise).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from multiprocessing import get_context
+from typing import Any
+
+import numpy as np
+import scipy.stats
+
+from .._validation import FloatArray
+from ..control.feedforward import APPROACH_UM, FeedForward, extra_inputs_reader
+from ..devices.base import Clock
+from ..errors import InputError
+from ..kinematics.extra_inputs import APPROACH_INPUTS
+from ..kinematics.manipulator_calibration import ManipulatorCalibration
+from ..kinematics.models import KinematicModel, fit_model
+from ..kinematics.terms import JOINTS, Term, polynomial_terms
+from ..sim import SimPlatform, platform
+from ..sim.kinematics import TrueKinematics, invert_map
+from ..sim.manipulator import SimManipulator
+from ..sim.platforms import PRESETS
+from ..sim.synthetic_run import RENDERED_VIRTUAL_POINT_STD_PX, ProjectedProbe
+from ..thesis.experiment import TABLE_5_2_POSES_UM
+from .acquisition import AcquisitionConfig, approach_start_um
+from .demo import demo_design, demo_design_seed
+from .evaluation import PositionProbe, run_multi_directional, run_pose_accuracy
+from .identification import calibrate_manipulator, default_train
+
+__all__ = ["MODELS", "StudyConfig", "run_seed", "run_study", "summarize_runs"]
+
+#: The models a study identifies and compensates with, besides the matrix model.
+MODELS: tuple[str, ...] = ("quadratic", "auto")
+#: Probability content of the uncertainty region whose coverage is checked.
+COVERAGE_LEVEL = 0.95
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    """What each seed's run does (see the module docstring)."""
+
+    poses: int = 170
+    cycles: int = 3
+    settle_s: float = 5.0
+    approach_um: float = 300.0
+    render: bool = False
+    frames_per_pose: int = 5
+
+    def __post_init__(self) -> None:
+        if self.poses < 40:
+            raise InputError(f"poses: expected 40 or more, got {self.poses}")
+        if self.cycles < 1:
+            raise InputError(f"cycles: expected 1 or more, got {self.cycles}")
+        if not self.settle_s >= 0 or not self.approach_um >= 0:
+            raise InputError("settle_s and approach_um: expected >= 0")
+
+
+#: The oracle's re-estimated inputs: approach directions and temperature.
+ORACLE_INPUTS: tuple[str, ...] = (*JOINTS, "sx", "sy", "sz", "T")
+
+
+def fit_oracle_correction(
+    truth: TrueKinematics, d_um: FloatArray, signs: FloatArray, temps: FloatArray,
+    p_um: FloatArray,
+) -> KinematicModel:  # fmt: skip
+    """The oracle's re-estimate: the correction to the truth, in the terms of the truth's
+    known form (quadratic, reversal and its slope along the travel, linear thermal), fitted
+    by least squares (every term) to the measurements' departure from the truth.
+
+    Parameters
+    ----------
+    d_um, signs : (N, 3) float
+    temps : (N,) float
+    p_um : (N, 3) float
+    """
+    u = np.column_stack([d_um, signs, temps])
+    r = p_um - truth.position_um(d_um, signs, temps)
+    terms = list(polynomial_terms(JOINTS, 2, {"sx": 1, "sy": 1, "sz": 1, "T": 1}))
+    constant = terms.pop()
+    terms += [Term(((f"s{j[1]}", 1), (j, 1))) for j in JOINTS]
+    return fit_model(u, r, [*terms, constant], kind="polynomial", inputs=ORACLE_INPUTS)
+
+
+def oracle_position_um(
+    truth: TrueKinematics, correction: KinematicModel, d_um: FloatArray, signs: FloatArray,
+    temps: FloatArray | float,
+) -> FloatArray:  # fmt: skip
+    """The oracle's prediction at (N, 3) joints, signs and temperatures, (N, 3) µm."""
+    t = np.broadcast_to(np.asarray(temps, dtype=np.float64), (d_um.shape[0],))
+    u = np.column_stack([d_um, signs, t])
+    return truth.position_um(d_um, signs, t) + correction.predict_um(u)
+
+
+class OracleFeedForward(FeedForward):
+    """The oracle compensator: the oracle's map (:func:`oracle_position_um`) inverted
+    exactly, reversal at +1 after the fixed approach from below, the temperature now."""
+
+    def __init__(
+        self, manipulator: SimManipulator, clock: Clock, correction: KinematicModel
+    ) -> None:
+        super().__init__(manipulator, manipulator.truth.static, "optimal", None, clock)
+        self.truth = manipulator.truth
+        self.correction = correction
+        self.sim = manipulator
+        self.approach_um = APPROACH_UM
+
+    def home_um(self) -> FloatArray:
+        """The oracle's position at zero joints now, (3,) µm."""
+        t = self.sim.temperature_at(self.sim.clock.now_s())
+        out: FloatArray = oracle_position_um(self.truth, self.correction, np.zeros((1, 3)),
+                                             np.ones((1, 3)), t)[0]  # fmt: skip
+        return out
+
+    def joints_for(self, p_um: Any) -> FloatArray:
+        """The joints whose oracle position is ``p_um``, (3,) µm."""
+        t = self.sim.temperature_at(self.sim.clock.now_s())
+        p = np.asarray(p_um, dtype=np.float64).reshape(1, 3)
+        ones = np.ones((1, 3))
+        d0 = self.truth.solve_um(p, ones, t)
+        d = invert_map(lambda d: oracle_position_um(self.truth, self.correction, d, ones, t),
+                       p, d0)  # fmt: skip
+        out: FloatArray = d[0]
+        return out
+
+
+def _acquire_fast(
+    plat: SimPlatform, d_um: FloatArray, config: AcquisitionConfig, settle_s: float,
+    probe: ProjectedProbe,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:  # fmt: skip
+    """Move to each pose (approached from a random side), settle, measure through the probe.
+
+    Returns measured (N, 3), their covariances (N, 3, 3), approach signs (N, 3) and
+    temperatures (N,).
+    """
+    m, clock = plat.manipulator, plat.clock
+    n = d_um.shape[0]
+    p, cov = np.empty((n, 3)), np.empty((n, 3, 3))
+    signs, temps = np.empty((n, 3)), np.empty(n)
+    last = m.joints_um(clock.now_s())
+    current = np.ones(3)
+    for i, d in enumerate(d_um):
+        start = approach_start_um(d, i + 1, config, m.limits_um) if config.approach_um else d
+        for target in (start, d):
+            step = target - last
+            current = np.where(step > 1e-3, 1.0, np.where(step < -1e-3, -1.0, current))
+            m.move_to_um(target)
+            m.wait_until_stopped(clock)
+            last = target
+        clock.sleep(settle_s)
+        p[i] = probe.measure(d)
+        cov[i] = probe.last_cov_um2
+        signs[i] = current
+        temps[i] = m.temperature_at(clock.now_s())
+    return p, cov, signs, temps
+
+
+def _coverage(
+    model: KinematicModel,
+    ff: FeedForward,
+    sim: SimManipulator,
+    lack_um2: FloatArray,
+    meas_cov_um2: FloatArray,
+    poses_um: FloatArray,
+) -> dict[str, float]:
+    """How often the true error of a compensated position lies in its predicted 95 % region.
+
+    For each test pose (absolute: the model's base plus the pose), the compensator's joints,
+    the predicted covariance (coefficients propagated, plus the lack of fit ``lack_um2`` per
+    axis; plus ``meas_cov_um2`` for the error as measured), and the true error there.
+    """
+    limit = float(scipy.stats.chi2.ppf(COVERAGE_LEVEL, 3))
+    inside_truth = inside_vision = 0
+    sq: list[float] = []
+    t = sim.temperature_at(sim.clock.now_s())
+    for pose in poses_um:
+        target = ff.home_um() + pose
+        d = ff.joints_for(target)
+        extra = None if ff.extra is None else np.asarray(ff.extra())
+        u = d if extra is None else np.concatenate([d, extra])
+        var = model.prediction_std_um(u[None, :])[0] ** 2 + lack_um2
+        e = sim.truth.position_um(d[None, :], np.ones((1, 3)), t)[0] - target
+        m2 = float(np.sum(e**2 / var))
+        sq.append(m2)
+        inside_truth += m2 <= limit
+        c = np.diag(var) + meas_cov_um2
+        inside_vision += float(e @ np.linalg.solve(c, e)) <= limit
+    n = len(poses_um)
+    return {"truth": inside_truth / n, "vision": inside_vision / n, "mean_sq": float(np.mean(sq))}
+
+
+def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[str, Any]:
+    """One seed of a study: acquisition, identification, evaluation (the module docstring).
+
+    Returns
+    -------
+    dict
+        One entry of study.json's ``runs``.
+    """
+    config = config or StudyConfig()
+    t0 = time.perf_counter()
+    plat = platform(preset, seed=seed)
+    d = demo_design(seed, config.poses)
+    rng = np.random.default_rng([seed, 7])
+    cams = plat.camera_models
+    names = list(cams)[:2]
+    fast_probe = ProjectedProbe(
+        plat.truth_position_um, (cams[names[0]], cams[names[1]]),  # type: ignore[arg-type]
+        rng, RENDERED_VIRTUAL_POINT_STD_PX,
+    )  # fmt: skip
+    acq = AcquisitionConfig(approach_um=config.approach_um, approach_seed=demo_design_seed(seed))
+    probe: PositionProbe = fast_probe
+    if config.render:
+        from ..vision.probe import VisionProbe
+        from .demo import run_demo
+
+        demo = run_demo(seed, config.poses, plat=plat, evaluate=False,
+                        approach_um=config.approach_um,
+                        frames_per_pose=config.frames_per_pose)  # fmt: skip
+        ok = demo.measured_ok
+        d = d[ok]
+        p = np.array([mm.p_um for mm in demo.measurements])[ok]
+        cov = np.array([mm.cov_um2 for mm in demo.measurements])[ok]
+        rec = [r for r, keep in zip(demo.records, ok, strict=True) if keep]
+        signs = np.array([[r[a] for a in APPROACH_INPUTS] for r in rec], dtype=float)
+        temps = np.array([r["temperature_c"] for r in rec], dtype=float)
+        probe = VisionProbe(plat.cameras, demo.calibration.models(), plat.scene.board,
+                            frames=config.frames_per_pose)  # fmt: skip
+    else:
+        p, cov, signs, temps = _acquire_fast(plat, d, acq, config.settle_s, fast_probe)
+    n_fit = default_train(len(d))
+    extra = {name: signs[:, k] for k, name in enumerate(APPROACH_INPUTS)}
+    extra["temperature"] = temps
+    fits: dict[str, ManipulatorCalibration] = {}
+    validation: dict[str, float] = {}
+    families: dict[str, str] = {}
+    for name in MODELS:
+        cal, ids = calibrate_manipulator(
+            "m1", d, p, "polynomial", train=n_fit, extra_inputs=extra, family=name, seed=seed
+        )
+        fits[name] = cal
+        validation[name] = float(ids["polynomial"].validation["mean_um"])  # type: ignore[arg-type]
+        validation["matrix"] = float(ids["matrix"].validation["mean_um"])  # type: ignore[arg-type]
+        families[name] = str(cal.model.selection.get("family", "quadratic"))
+    sim = plat.manipulator
+    correction = fit_oracle_correction(sim.truth, d[:n_fit], signs[:n_fit], temps[:n_fit],
+                                       p[:n_fit])  # fmt: skip
+    oracle = oracle_position_um(sim.truth, correction, d[n_fit:], signs[n_fit:], temps[n_fit:])
+    validation["oracle"] = float(np.linalg.norm(p[n_fit:] - oracle, axis=1).mean())
+    sensors = {"temperature": lambda: sim.temperature_at(plat.clock.now_s())}
+    conditions: dict[str, FeedForward | None] = {"uncalibrated": None}
+    conditions["matrix"] = FeedForward(sim, fits["auto"].matrix_model or fits["auto"].model,
+                                       "matrix")  # fmt: skip
+    for name in MODELS:
+        model = fits[name].model
+        conditions[name] = FeedForward(sim, model, "optimal",
+                                       extra_inputs_reader(model, sensors), plat.clock)  # fmt: skip
+    conditions["oracle"] = OracleFeedForward(sim, plat.clock, correction)
+    kwargs: dict[str, Any] = {"settle_s": config.settle_s, "truth": plat.truth_position_um,
+                              "cycles": config.cycles}  # fmt: skip
+    pa = run_pose_accuracy(sim, plat.clock, probe, conditions, **kwargs)
+    vap = run_multi_directional(sim, plat.clock, None, conditions, **kwargs)
+    coverage = {}
+    meas_cov = np.mean(cov, axis=0)
+    for name in MODELS:
+        model = fits[name].model
+        cols = list(model.extra_inputs)
+        order = ["sx", "sy", "sz", "T"]
+        u_val = np.column_stack([d[n_fit:]] + [
+            np.column_stack([signs, temps])[n_fit:, order.index(c)] for c in cols
+        ])  # fmt: skip
+        resid = p[n_fit:] - model.predict_um(u_val)
+        lack = np.maximum(np.mean(resid**2, axis=0) - np.diagonal(meas_cov), 0.0)
+        ff = conditions[name]
+        assert ff is not None
+        coverage[name] = _coverage(model, ff, sim, lack, meas_cov, TABLE_5_2_POSES_UM)
+    truth, vision = pa["truth"], pa["vision"]
+    return {
+        "seed": seed,
+        "uncalibrated_ap_truth_mean_um": truth["uncalibrated"]["mean_ap_p_um"],
+        "validation_mean_um": validation,
+        "ap_truth_mean_um": {k: v["mean_ap_p_um"] for k, v in truth.items()},
+        "ap_truth_max_um": {k: v["max_ap_p_um"] for k, v in truth.items()},
+        "ap_vision_mean_um": {k: v["mean_ap_p_um"] for k, v in vision.items()},
+        "vap_truth_mean_um": {k: v["vap_um"] for k, v in vap["truth"].items()},
+        "coverage_95": coverage,
+        "family": families["auto"],
+        "n_poses": len(d),
+        "render": config.render,
+        "wall_s": time.perf_counter() - t0,
+    }
+
+
+def _flatten(run: dict[str, Any]) -> dict[str, float]:
+    out: dict[str, float] = {}
+    for key, value in run.items():
+        if isinstance(value, dict):
+            for sub, v in value.items():
+                if isinstance(v, dict):
+                    for k2, v2 in v.items():
+                        out[f"{key}.{sub}.{k2}"] = float(v2)
+                else:
+                    out[f"{key}.{sub}"] = float(v)
+        elif isinstance(value, int | float) and not isinstance(value, bool) and key != "seed":
+            out[key] = float(value)
+    return out
+
+
+def summarize_runs(runs: Sequence[dict[str, Any]]) -> dict[str, dict[str, float]]:
+    """Median and 90th percentile of every figure over the runs (``summary`` of study.json),
+    and the ratios to the oracle that the accuracy claims are made in."""
+    flat = [_flatten(r) for r in runs]
+    for f, r in zip(flat, runs, strict=True):
+        for name in ("matrix", *MODELS):
+            f[f"validation_over_oracle.{name}"] = (
+                r["validation_mean_um"][name] / r["validation_mean_um"]["oracle"]
+            )
+            f[f"ap_truth_over_oracle.{name}"] = (
+                r["ap_truth_mean_um"][name] / r["ap_truth_mean_um"]["oracle"]
+            )
+    keys = sorted({k for f in flat for k in f})
+    out: dict[str, dict[str, float]] = {}
+    for k in keys:
+        v = np.array([f[k] for f in flat if k in f])
+        out[k] = {"median": float(np.median(v)), "p90": float(np.percentile(v, 90)),
+                  "min": float(v.min()), "max": float(v.max())}  # fmt: skip
+    for name in MODELS:
+        cov = [r["coverage_95"][name]["truth"] for r in runs]
+        out[f"coverage_95.{name}.truth.pooled"] = {"median": float(np.mean(cov)),
+                                                    "p90": float(np.mean(cov)),
+                                                    "min": float(np.min(cov)),
+                                                    "max": float(np.max(cov))}  # fmt: skip
+    return out
+
+
+def run_study(
+    preset: str,
+    seeds: Sequence[int],
+    config: StudyConfig | None = None,
+    workers: int | None = None,
+    progress: Callable[[int, int, dict[str, Any]], None] | None = None,
+) -> dict[str, Any]:
+    """Run :func:`run_seed` for every seed, each in its own process.
+
+    Parameters
+    ----------
+    workers : int, optional
+        Processes at once (default: the machine's cores, at most one per seed); 1 runs in
+        this process.
+    progress : callable (done, total, run), optional
+
+    Returns
+    -------
+    dict
+        study.json's content (without ``format``): preset, seeds, runs (in seed order),
+        summary.
+    """
+    if preset not in PRESETS:
+        raise InputError(f"preset: expected one of {list(PRESETS)}, got {preset!r}")
+    seeds = list(seeds)
+    if not seeds:
+        raise InputError("seeds: expected at least one seed")
+    config = config or StudyConfig()
+    workers = min(workers or os.cpu_count() or 1, len(seeds))
+    runs: dict[int, dict[str, Any]] = {}
+    if workers == 1:
+        for seed in seeds:
+            runs[seed] = run_seed(preset, seed, config)
+            if progress:
+                progress(len(runs), len(seeds), runs[seed])
+    else:
+        saved = {k: os.environ.get(k) for k in _THREAD_VARS}
+        os.environ.update(dict.fromkeys(_THREAD_VARS, "1"))  # one core per seed
+        try:
+            with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+                futures = {pool.submit(run_seed, preset, s, config): s for s in seeds}
+                for future in as_completed(futures):
+                    runs[futures[future]] = future.result()
+                    if progress:
+                        progress(len(runs), len(seeds), runs[futures[future]])
+        finally:
+            for k, v in saved.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
+    ordered = [runs[s] for s in seeds]
+    return {"preset": preset, "seeds": seeds, "runs": ordered, "summary": summarize_runs(ordered)}
+
+
+_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")

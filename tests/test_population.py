@@ -1,0 +1,79 @@
+"""The population preset, the truth's inversion and the study (fast path)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from typer.testing import CliRunner
+
+from microcal.cli import app
+from microcal.kinematics.families import FAMILIES, fit_family
+from microcal.kinematics.terms import JOINTS
+from microcal.procedures.study import StudyConfig, run_seed
+from microcal.sim import platform
+from microcal.sim.population import draw_population
+
+TRAVEL = np.array([[0.0, 8000.0], [0.0, 8000.0], [0.0, 4800.0]])
+
+
+def test_each_seed_is_another_platform_and_the_same_seed_the_same():
+    d = np.random.default_rng(0).uniform(0.0, TRAVEL[:, 1], (50, 3))
+    a = draw_population(1).truth.position_um(d)
+    np.testing.assert_array_equal(a, draw_population(1).truth.position_um(d))
+    b = draw_population(2).truth.position_um(d)
+    assert np.abs(a - b).max() > 5.0  # µm: different manipulators
+    # the thesis preset is untouched by the population's draws
+    thesis = platform("thesis", 0).manipulator.truth
+    assert thesis.joint_errors is None
+    assert thesis.creep_law == "exp"
+
+
+def test_the_joint_errors_leave_what_no_quadratic_fits():
+    truth = draw_population(3).truth
+    d = np.random.default_rng(1).uniform(0.0, TRAVEL[:, 1], (400, 3))
+    p = truth.position_um(d)  # noise-free: all that is left is lack of fit
+    quad = fit_family(d, p, FAMILIES["quadratic"], JOINTS, {}, TRAVEL)
+    waves = fit_family(d, p, FAMILIES["cubic+waves"], JOINTS, {}, TRAVEL)
+    rms = [np.sqrt(np.mean((m.predict_um(d) - p) ** 2)) for m in (quad, waves)]
+    assert rms[0] > 0.3  # µm RMS per coordinate that the quadratic misses
+    assert rms[1] < 0.5 * rms[0]  # the waves follow most of it
+
+
+def test_truth_inverts_exactly_and_creep_is_logarithmic():
+    truth = draw_population(4).truth
+    target = truth.position_um(np.array([[4000.0, 3000.0, 2000.0]]), np.ones((1, 3)), 22.3)
+    d = truth.solve_um(target, np.ones((1, 3)), 22.3)
+    np.testing.assert_allclose(d, [[4000.0, 3000.0, 2000.0]], atol=1e-6)
+    left = truth.creep_um(np.array([[100.0, 0, 0]]), np.array([0.0, 1.0, 5.0, 1e4]))[:, 0]
+    assert np.all(np.diff(left) > 0)  # decays, never overshoots
+    assert left[-1] == 0.0  # to nothing
+
+
+def test_one_seed_of_a_study_measures_models_against_the_oracle():
+    run = run_seed("population", 5, StudyConfig(poses=80, cycles=1))
+    val = run["validation_mean_um"]
+    assert val["oracle"] < val["quadratic"]
+    assert val["oracle"] < val["matrix"]
+    ap = run["ap_truth_mean_um"]
+    assert ap["oracle"] < ap["matrix"] < ap["uncalibrated"]
+    assert set(run["coverage_95"]) == {"quadratic", "auto"}
+    assert run["family"] in FAMILIES
+
+
+def test_study_command_writes_and_refuses_a_foreign_file(tmp_path):
+    out = tmp_path / "st"
+    out.mkdir()
+    (out / "study.json").write_text('{"mine": 1}')
+    result = CliRunner().invoke(app, ["study", "--preset", "population", "--seeds", "1",
+                                      "--out", str(out)])  # fmt: skip
+    assert result.exit_code == 2
+    assert "microcal did not write" in result.output
+    (out / "study.json").unlink()
+    result = CliRunner().invoke(app, ["study", "--preset", "population", "--seeds", "1",
+                                      "--first-seed", "6", "--workers", "1", "--out", str(out)])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    study = json.loads((out / "study.json").read_text())
+    assert study["format"] == "microcal.study/1"
+    assert study["seeds"] == [6]
+    assert (out / "study.html").read_text().startswith("<!-- microcal study page -->")
