@@ -78,7 +78,7 @@ def test_a_wave_model_serialises_predicts_and_inverts():
 def test_held_out_choice_takes_waves_only_when_the_data_need_them():
     d, p = _data(2, wavy=True)
     choice = choose_family(d[:120], p[:120], JOINTS, {}, RANGE_UM)
-    assert "waves" in choice.family.name
+    assert choice.family.name != "quadratic"
     assert choice.scores["quadratic"][0] > 1.3 * choice.scores[choice.family.name][0]
     d, p = _data(3, wavy=False)
     plain = choose_family(d[:120], p[:120], JOINTS, {}, RANGE_UM)
@@ -89,3 +89,35 @@ def test_unknown_family_is_named():
     d, p = _data(4, wavy=False, n=60)
     with pytest.raises(InputError, match="family"):
         choose_family(d, p, JOINTS, {}, RANGE_UM, candidates=("quartic",))
+
+
+def test_smooth_fit_shrinks_noise_and_its_covariance_covers_the_truth():
+    """Monte Carlo over 40 noise draws of one wavy truth: the penalised fit's 95 % region
+    (chi-square, 3 degrees of freedom, the axes' predictions independent) holds the true
+    position at 85-99 % of held-out points, and its RMS error at the travel's corners,
+    where stepwise selection scatters most, is below the stepwise waves'."""
+    rng = np.random.default_rng(7)
+    d = rng.uniform(0.0, RANGE_UM[:, 1], (120, 3))
+    grid = rng.uniform(0.0, RANGE_UM[:, 1], (50, 3))
+
+    def true_p(x: np.ndarray) -> np.ndarray:
+        p = x @ np.array([[1.0005, 0.002, 0.0], [-0.001, 0.9995, 0.003], [0.0, 0.001, 1.0002]]).T
+        p = p + np.array([1000.0, 800.0, 300.0]) + 2e-7 * x[:, [2, 0, 1]] ** 2
+        p[:, 1] += 1.5 * np.sin(x[:, 0] / 900.0)
+        p[:, 2] += 1.0 * np.cos(x[:, 1] / 1100.0)
+        return p
+
+    corners = np.array(np.meshgrid(*RANGE_UM, indexing="ij")).reshape(3, -1).T  # (8, 3)
+    inside, err_smooth, err_step = [], [], []
+    for k in range(40):
+        p = true_p(d) + np.random.default_rng(100 + k).normal(0.0, 0.3, (120, 3))
+        smooth = fit_family(d, p, FAMILIES["smooth"], JOINTS, {}, RANGE_UM)
+        step = fit_family(d, p, FAMILIES["quadratic+waves"], JOINTS, {}, RANGE_UM)
+        e = true_p(grid) - smooth.predict_um(grid)
+        var = smooth.prediction_std_um(grid) ** 2
+        inside.append(np.mean(np.sum(e**2 / var, axis=1) <= 7.815))
+        for model, errs in ((smooth, err_smooth), (step, err_step)):
+            errs.append(np.sqrt(np.mean((true_p(corners) - model.predict_um(corners)) ** 2)))
+    assert 0.85 <= np.mean(inside) <= 0.99
+    assert np.mean(err_smooth) < np.mean(err_step)
+    assert smooth.selection["method"] == "penalised"

@@ -9,6 +9,7 @@ may be new or hold a study microcal wrote, nothing else of the same names.
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any
@@ -23,6 +24,17 @@ __all__ = ["FORMAT", "check_study_folder", "write_study"]
 FORMAT = "microcal.study/1"
 #: The first line of a study page microcal wrote (how it knows the page is its own).
 PAGE_MARK = "<!-- microcal study page -->"
+
+
+def _nulls(value: Any) -> Any:
+    """NaN (a figure a failed condition has not) as JSON null."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _nulls(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_nulls(v) for v in value]
+    return value
 
 
 def check_study_folder(out: str | os.PathLike[str]) -> Path:
@@ -47,7 +59,7 @@ def write_study(out: str | os.PathLike[str], study: dict[str, Any], page: str) -
     the folder ``out`` (made if missing); returns the path of study.json."""
     folder = check_study_folder(out)
     folder.mkdir(parents=True, exist_ok=True)
-    path = write_text_atomic(folder / "study.json",
-                             json.dumps({"format": FORMAT, **study}, indent=1) + "\n")  # fmt: skip
+    text = json.dumps(_nulls({"format": FORMAT, **study}), indent=1, allow_nan=False)
+    path = write_text_atomic(folder / "study.json", text + "\n")
     write_text_atomic(folder / "study.html", PAGE_MARK + "\n" + page)
     return path

@@ -139,10 +139,7 @@ class Compensator:
         self._p_base = model.p_base_um
         used = np.asarray(model.selected.any(axis=0), dtype=bool)
         waves = [
-            w
-            for t, keep in zip(model.terms, used.tolist(), strict=True)
-            if keep
-            for w in t.waves
+            w for t, keep in zip(model.terms, used.tolist(), strict=True) if keep for w in t.waves
         ]
         self._waves = bool(waves)
         middle = np.zeros(3)

@@ -24,7 +24,7 @@ from ..errors import DegenerateDataError, InputError
 
 __all__ = ["DESIGNS", "check_design", "make_design"]
 
-DESIGNS = ("random", "sobol", "lhs", "grid")
+DESIGNS = ("random", "sobol", "lhs", "grid", "chebyshev")
 #: An axis must span at least this share of its travel to be identified.
 MIN_SPAN = 0.25
 #: Two axes whose commands correlate this much cannot be told apart.
@@ -38,7 +38,11 @@ def make_design(
 
     Parameters
     ----------
-    kind : {"random", "sobol", "lhs", "grid"}
+    kind : {"random", "sobol", "lhs", "grid", "chebyshev"}
+        ``chebyshev``: random, each axis drawn from the arcsine (Chebyshev) distribution
+        of its travel, denser towards the ends: for a smooth model of high order, the
+        design whose worst prediction variance over the travel is least (uniform draws
+        leave the ends, where poses are also commanded, thinly covered).
     n : int
         Number of poses (a grid has the nearest number its shape allows).
     low_um, high_um : (k,) float
@@ -67,6 +71,9 @@ def make_design(
             unit = qmc.Sobol(k, scramble=True, seed=seed).random(n)
     elif kind == "lhs":
         unit = qmc.LatinHypercube(k, seed=seed).random(n)
+    elif kind == "chebyshev":
+        u = np.random.default_rng(seed).uniform(size=(n, k))
+        unit = 0.5 * (1.0 - np.cos(np.pi * u))
     elif kind == "grid":
         per_axis = max(2, round(n ** (1.0 / k)))
         axes = [np.linspace(0.0, 1.0, per_axis)] * k

@@ -10,7 +10,13 @@ richer families add
 - ``waves``: the half-range cosine terms ``cos1 ... cos<k>`` along each joint, over the
   travel the model is identified on (:func:`~microcal.kinematics.terms.wave_terms`);
 - for a model with the joints' approach directions (``sx, sy, sz``), the reversal error
-  changing along the travel: ``sx*dx``, ``sy*dy``, ``sz*dz`` (sign times position).
+  changing along the travel: ``sx*dx``, ``sy*dy``, ``sz*dz`` (sign times position);
+- ``smooth``: the quadratic and the waves up to ``cos8``, none selected away: the waves'
+  roughness is penalised instead, the smoothing chosen by GCV
+  (:mod:`~microcal.kinematics.penalised`). Its covariance is a smoothing spline's Bayesian
+  one, which covers the true error at about its stated rate.
+
+The richer families take each extra input to the first power only (T, not T^2).
 
 Within a family the terms are still selected stepwise. Which family (and which stepwise
 threshold) a manipulator needs is chosen by k-fold cross-validation on the fitting poses
@@ -31,7 +37,8 @@ import numpy as np
 from .._validation import FloatArray
 from ..errors import DegenerateDataError, InputError
 from .models import KinematicModel, fit_model
-from .terms import JOINTS, Term, polynomial_terms, wave_terms
+from .penalised import fit_penalised_axis, roughness_weights
+from .terms import JOINTS, Term, design_matrix, polynomial_terms, wave_terms
 from .validation import kfold_indices
 
 __all__ = [
@@ -58,12 +65,16 @@ class Family:
         Half-range cosine harmonics per joint (0: none).
     penter : float
         Stepwise entry threshold (removal at twice it).
+    penalised : bool
+        Instead of stepwise selection, every term is kept and the waves' roughness is
+        penalised, the smoothing chosen by GCV (:mod:`~microcal.kinematics.penalised`).
     """
 
     name: str
     degree: int = 2
     harmonics: int = 0
     penter: float = 0.05
+    penalised: bool = False
 
 
 #: The families by name. ``quadratic`` is the thesis's (Eq 4.6-4.10).
@@ -71,6 +82,7 @@ FAMILIES: dict[str, Family] = {
     f.name: f
     for f in (
         Family("quadratic", 2, 0),
+        Family("smooth", 2, 8, penalised=True),
         Family("cubic", 3, 0),
         Family("quadratic+waves", 2, 4),
         Family("cubic+waves", 3, 6),
@@ -78,8 +90,9 @@ FAMILIES: dict[str, Family] = {
     )
 }
 
-#: The candidates ``family="auto"`` chooses from, smallest first.
-AUTO_CANDIDATES: tuple[str, ...] = tuple(FAMILIES)
+#: The candidates ``family="auto"`` chooses from, simplest first (``smooth``, shrunk, counts
+#: as the simplest after the thesis's).
+AUTO_CANDIDATES: tuple[str, ...] = ("quadratic", "smooth", "cubic", "quadratic+waves")
 
 #: Folds of the cross-validation that chooses a family.
 CHOICE_FOLDS = 5
@@ -108,6 +121,10 @@ def family_terms(
     joint_range_um : (3, 2) float
         The joints' [low, high] over which the waves are laid.
     """
+    if family.name != "quadratic":
+        # a square of a sensed input (T^2) extrapolates wildly beyond the small range a run
+        # sweeps (a few tenths of a degree): the richer families take its linear term only
+        extra = dict.fromkeys(extra, 1)
     terms = list(polynomial_terms(JOINTS, family.degree, extra))
     constant = terms.pop()  # the constant goes last
     if family.harmonics:
@@ -128,6 +145,8 @@ def fit_family(
 ) -> KinematicModel:
     """Fit a family's terms, selected stepwise, to (N, k) inputs and (N, 3) positions."""
     terms = family_terms(family, inputs, extra, joint_range_um)
+    if family.penalised:
+        return _fit_penalised(u, p_um, family, terms, inputs)
     model = fit_model(
         u,
         p_um,
@@ -148,6 +167,27 @@ def fit_family(
         model.covariance,
         model.selection | {"family": family.name},
     )
+
+
+def _fit_penalised(
+    u: FloatArray, p_um: FloatArray, family: Family, terms: Sequence[Term], inputs: Sequence[str]
+) -> KinematicModel:
+    U = np.asarray(u, dtype=np.float64)
+    P = np.asarray(p_um, dtype=np.float64)
+    X = design_matrix(U, inputs, terms)
+    weights = roughness_weights([t.waves[0].harmonic if t.waves else 0 for t in terms])
+    m = len(terms)
+    coef, cov = np.zeros((3, m)), np.zeros((3, m, m))
+    record: dict[str, Any] = {"method": "penalised", "family": family.name, "n_samples": len(U)}
+    lams, edfs = [], []
+    for axis in range(3):
+        fit = fit_penalised_axis(X, P[:, axis], weights)
+        coef[axis], cov[axis] = fit.coef, fit.covariance
+        lams.append(fit.lam)
+        edfs.append(fit.edf)
+    record |= {"lambda": lams, "edf": edfs}
+    return KinematicModel("polynomial", tuple(inputs), JOINTS, tuple(terms), coef,
+                          np.ones((3, m), dtype=bool), cov, record)  # fmt: skip
 
 
 @dataclass(frozen=True)

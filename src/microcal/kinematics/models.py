@@ -25,7 +25,6 @@ from .terms import (
     JOINTS,
     Term,
     design_matrix,
-    design_matrix_derivative,
     matrix_terms,
     parse_term,
     polynomial_terms,
@@ -43,19 +42,30 @@ class _Generic:
 
     def __init__(self, model: KinematicModel) -> None:
         used = np.flatnonzero(model.selected.any(axis=0))
-        self.inputs = model.inputs
+        self.index = {name: i for i, name in enumerate(model.inputs)}
         self.joints = model.joints
         self.terms = [model.terms[a] for a in used]
         self.coef = np.ascontiguousarray(model.coefficients[:, used])
+        # each joint's derivative: (column, factor, term) triples, prepared once
+        self.deriv = [
+            [(col, c, d) for col, t in enumerate(self.terms) for c, d in t.derivative(joint)]
+            for joint in model.joints
+        ]
 
     def predict(self, u: FloatArray) -> FloatArray:
-        out: FloatArray = design_matrix(u, self.inputs, self.terms) @ self.coef.T
+        X = np.empty((u.shape[0], len(self.terms)))
+        for col, t in enumerate(self.terms):
+            X[:, col] = t.value(u, self.index)
+        out: FloatArray = X @ self.coef.T
         return out
 
     def jacobian(self, u: FloatArray) -> FloatArray:
         J = np.empty((u.shape[0], 3, len(self.joints)))
-        for b, joint in enumerate(self.joints):
-            J[:, :, b] = design_matrix_derivative(u, self.inputs, self.terms, joint) @ self.coef.T
+        for b, parts in enumerate(self.deriv):
+            dX = np.zeros((u.shape[0], len(self.terms)))
+            for col, c, d in parts:
+                dX[:, col] += c * d.value(u, self.index)
+            J[:, :, b] = dX @ self.coef.T
         return J
 
 
@@ -222,11 +232,7 @@ class KinematicModel:
     @cached_property
     def _compiled(self) -> _Compiled | _Generic:
         used = np.asarray(self.selected.any(axis=0), dtype=bool)
-        if all(
-            t.is_monomial
-            for t, keep in zip(self.terms, used.tolist(), strict=True)
-            if keep
-        ):
+        if all(t.is_monomial for t, keep in zip(self.terms, used.tolist(), strict=True) if keep):
             return _Compiled(self)
         return _Generic(self)
 

@@ -38,7 +38,7 @@ import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
-from multiprocessing import get_context
+from multiprocessing import get_all_start_methods, get_context
 from typing import Any
 
 import numpy as np
@@ -47,7 +47,8 @@ import scipy.stats
 from .._validation import FloatArray
 from ..control.feedforward import APPROACH_UM, FeedForward, extra_inputs_reader
 from ..devices.base import Clock
-from ..errors import InputError
+from ..errors import DegenerateDataError, InputError, LimitError
+from ..kinematics.designs import make_design
 from ..kinematics.extra_inputs import APPROACH_INPUTS
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..kinematics.models import KinematicModel, fit_model
@@ -57,16 +58,16 @@ from ..sim.kinematics import TrueKinematics, invert_map
 from ..sim.manipulator import SimManipulator
 from ..sim.platforms import PRESETS
 from ..sim.synthetic_run import RENDERED_VIRTUAL_POINT_STD_PX, ProjectedProbe
-from ..thesis.experiment import TABLE_5_2_POSES_UM
+from ..thesis.experiment import TABLE_5_2_POSES_UM, WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
 from .acquisition import AcquisitionConfig, approach_start_um
-from .demo import demo_design, demo_design_seed
+from .demo import demo_design_seed
 from .evaluation import PositionProbe, run_multi_directional, run_pose_accuracy
 from .identification import calibrate_manipulator, default_train
 
 __all__ = ["MODELS", "StudyConfig", "run_seed", "run_study", "summarize_runs"]
 
 #: The models a study identifies and compensates with, besides the matrix model.
-MODELS: tuple[str, ...] = ("quadratic", "auto")
+MODELS: tuple[str, ...] = ("quadratic", "smooth", "auto")
 #: Probability content of the uncertainty region whose coverage is checked.
 COVERAGE_LEVEL = 0.95
 
@@ -81,6 +82,7 @@ class StudyConfig:
     approach_um: float = 300.0
     render: bool = False
     frames_per_pose: int = 5
+    design: str = "random"
 
     def __post_init__(self) -> None:
         if self.poses < 40:
@@ -152,7 +154,9 @@ class OracleFeedForward(FeedForward):
         t = self.sim.temperature_at(self.sim.clock.now_s())
         p = np.asarray(p_um, dtype=np.float64).reshape(1, 3)
         ones = np.ones((1, 3))
-        d0 = self.truth.solve_um(p, ones, t)
+        d0 = np.asarray(
+            np.linalg.solve(self.truth.static.R, (p - self.truth.static.p_base_um).T).T, np.float64
+        )
         d = invert_map(lambda d: oracle_position_um(self.truth, self.correction, d, ones, t),
                        p, d0)  # fmt: skip
         out: FloatArray = d[0]
@@ -235,7 +239,8 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[
     config = config or StudyConfig()
     t0 = time.perf_counter()
     plat = platform(preset, seed=seed)
-    d = demo_design(seed, config.poses)
+    d = make_design(config.design, config.poses, WORKSPACE_MIN_UM, WORKSPACE_MAX_UM,
+                    demo_design_seed(seed))  # fmt: skip
     rng = np.random.default_rng([seed, 7])
     cams = plat.camera_models
     names = list(cams)[:2]
@@ -293,8 +298,32 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[
     conditions["oracle"] = OracleFeedForward(sim, plat.clock, correction)
     kwargs: dict[str, Any] = {"settle_s": config.settle_s, "truth": plat.truth_position_um,
                               "cycles": config.cycles}  # fmt: skip
-    pa = run_pose_accuracy(sim, plat.clock, probe, conditions, **kwargs)
-    vap = run_multi_directional(sim, plat.clock, None, conditions, **kwargs)
+    pa: dict[str, dict[str, Any]] = {"truth": {}, "vision": {}}
+    vap: dict[str, dict[str, Any]] = {"truth": {}}
+    failed: dict[str, str] = {}
+    nan = {"mean_ap_p_um": float("nan"), "max_ap_p_um": float("nan"), "vap_um": float("nan")}
+    chosen = families["auto"]
+    for name, ff in conditions.items():  # a condition that cannot reach a pose is reported
+        one = {name: ff}
+        if name == "auto" and chosen in MODELS and chosen in pa["truth"]:
+            # the held-out choice fell on a family fitted above: the same model, evaluated
+            for source in pa:
+                pa[source]["auto"] = pa[source][chosen]
+            vap["truth"]["auto"] = vap["truth"][chosen]
+            if chosen in failed:
+                failed["auto"] = failed[chosen]
+            continue
+        try:
+            got = run_pose_accuracy(sim, plat.clock, probe, one, **kwargs)
+            # by truth, which has no noise, one cycle of the multi-directional test tells all
+            got_v = run_multi_directional(sim, plat.clock, None, one, **(kwargs | {"cycles": 1}))
+        except (LimitError, DegenerateDataError) as exc:
+            failed[name] = str(exc)
+            got = {"truth": {name: nan}, "vision": {name: nan}}
+            got_v = {"truth": {name: nan}}
+        for source in pa:
+            pa[source] |= got[source]
+        vap["truth"] |= got_v["truth"]
     coverage = {}
     meas_cov = np.mean(cov, axis=0)
     for name in MODELS:
@@ -308,7 +337,11 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[
         lack = np.maximum(np.mean(resid**2, axis=0) - np.diagonal(meas_cov), 0.0)
         ff = conditions[name]
         assert ff is not None
-        coverage[name] = _coverage(model, ff, sim, lack, meas_cov, TABLE_5_2_POSES_UM)
+        try:
+            coverage[name] = _coverage(model, ff, sim, lack, meas_cov, TABLE_5_2_POSES_UM)
+        except (LimitError, DegenerateDataError):
+            coverage[name] = {"truth": float("nan"), "vision": float("nan"),
+                              "mean_sq": float("nan")}  # fmt: skip
     truth, vision = pa["truth"], pa["vision"]
     return {
         "seed": seed,
@@ -320,6 +353,7 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[
         "vap_truth_mean_um": {k: v["vap_um"] for k, v in vap["truth"].items()},
         "coverage_95": coverage,
         "family": families["auto"],
+        "failed": failed,
         "n_poses": len(d),
         "render": config.render,
         "wall_s": time.perf_counter() - t0,
@@ -334,7 +368,7 @@ def _flatten(run: dict[str, Any]) -> dict[str, float]:
                 if isinstance(v, dict):
                     for k2, v2 in v.items():
                         out[f"{key}.{sub}.{k2}"] = float(v2)
-                else:
+                elif isinstance(v, int | float):
                     out[f"{key}.{sub}"] = float(v)
         elif isinstance(value, int | float) and not isinstance(value, bool) and key != "seed":
             out[key] = float(value)
@@ -357,14 +391,21 @@ def summarize_runs(runs: Sequence[dict[str, Any]]) -> dict[str, dict[str, float]
     out: dict[str, dict[str, float]] = {}
     for k in keys:
         v = np.array([f[k] for f in flat if k in f])
-        out[k] = {"median": float(np.median(v)), "p90": float(np.percentile(v, 90)),
-                  "min": float(v.min()), "max": float(v.max())}  # fmt: skip
-    for name in MODELS:
-        cov = [r["coverage_95"][name]["truth"] for r in runs]
-        out[f"coverage_95.{name}.truth.pooled"] = {"median": float(np.mean(cov)),
-                                                    "p90": float(np.mean(cov)),
-                                                    "min": float(np.min(cov)),
-                                                    "max": float(np.max(cov))}  # fmt: skip
+        ok = v[np.isfinite(v)]  # a condition that failed on a seed is counted, not averaged
+        if not ok.size:
+            out[k] = {"median": float("nan"), "p90": float("nan"), "min": float("nan"),
+                      "max": float("nan"), "failed": int(v.size)}  # fmt: skip
+            continue
+        out[k] = {"median": float(np.median(ok)), "p90": float(np.percentile(ok, 90)),
+                  "min": float(ok.min()), "max": float(ok.max()),
+                  "failed": int(v.size - ok.size)}  # fmt: skip
+    for name in MODELS:  # every seed has as many test poses: the pooled rate is the mean
+        cov = np.array([r["coverage_95"][name]["truth"] for r in runs], dtype=float)
+        ok = cov[np.isfinite(cov)]
+        pooled = float(ok.mean()) if ok.size else float("nan")
+        out[f"coverage_95.{name}.truth.pooled"] = {"median": pooled, "p90": pooled,
+                                                    "min": pooled, "max": pooled,
+                                                    "failed": int(cov.size - ok.size)}  # fmt: skip
     return out
 
 
@@ -407,7 +448,9 @@ def run_study(
         saved = {k: os.environ.get(k) for k in _THREAD_VARS}
         os.environ.update(dict.fromkeys(_THREAD_VARS, "1"))  # one core per seed
         try:
-            with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+            # fork where there is one (a script without a main guard works), else spawn
+            method = "fork" if "fork" in get_all_start_methods() else "spawn"
+            with ProcessPoolExecutor(workers, mp_context=get_context(method)) as pool:
                 futures = {pool.submit(run_seed, preset, s, config): s for s in seeds}
                 for future in as_completed(futures):
                     runs[futures[future]] = future.result()

@@ -46,7 +46,8 @@ def invert_map(
     tol_um: float = 1e-9,
     step_um: float = 1e-2,
 ) -> FloatArray:
-    """Joints ``d`` with ``fn(d) = p_um``: Newton iterations with a central-difference Jacobian.
+    """Joints ``d`` with ``fn(d) = p_um``: chord iterations (Newton with the central-difference
+    Jacobian of the start, taken again only when an iteration fails to halve the residual).
 
     Parameters
     ----------
@@ -62,15 +63,20 @@ def invert_map(
         No convergence to 1e-6 µm (a target the map cannot reach).
     """
     d = np.array(d0_um, dtype=np.float64)
+    J: FloatArray | None = None
+    previous = np.inf
     for _ in range(iterations):
         r = fn(d) - p_um
-        if np.max(np.abs(r)) < tol_um:
+        size = float(np.max(np.abs(r)))
+        if size < tol_um:
             return d
-        J = np.empty((p_um.shape[0], 3, 3))
-        for b in range(3):
-            e = np.zeros(3)
-            e[b] = step_um
-            J[:, :, b] = (fn(d + e) - fn(d - e)) / (2 * step_um)
+        if J is None or size > 0.5 * previous:
+            J = np.empty((p_um.shape[0], 3, 3))
+            for b in range(3):
+                e = np.zeros(3)
+                e[b] = step_um
+                J[:, :, b] = (fn(d + e) - fn(d - e)) / (2 * step_um)
+        previous = size
         d = d - np.linalg.solve(J, r[:, :, None])[:, :, 0]
     r = fn(d) - p_um
     if np.max(np.abs(r)) >= 1e-6:
