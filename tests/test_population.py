@@ -57,7 +57,8 @@ def test_one_seed_of_a_study_measures_models_against_the_oracle():
     assert val["oracle"] < val["matrix"]
     ap = run["ap_truth_mean_um"]
     assert ap["oracle"] < ap["matrix"] < ap["uncalibrated"]
-    assert set(run["coverage_95"]) == {"quadratic", "auto"}
+    assert set(run["coverage_95"]) == {"quadratic", "smooth", "auto"}
+    assert run["failed"] == {}
     assert run["family"] in FAMILIES
 
 
