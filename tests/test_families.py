@@ -121,3 +121,21 @@ def test_smooth_fit_shrinks_noise_and_its_covariance_covers_the_truth():
     assert 0.85 <= np.mean(inside) <= 0.99
     assert np.mean(err_smooth) < np.mean(err_step)
     assert smooth.selection["method"] == "penalised"
+
+
+def test_an_extra_input_that_cannot_be_identified_is_named_with_the_fix():
+    from microcal.errors import DegenerateDataError
+    from microcal.procedures.identification import identify
+
+    d, p = _data(8, wavy=False, n=100)
+    rng = np.random.default_rng(0)
+    signs = {f"approach_{a}": rng.choice([-1.0, 1.0], 100) for a in "xyz"}
+    assert identify(d, p, extra_inputs=signs).model.extra_inputs == ("sx", "sy", "sz")
+    # every pose approached from below but two: the sign cannot be identified
+    few = dict(signs, approach_x=np.where(np.arange(100) < 2, -1.0, 1.0))
+    with pytest.raises(DegenerateDataError, match=r"approach_x takes one of its signs in only 2"):
+        identify(d, p, extra_inputs=few)
+    # a temperature that follows the x joint
+    hot = {"temperature": 22.0 + d[:, 0] / 8000.0}
+    with pytest.raises(DegenerateDataError, match=r"temperature follows the joints' positions"):
+        identify(d, p, extra_inputs=hot)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 from typer.testing import CliRunner
@@ -78,3 +79,25 @@ def test_study_command_writes_and_refuses_a_foreign_file(tmp_path):
     assert study["format"] == "microcal.study/1"
     assert study["seeds"] == [6]
     assert (out / "study.html").read_text().startswith("<!-- microcal study page -->")
+
+
+def test_study_takes_a_simulated_rig_and_refuses_the_rest(tmp_path):
+    from microcal.formats.study_file import study_platform
+
+    rig = tmp_path / "rig.toml"
+    rig.write_text('driver = "sim"\npreset = "population"\nseed = 9\n'
+                   "[overrides.manipulator]\nsensor_noise_um = 0.1\n")  # fmt: skip
+    assert study_platform("", rig) == ("population", {"manipulator.sensor_noise_um": 0.1})
+    runner = CliRunner()
+    both = runner.invoke(app, ["study", "--preset", "thesis", "--rig", str(rig), "--out", "x"])
+    assert both.exit_code == 2
+    assert "one of them" in both.output
+    hardware = Path(__file__).parents[1] / "examples" / "rigs" / "smaract-gige.toml"
+    hw = runner.invoke(app, ["study", "--rig", str(hardware), "--out", "x"])
+    assert hw.exit_code == 2
+    assert "driver = sim" in hw.output
+    bad = runner.invoke(app, ["study", "--preset", "population", "--design", "spiral",
+                              "--out", str(tmp_path / "o")])  # fmt: skip
+    assert bad.exit_code == 2
+    assert "design" in bad.output
+    assert not (tmp_path / "o").exists()  # nothing written for a bad input

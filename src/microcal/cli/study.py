@@ -14,31 +14,37 @@ _Seeds = Annotated[int, Option(min=1, max=10000, help="Number of platforms (seed
 _First = Annotated[int, Option(min=0, help="The first seed.")]
 _Render = Annotated[bool, Option(help="Render and detect (full pipeline) instead of projecting.")]
 _Workers = Annotated[int, Option(min=0, help="Processes at once (0: one per core).")]
+_Poses = Annotated[int, Option(min=40, max=20000, help="Poses acquired per platform.")]
+_Design = Annotated[str, Option(help="Command design: random, sobol, lhs, grid, chebyshev.")]
 
 
 @app.command(short_help="Run the procedure on many simulated platforms; their distributions.")
 def study(
-    preset: Annotated[str, Option(help="Simulated platform preset (population draws each seed).")],
     out: Annotated[Path, Option("--out", "-o", help="Folder for study.json and study.html.")],
+    preset: Annotated[str, Option(help="Simulated preset (population: each seed its own).")] = "",
+    rig: Annotated[Path | None, Option(help="A simulated rig file: preset, settings.")] = None,
     seeds: _Seeds = 20, first_seed: _First = 0, render: _Render = False, workers: _Workers = 0,
+    poses: _Poses = 170, design: _Design = "random",
 ) -> None:  # fmt: skip
-    """Calibrate, identify (matrix, quadratic, auto) and evaluate on N seeded platforms,
+    """Calibrate, identify (matrix, quadratic, smooth, auto) and evaluate on N seeded platforms,
     each in its own process, against the oracle; write study.json and study.html.
 
     Example: microcal study --preset population --seeds 20 --out study-population
+    (or --rig my-sim-rig.toml: a lab's own noise and travel, the seeds as given here)
     """
-    from ..formats.study_file import check_study_folder, write_study
+    from ..formats.study_file import check_study_folder, study_platform, write_study
     from ..procedures.study import StudyConfig, run_study
     from ..report.study_page import study_page, study_table
 
+    preset, overrides = study_platform(preset, rig)
     check_study_folder(out)
     console = Console()
 
     def tick(done: int, total: int, run: dict[str, object]) -> None:
         console.print(f"seed {run['seed']}: done ({done}/{total}, {run['wall_s']:.1f} s)")
 
-    result = run_study(preset, range(first_seed, first_seed + seeds), StudyConfig(render=render),
-                       workers or None, tick)  # fmt: skip
+    config = StudyConfig(poses=poses, render=render, design=design, overrides=overrides)
+    result = run_study(preset, range(first_seed, first_seed + seeds), config, workers or None, tick)
     path = write_study(out, result, study_page(result))
     for name, med, p90 in study_table(result):
         console.print(f"{name:48s} median {med:9.3g}  p90 {p90:9.3g}")

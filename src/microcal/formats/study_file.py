@@ -19,7 +19,7 @@ from .atomic import write_text_atomic
 from .json_file import check_json_output
 from .outputs import check_output
 
-__all__ = ["FORMAT", "check_study_folder", "write_study"]
+__all__ = ["FORMAT", "check_study_folder", "study_platform", "write_study"]
 
 FORMAT = "microcal.study/1"
 #: The first line of a study page microcal wrote (how it knows the page is its own).
@@ -35,6 +35,30 @@ def _nulls(value: Any) -> Any:
     if isinstance(value, list):
         return [_nulls(v) for v in value]
     return value
+
+
+def study_platform(preset: str, rig: str | os.PathLike[str] | None) -> tuple[str, dict[str, Any]]:
+    """The preset and simulator settings a study runs: ``preset``, or a simulated rig file's
+    preset and overrides (its seed is not used: a study's seeds are its own).
+
+    Raises
+    ------
+    InputError
+        Neither or both given, or a rig file of hardware.
+    """
+    if bool(preset) == (rig is not None):
+        raise InputError("study: give --preset NAME or --rig FILE (a simulated rig), one of them")
+    if rig is None:
+        return preset, {}
+    from ..devices.rig_spec import SimRigSpec
+    from .rig_file import load_rig
+
+    spec = load_rig(str(rig))
+    if not isinstance(spec, SimRigSpec):
+        raise InputError(
+            f"--rig {rig}: a study runs on the simulator; give a rig with driver = sim"
+        )
+    return spec.preset, dict(spec.overrides)
 
 
 def check_study_folder(out: str | os.PathLike[str]) -> Path:

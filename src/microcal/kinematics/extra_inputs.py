@@ -35,6 +35,7 @@ __all__ = [
     "expand_names",
     "extra_input",
     "fixed_approach_values",
+    "identifiability_problem",
     "is_approach",
     "values_for",
 ]
@@ -164,3 +165,56 @@ def values_for(symbols: Sequence[str], values: Mapping[str, float]) -> FloatArra
             )
         out.append(float(values[entry.name]))
     return np.array([out])
+
+
+#: An extra input explained this well (R^2) by a quadratic in the joints cannot be told apart
+#: from the joints' own terms.
+MAX_R2_WITH_JOINTS = 0.98
+
+
+def identifiability_problem(name: str, values: FloatArray, d_um: FloatArray) -> str | None:
+    """Why an extra input's effect cannot be identified from these poses, or None.
+
+    An approach direction must take each sign in at least max(3, 5 %) of the poses; any
+    input must not follow the joints (R^2 of a quadratic in them at most
+    :data:`MAX_R2_WITH_JOINTS`), or its effect and theirs cannot be told apart.
+
+    Parameters
+    ----------
+    name : str
+        Registry name.
+    values : (N,) float
+    d_um : (N, 3) float
+    """
+    v = np.asarray(values, dtype=np.float64)
+    n = v.size
+    if is_approach(name):
+        fewest = int(min(np.sum(v > 0), np.sum(v < 0)))
+        need = max(3, int(np.ceil(0.05 * n)))
+        if fewest < need:
+            return (
+                f"{name} takes one of its signs in only {fewest} of {n} poses (at least {need} "
+                "needed): approach each pose from a random side (approach_um)"
+            )
+    d = np.asarray(d_um, dtype=np.float64)
+    span = np.ptp(d, axis=0)
+    z = (d - d.min(axis=0)) / np.where(span > 0, span, 1.0)
+    cols = [np.ones(n), *z.T, *(z[:, i] * z[:, j] for i in range(3) for j in range(i, 3))]
+    X = np.column_stack(cols)
+    centred = v - v.mean()
+    total = float(centred @ centred)
+    if total == 0.0:
+        return f"{name} has the same value in every pose: its effect cannot be identified"
+    fit, *_ = np.linalg.lstsq(X, v, rcond=None)
+    r2 = 1.0 - float(np.sum((v - X @ fit) ** 2)) / total
+    if r2 > MAX_R2_WITH_JOINTS:
+        fix = (
+            "approach each pose from a random side (approach_um)"
+            if is_approach(name)
+            else "acquire the poses in a random order so it varies apart from them"
+        )
+        return (
+            f"{name} follows the joints' positions (R^2 {r2:.3f} > {MAX_R2_WITH_JOINTS}): its "
+            f"effect cannot be told from theirs; {fix}"
+        )
+    return None

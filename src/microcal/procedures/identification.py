@@ -25,7 +25,7 @@ from ..kinematics import (
     fit_polynomial_model,
     validate_split,
 )
-from ..kinematics.extra_inputs import extra_input
+from ..kinematics.extra_inputs import extra_input, identifiability_problem
 from ..kinematics.families import FAMILIES, choose_family, fit_family
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..thesis.experiment import SPLIT
@@ -131,7 +131,11 @@ def identify(
     extra: dict[str, int] = {}
     for name, values in (extra_inputs or {}).items():
         entry = extra_input(name)
-        u = np.column_stack([u, as_array(values, entry.column, (u.shape[0],))])
+        column = as_array(values, entry.column, (u.shape[0],))
+        problem = identifiability_problem(name, column, u[:, :3])
+        if problem:
+            raise DegenerateDataError(f"extra input: {problem}")
+        u = np.column_stack([u, column])
         extra[entry.symbol] = entry.degree
     if model == "matrix" and extra:
         raise InputError(f"extra inputs {sorted(extra_inputs or {})} need the polynomial model")

@@ -37,7 +37,7 @@ import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from multiprocessing import get_all_start_methods, get_context
 from typing import Any
 
@@ -47,8 +47,8 @@ import scipy.stats
 from .._validation import FloatArray
 from ..control.feedforward import APPROACH_UM, FeedForward, extra_inputs_reader
 from ..devices.base import Clock
-from ..errors import DegenerateDataError, InputError, LimitError
-from ..kinematics.designs import make_design
+from ..errors import DegenerateDataError, DeviceError, InputError, LimitError
+from ..kinematics.designs import DESIGNS, make_design
 from ..kinematics.extra_inputs import APPROACH_INPUTS
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..kinematics.models import KinematicModel, fit_model
@@ -83,8 +83,12 @@ class StudyConfig:
     render: bool = False
     frames_per_pose: int = 5
     design: str = "random"
+    overrides: dict[str, Any] = field(default_factory=dict)
+    """Simulator settings (a rig file's ``overrides``) applied to every seed's platform."""
 
     def __post_init__(self) -> None:
+        if self.design not in DESIGNS:
+            raise InputError(f"design: expected one of {list(DESIGNS)}, got {self.design!r}")
         if self.poses < 40:
             raise InputError(f"poses: expected 40 or more, got {self.poses}")
         if self.cycles < 1:
@@ -111,12 +115,15 @@ def fit_oracle_correction(
     temps : (N,) float
     p_um : (N, 3) float
     """
-    u = np.column_stack([d_um, signs, temps])
+    sensed = np.ptp(temps) > 0  # a room held constant leaves no thermal term to estimate
+    inputs = ORACLE_INPUTS if sensed else ORACLE_INPUTS[:-1]
+    u = np.column_stack([d_um, signs, temps])[:, : len(inputs)]
     r = p_um - truth.position_um(d_um, signs, temps)
-    terms = list(polynomial_terms(JOINTS, 2, {"sx": 1, "sy": 1, "sz": 1, "T": 1}))
+    extra = dict.fromkeys(inputs[3:], 1)
+    terms = list(polynomial_terms(JOINTS, 2, extra))
     constant = terms.pop()
     terms += [Term(((f"s{j[1]}", 1), (j, 1))) for j in JOINTS]
-    return fit_model(u, r, [*terms, constant], kind="polynomial", inputs=ORACLE_INPUTS)
+    return fit_model(u, r, [*terms, constant], kind="polynomial", inputs=inputs)
 
 
 def oracle_position_um(
@@ -125,7 +132,7 @@ def oracle_position_um(
 ) -> FloatArray:  # fmt: skip
     """The oracle's prediction at (N, 3) joints, signs and temperatures, (N, 3) µm."""
     t = np.broadcast_to(np.asarray(temps, dtype=np.float64), (d_um.shape[0],))
-    u = np.column_stack([d_um, signs, t])
+    u = np.column_stack([d_um, signs, t])[:, : len(correction.inputs)]
     return truth.position_um(d_um, signs, t) + correction.predict_um(u)
 
 
@@ -170,28 +177,50 @@ def _acquire_fast(
     """Move to each pose (approached from a random side), settle, measure through the probe.
 
     Returns measured (N, 3), their covariances (N, 3, 3), approach signs (N, 3) and
-    temperatures (N,).
+    temperatures (N,). A move the device refuses or a query it does not answer is tried
+    again up to :data:`RETRIES` times (as acquisition does); a pose still not reached is NaN.
     """
     m, clock = plat.manipulator, plat.clock
     n = d_um.shape[0]
-    p, cov = np.empty((n, 3)), np.empty((n, 3, 3))
-    signs, temps = np.empty((n, 3)), np.empty(n)
+    p, cov = np.full((n, 3), np.nan), np.full((n, 3, 3), np.nan)
+    signs, temps = np.full((n, 3), np.nan), np.full(n, np.nan)
     last = m.joints_um(clock.now_s())
     current = np.ones(3)
     for i, d in enumerate(d_um):
         start = approach_start_um(d, i + 1, config, m.limits_um) if config.approach_um else d
+        reached = True
         for target in (start, d):
+            if not _move_retrying(m, clock, target):
+                reached = False
+                break
             step = target - last
             current = np.where(step > 1e-3, 1.0, np.where(step < -1e-3, -1.0, current))
-            m.move_to_um(target)
-            m.wait_until_stopped(clock)
             last = target
+        if not reached:
+            last = m.joints_um(clock.now_s())
+            continue
         clock.sleep(settle_s)
         p[i] = probe.measure(d)
         cov[i] = probe.last_cov_um2
         signs[i] = current
         temps[i] = m.temperature_at(clock.now_s())
     return p, cov, signs, temps
+
+
+#: Attempts after a device fault, per move.
+RETRIES = 3
+
+
+def _move_retrying(m: SimManipulator, clock: Clock, target: FloatArray) -> bool:
+    """Move and wait, again after a fault, up to :data:`RETRIES` times; whether it arrived."""
+    for _ in range(RETRIES + 1):
+        try:
+            m.move_to_um(target)
+            m.wait_until_stopped(clock)
+            return True
+        except DeviceError:
+            continue
+    return False
 
 
 def _coverage(
@@ -238,7 +267,7 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[
     """
     config = config or StudyConfig()
     t0 = time.perf_counter()
-    plat = platform(preset, seed=seed)
+    plat = platform(preset, seed=seed, overrides=config.overrides)
     d = make_design(config.design, config.poses, WORKSPACE_MIN_UM, WORKSPACE_MAX_UM,
                     demo_design_seed(seed))  # fmt: skip
     rng = np.random.default_rng([seed, 7])
@@ -268,9 +297,12 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[
                             frames=config.frames_per_pose)  # fmt: skip
     else:
         p, cov, signs, temps = _acquire_fast(plat, d, acq, config.settle_s, fast_probe)
+        ok = np.all(np.isfinite(p), axis=1)
+        d, p, cov, signs, temps = d[ok], p[ok], cov[ok], signs[ok], temps[ok]
     n_fit = default_train(len(d))
     extra = {name: signs[:, k] for k, name in enumerate(APPROACH_INPUTS)}
-    extra["temperature"] = temps
+    if np.ptp(temps) > 0:  # a room held constant (the thesis preset) gives nothing to fit
+        extra["temperature"] = temps
     fits: dict[str, ManipulatorCalibration] = {}
     validation: dict[str, float] = {}
     families: dict[str, str] = {}
@@ -317,7 +349,7 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[
             got = run_pose_accuracy(sim, plat.clock, probe, one, **kwargs)
             # by truth, which has no noise, one cycle of the multi-directional test tells all
             got_v = run_multi_directional(sim, plat.clock, None, one, **(kwargs | {"cycles": 1}))
-        except (LimitError, DegenerateDataError) as exc:
+        except (LimitError, DegenerateDataError, DeviceError) as exc:
             failed[name] = str(exc)
             got = {"truth": {name: nan}, "vision": {name: nan}}
             got_v = {"truth": {name: nan}}
