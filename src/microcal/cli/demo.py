@@ -18,7 +18,9 @@ _Seed = Annotated[int, Option(min=0, help="Seed of all random draws.")]
 _Poses = Annotated[int, Option(min=20, max=20000, help="Poses to acquire (the thesis: 170).")]
 _Quick = Annotated[bool, Option(help="A short run: 40 poses, 2 frames each, 1 ISO cycle.")]
 _Out = Annotated[Path, Option("--out", "-o", help="Run directory (replaces an earlier demo).")]
-_Preset = Annotated[str, Option(help="Simulated platform: thesis, telecentric, thesis-3cam.")]
+_Preset = Annotated[
+    str, Option(help="Simulated platform: thesis, telecentric, thesis-3cam, population.")
+]
 _Model = Annotated[str, Option(help="Camera model: pinhole, affine or auto (by held-out error).")]
 
 
@@ -39,7 +41,7 @@ def demo(
     from ..formats.demo_outputs import write_demo_outputs
     from ..formats.options import check_camera_model
     from ..formats.run_manifest import start_demo_run
-    from ..procedures.demo import run_demo
+    from ..procedures.demo import demo_family, run_demo
     from ..report.text_tables import demo_closing, demo_intro, demo_summary
 
     wall0 = time.monotonic()
@@ -53,7 +55,7 @@ def demo(
             seed=seed, poses=n_poses, frames_per_pose=frames, progress=progress,
             frames_per_view=4 if quick else 8, cycles=1 if quick else 3,
             decoupling_samples=5 if quick else 17, store=writer.store, plat=plat,
-            camera_model=camera_model,
+            camera_model=camera_model, family=demo_family(preset),
         )  # fmt: skip
     print_parts(console, demo_summary(result, frames))
     write_demo_outputs(out, result, wall_s=time.monotonic() - wall0)

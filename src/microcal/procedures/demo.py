@@ -42,7 +42,21 @@ from .acquisition import AcquisitionConfig, Store, acquire
 from .evaluation import run_decoupling, run_multi_directional, run_pose_accuracy
 from .identification import Identification, calibrate_manipulator, default_train
 
-__all__ = ["DemoResult", "calibrate_on_platform", "demo_design", "demo_design_seed", "run_demo"]
+__all__ = [
+    "DemoResult",
+    "calibrate_on_platform",
+    "demo_design",
+    "demo_design_seed",
+    "demo_family",
+    "run_demo",
+]
+
+
+def demo_family(preset: str) -> str:
+    """The polynomial model's family the demo fits on a preset: the thesis's ``quadratic``,
+    and ``auto`` (chosen by held-out error) on ``population``, whose errors lie outside it."""
+    return "auto" if preset == "population" else "quadratic"
+
 
 CALIBRATION_TARGET = "dotgrid:40x30:250"
 CALIBRATION_STEPS_UM = (0.0, 1000.0, 2000.0, 3000.0, 4000.0)
@@ -186,6 +200,7 @@ def run_demo(
     camera_model: str = "auto",
     direction_terms: bool = True,
     approach_um: float = 0.0,
+    family: str = "quadratic",
 ) -> DemoResult:
     """Run the calibration on the simulated thesis platform (see the module docstring).
 
@@ -200,7 +215,10 @@ def run_demo(
     (terms sx, sy, sz; the compensator then approaches every target from below);
     ``approach_um`` > 0 approaches each acquired pose from a random side (see
     :class:`~microcal.procedures.acquisition.AcquisitionConfig`). The evaluation adds ISO
-    9283's multi-directional test by ground truth (``vap_um`` per condition).
+    9283's multi-directional test by ground truth (``vap_um`` per condition). ``family`` is
+    the polynomial model's (:data:`~microcal.kinematics.families.FAMILIES` or ``auto``);
+    with any but the thesis's ``quadratic``, a room temperature that varies during the run
+    joins the model as an extra input.
     """
 
     def tick(stage: str, done: int, total: int) -> None:
@@ -299,8 +317,19 @@ def run_demo(
         name: np.array([np.nan if r.get(name) is None else r[name] for r in result.records])[ok]
         for name in APPROACH_INPUTS
     }
+    extra = dict(approach) if direction_terms else {}
+    temps = np.array([r.get("temperature_c", np.nan) for r in result.records], float)[ok]
+    if family != "quadratic" and np.all(np.isfinite(temps)) and np.ptp(temps) > 0:
+        extra["temperature"] = temps
     result.manipulator, result.models = calibrate_manipulator(
-        "m1", d_ok, p, "polynomial", train=n_fit, extra_inputs=approach if direction_terms else None
+        "m1",
+        d_ok,
+        p,
+        "polynomial",
+        train=n_fit,
+        extra_inputs=extra or None,
+        family=family,
+        seed=seed,
     )
     oracle = summarize_errors(np.linalg.norm(p[n_fit:] - result.truth_um[ok][n_fit:], axis=1))
     result.oracle = {"mean": oracle.mean, "std": oracle.std, "max": oracle.max}
