@@ -31,7 +31,7 @@ def test_the_group_name_stands_for_the_three_joints_once_each():
 
 
 def test_vap_of_a_hand_computed_example():
-    # ISO 9283 7.2.3: barycentres (1, 0, 0), (0, 2, 0), (0, 0, 0): the largest gap is
+    # ISO 9283 7.3: barycentres (1, 0, 0), (0, 2, 0), (0, 0, 0): the largest gap is
     # |(1, 0, 0) - (0, 2, 0)| = sqrt(5).
     by_direction = [
         [[0.5, 0, 0], [1.5, 0, 0]],

@@ -114,3 +114,47 @@ def test_decoupling_ranges_and_omega():
     assert integration_index([1.0, -1.0, 1.0]) == pytest.approx(2.0)
     d = r.as_dict()
     assert d["undesired_um"]["y"] == [-24.0, 3.2]
+
+
+def test_distance_accuracy_and_repeatability_by_hand():
+    """ISO 9283 clause 7.4.1 (AD) and 7.4.2 (RD) on three cycles computed by hand."""
+    from microcal.metrics import distance_statistics
+
+    c1, c2 = [0.0, 0.0, 0.0], [3.0, 4.0, 0.0]  # D_c = 5
+    a1 = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
+    a2 = [[3.0, 4.0, 0.0], [6.0, 8.0, 0.0], [0.0, 0.0, 12.0]]  # D_j = 5, 10, 12
+    s = distance_statistics(c1, c2, a1, a2)
+    assert s.commanded_um == pytest.approx(5.0)
+    assert s.mean_um == pytest.approx(9.0)
+    assert s.ad_p_um == pytest.approx(4.0)  # 9 - 5
+    # S_D = sqrt(((5-9)^2 + (10-9)^2 + (12-9)^2) / 2) = sqrt(13)
+    assert s.rd_p_um == pytest.approx(3.0 * np.sqrt(13.0))
+    # per axis, D_xj = x1 - x2 = -3, -6, 0: mean -3, D_cx = -3 -> AD_x = 0; S = 3 -> RD_x = 9
+    np.testing.assert_allclose(s.ad_um, [0.0, 0.0, -4.0])
+    np.testing.assert_allclose(s.rd_um, [9.0, 12.0, 3.0 * np.sqrt(48.0)])
+    with pytest.raises(InputError, match="as many cycles"):
+        distance_statistics(c1, c2, a1, a2[:2])
+
+
+def test_stabilisation_time_by_hand():
+    """ISO 9283 clause 7.5: the first sample after which the trace stays in the band."""
+    from microcal.metrics import stabilisation_time_s
+
+    t = [0.0, 0.5, 1.0, 1.5, 2.0, 2.5]
+    x = [3.0, -1.5, 0.4, -0.05, 0.02, 0.0]  # rests at 0; out of a 0.1 band until t = 1.0
+    p = np.column_stack([x, np.zeros(6), np.zeros(6)])
+    assert stabilisation_time_s(t, p, band_um=0.1) == pytest.approx(1.5)
+    assert stabilisation_time_s(t, p, band_um=0.5) == pytest.approx(1.0)
+    assert stabilisation_time_s(t, p, band_um=5.0) == 0.0
+    assert stabilisation_time_s(t, p, band_um=0.1, signal_s=0.25) == pytest.approx(1.25)
+    assert stabilisation_time_s(t[:4], p[:4], band_um=0.01) is None  # never settles here
+    with pytest.raises(InputError, match="band"):
+        stabilisation_time_s(t, p, band_um=0.0)
+
+
+def test_drift_by_hand():
+    """ISO 9283 clause 7.7: |AP at the last cycle - AP at the first|."""
+    from microcal.metrics import drift
+
+    assert drift(0.8, 1.3) == pytest.approx(0.5)
+    assert drift(1.3, 0.8) == pytest.approx(0.5)

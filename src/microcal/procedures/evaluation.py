@@ -254,7 +254,7 @@ def run_multi_directional(
     truth: Callable[[], FloatArray] | None = None,
     progress: Callable[[str, int, int], None] | None = None,
 ) -> dict[str, dict[str, Any]]:
-    """ISO 9283 multi-directional pose accuracy variation (vAP, clause 7.2.3) per condition.
+    """ISO 9283 multi-directional pose accuracy variation (vAP, clause 7.3) per condition.
 
     Each pose is approached, every cycle, from three directions: from a point
     :data:`DETOUR_UM` away on every axis, to the sides of :data:`APPROACH_SIDES`

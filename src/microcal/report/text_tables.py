@@ -166,7 +166,7 @@ def pose_accuracy_table(
     pose_accuracy: Mapping[str, Any], conditions: list[str], *, thesis: bool, title: str = ""
 ) -> TextTable:
     """Mean / worst AP_P per condition, by vision and ground truth; the thesis's if asked;
-    and mean / worst vAP (ISO 9283 7.2.3) of each source that has it."""
+    and mean / worst vAP (ISO 9283 7.3) of each source that has it."""
     sources = [s for s in ("vision", "truth") if s in pose_accuracy]
     vap = [s for s in sources if all("vap_um" in pose_accuracy[s][n] for n in conditions)]
     table = TextTable(
