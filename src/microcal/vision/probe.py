@@ -42,14 +42,22 @@ class VisionProbe:
     _predictors: dict[str, RoiPredictor] = field(default_factory=dict)
 
     def measure(self, d_um: FloatArray) -> FloatArray:
-        """Position in {G} (3,) µm; NaN when the board is not found."""
-        frames = {n: [cam.grab() for _ in range(self.frames)] for n, cam in self.cameras.items()}
+        """Position in {G} (3,) µm from :attr:`frames` frames; NaN when the board is not found."""
+        return self.measure_with_covariance(d_um, self.frames)[0]
+
+    def measure_with_covariance(
+        self, d_um: FloatArray, frames: int
+    ) -> tuple[FloatArray, FloatArray]:
+        """Position in {G} (3,) µm and its covariance (3, 3) µm² from ``frames`` frames per
+        camera; NaN when the board is not found."""
+        grabbed = {n: [cam.grab() for _ in range(frames)] for n, cam in self.cameras.items()}
         rois = {
             n: self._predictors.setdefault(n, RoiPredictor()).predict(d_um) for n in self.cameras
         }
-        m = measure_one(frames, self.models, self.target, rois, self.frame_cov_px2)
+        m = measure_one(grabbed, self.models, self.target, rois, self.frame_cov_px2)
         if m.status != "ok":
-            return np.full(3, np.nan)
+            return np.full(3, np.nan), np.full((3, 3), np.nan)
         for n in self.cameras:
-            self._predictors[n].add(d_um, m.corners_px[n])
-        return m.p_um
+            if n in m.corners_px:
+                self._predictors[n].add(d_um, m.corners_px[n])
+        return m.p_um, m.cov_um2

@@ -1,0 +1,120 @@
+"""The closed-loop condition: the feed-forward's move, then visual servoing to the target.
+
+:class:`ClosedLoop` drives a manipulator in {G} like :class:`FeedForward` (the evaluation
+runs it as one of its conditions, ``closed_loop``): the identified model's joints first,
+approached from below, then the corrections of :func:`~microcal.control.visual_servo.servo`
+measured by the cameras. Each target's :class:`~microcal.control.visual_servo.ServoResult`
+is kept in :attr:`ClosedLoop.results`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .._validation import FloatArray, check_limits
+from ..devices.base import Clock, Manipulator
+from ..errors import DetectionError
+from ..kinematics.models import KinematicModel
+from .feedforward import FeedForward
+from .visual_servo import ServoConfig, ServoResult, ServoStep, servo
+
+__all__ = ["ClosedLoop"]
+
+#: measure(joints, frames) -> (position (3,), covariance (3, 3)); NaN when not found.
+Measure = Callable[[FloatArray, int], tuple[FloatArray, FloatArray]]
+
+
+class ClosedLoop(FeedForward):
+    """A manipulator driven to positions in {G} with vision in the loop.
+
+    Parameters
+    ----------
+    manipulator : Manipulator
+    model : KinematicModel
+    measure : callable (joints, frames) -> (position, covariance)
+        E.g. ``VisionProbe.measure_with_covariance``.
+    clock : Clock
+    extra : callable () -> extra inputs, optional
+        As for :class:`FeedForward`.
+    config : ServoConfig, optional
+    settle_s : float
+        Wait after each move before measuring.
+    journal : callable (ServoStep) -> None, optional
+        Receives every iteration.
+    """
+
+    def __init__(
+        self,
+        manipulator: Manipulator,
+        model: KinematicModel,
+        measure: Measure,
+        clock: Clock,
+        extra: Callable[[], ArrayLike] | None = None,
+        config: ServoConfig | None = None,
+        settle_s: float = 1.0,
+        journal: Callable[[ServoStep], None] | None = None,
+    ) -> None:
+        super().__init__(manipulator, model, "optimal", extra, clock)
+        self.config = config or ServoConfig()
+        self.approach_um = self.config.approach_um  # every move arrives from below
+        self.measure = measure
+        self.settle_s = float(settle_s)
+        self.journal = journal
+        self.results: list[ServoResult] = []
+        self._last_d = np.zeros(len(model.joints))
+
+    def _move_joints(self, d_um: FloatArray) -> None:
+        start = d_um - self.approach_um
+        check_limits(np.vstack([start, d_um]), self.manipulator.limits_um, row="correction",
+                     owner=self.manipulator.name)  # fmt: skip
+        assert self.clock is not None
+        self.manipulator.move_to_um(start)
+        self.manipulator.wait_until_stopped(self.clock)
+        self.manipulator.move_to_um(d_um)
+        self.manipulator.wait_until_stopped(self.clock)
+        self.clock.sleep(self.settle_s)
+
+    def _jacobian(self, d_um: FloatArray) -> FloatArray:
+        extra = None if self.extra is None else np.asarray(self.extra(), dtype=np.float64)
+        u = d_um if extra is None else np.concatenate([d_um, extra])
+        out: FloatArray = self.model.jacobian(u)[0]
+        return out
+
+    def move_to_position_um(self, p_um: ArrayLike) -> FloatArray:
+        """Open loop to ``p_um``, then corrections until the loop stops; returns the joints.
+
+        Raises
+        ------
+        LimitError
+            The open-loop joints or a correction leave the soft limits (nothing more moves).
+        DetectionError
+            The cameras lost the end-effector (the tip stays where the last move left it).
+        """
+        target = np.asarray(p_um, dtype=np.float64)
+        d0 = super().move_to_position_um(target)
+        assert self.clock is not None
+        self.manipulator.wait_until_stopped(self.clock)
+        self.clock.sleep(self.settle_s)
+
+        def measure(frames: int) -> tuple[FloatArray, FloatArray]:
+            p, cov = self.measure(self._last_d, frames)
+            if not np.all(np.isfinite(p)):
+                raise DetectionError(
+                    f"{self.manipulator.name}: closed loop: the cameras lost the end-effector "
+                    f"near {np.round(target, 3).tolist()} µm; the tip was left where it is"
+                )
+            return p, cov
+
+        self._last_d = d0
+
+        def move(d: FloatArray) -> None:
+            self._move_joints(d)
+            self._last_d = d
+
+        result = servo(target, d0, move, measure, self._jacobian, self.manipulator.limits_um,
+                       self.config, self.journal)  # fmt: skip
+        self.results.append(result)
+        return result.d_um
