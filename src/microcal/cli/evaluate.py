@@ -28,6 +28,9 @@ _Frames = Annotated[int, Option(min=1, help="Frames measured per pose.")]
 _Settle = Annotated[float, Option(min=0.0, help="Wait after the device reports it stopped, s.")]
 _Seed = Annotated[int | None, Option(min=0, help="Seed of the simulated rig 'sim'.")]
 _Out = Annotated[Path, Option("--out", "-o", help="results.json to write or update.")]
+ControlChoice = StrEnum("ControlChoice", {"open": "open", "closed": "closed", "all": "all"})
+_Control = Annotated[ControlChoice, Option(help="Open-loop conditions, the closed loop, or all.")]
+_Tol = Annotated[float, Option(min=0.01, help="The closed loop's tolerance, µm (90 % sure).")]
 
 
 @app.command(short_help="Pose accuracy (ISO 9283) and decoupling tests.")
@@ -35,7 +38,8 @@ def evaluate(
     calibration: _Calibration, rig: _Rig = "sim", test: _Test = TestChoice.all,
     manipulator: _Which = None, cycles: _Cycles = 3, poses: _Poses = PoseChoice.table,
     frames: _Frames = 5, settle_s: _Settle = 5.0, seed: _Seed = None,
-    out: _Out = Path("results.json"),
+    out: _Out = Path("results.json"), control: _Control = ControlChoice.open,
+    tolerance_um: _Tol = 0.5,
 ) -> None:  # fmt: skip
     """Pose accuracy (ISO 9283) and decoupling tests without and with compensation.
 
@@ -44,6 +48,7 @@ def evaluate(
     'microcal acquire' opens it: the simulator or a rig file's hardware.
 
     Example: microcal evaluate --rig sim --calibration calibration.json --test pose-accuracy
+    (add --control all for the closed loop too: visual servoing to --tolerance-um)
     """
     from ..devices.rig import open_rig
     from ..formats.calibration_file import load_calibration
@@ -64,6 +69,7 @@ def evaluate(
             opened.manipulator, opened.clock, opened.cameras, models, opened.board, m,
             tests=test.value, poses=poses.value, cycles=cycles, frames=frames, settle_s=settle_s,
             truth=opened.truth, sensors=opened.sensors, progress=progress,
+            control=control.value, tolerance_um=tolerance_um,
         )  # fmt: skip
     update_results(out, parts)
     thesis = is_thesis_rig(spec.to_dict()) and poses == PoseChoice.table

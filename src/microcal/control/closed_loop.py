@@ -21,7 +21,10 @@ from ..kinematics.models import KinematicModel
 from .feedforward import FeedForward
 from .visual_servo import ServoConfig, ServoResult, ServoStep, servo
 
-__all__ = ["ClosedLoop"]
+__all__ = ["CHI2_3_95", "ClosedLoop"]
+
+#: The 95 % quantile of the chi-square distribution with 3 degrees of freedom.
+CHI2_3_95 = 7.814727903251178
 
 #: measure(joints, frames) -> (position (3,), covariance (3, 3)); NaN when not found.
 Measure = Callable[[FloatArray, int], tuple[FloatArray, FloatArray]]
@@ -44,6 +47,9 @@ class ClosedLoop(FeedForward):
         Wait after each move before measuring.
     journal : callable (ServoStep) -> None, optional
         Receives every iteration.
+    truth : callable () -> (3,) float, optional
+        The simulator's true position, recorded after each target (:attr:`truth_um`) for
+        figures of how well the loop knows where it is; never used by the loop.
     """
 
     def __init__(
@@ -56,6 +62,7 @@ class ClosedLoop(FeedForward):
         config: ServoConfig | None = None,
         settle_s: float = 1.0,
         journal: Callable[[ServoStep], None] | None = None,
+        truth: Callable[[], FloatArray] | None = None,
     ) -> None:
         super().__init__(manipulator, model, "optimal", extra, clock)
         self.config = config or ServoConfig()
@@ -64,6 +71,8 @@ class ClosedLoop(FeedForward):
         self.settle_s = float(settle_s)
         self.journal = journal
         self.results: list[ServoResult] = []
+        self.truth = truth
+        self.truth_um: list[FloatArray] = []
         self._last_d = np.zeros(len(model.joints))
 
     def _move_joints(self, d_um: FloatArray) -> None:
@@ -117,4 +126,33 @@ class ClosedLoop(FeedForward):
         result = servo(target, d0, move, measure, self._jacobian, self.manipulator.limits_um,
                        self.config, self.journal)  # fmt: skip
         self.results.append(result)
+        if self.truth is not None:
+            self.truth_um.append(np.asarray(self.truth(), dtype=np.float64))
         return result.d_um
+
+    def summary(self) -> dict[str, object]:
+        """The ``closed_loop`` object of results.json: iterations, frames and how the loops
+        ended, and on the simulator how often the true error was within the tolerance and
+        within the last measurement's 95 % region."""
+        r = self.results
+        out: dict[str, object] = {
+            "tolerance_um": self.config.tolerance_um,
+            "confidence": self.config.confidence,
+            "targets": len(r),
+            "iterations_mean": float(np.mean([x.iterations for x in r])) if r else 0.0,
+            "iterations_max": max((x.iterations for x in r), default=0),
+            "frames_mean": float(np.mean([x.frames for x in r])) if r else 0.0,
+            "frames_max": max((x.frames for x in r), default=0),
+            "status": {s: sum(x.status == s for x in r) for s in ("tolerance", "resolution",
+                                                                   "iterations")},
+        }  # fmt: skip
+        if self.truth_um and len(self.truth_um) == len(r):
+            e = np.array([t - x.target_um for t, x in zip(self.truth_um, r, strict=True)])
+            m2 = [float(v @ np.linalg.solve(x.cov_um2, v))
+                  for v, x in zip(e - np.array([x.measured_um - x.target_um for x in r]), r,
+                                  strict=True)]  # fmt: skip
+            out["truth_within_tolerance"] = float(
+                np.mean(np.linalg.norm(e, axis=1) <= self.config.tolerance_um)
+            )
+            out["truth_in_measured_95"] = float(np.mean(np.array(m2) <= CHI2_3_95))
+        return out

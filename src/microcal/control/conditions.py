@@ -6,11 +6,14 @@ from collections.abc import Callable
 
 from numpy.typing import ArrayLike
 
+from .._validation import FloatArray
 from ..devices.base import Clock, Manipulator
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
+from .closed_loop import ClosedLoop, Measure
 from .feedforward import FeedForward
+from .visual_servo import ServoConfig
 
-__all__ = ["open_loop_conditions"]
+__all__ = ["closed_loop_condition", "open_loop_conditions"]
 
 
 def open_loop_conditions(
@@ -37,3 +40,19 @@ def open_loop_conditions(
     if model.kind == "polynomial":
         out["optimal"] = FeedForward(manipulator, model, "optimal", extra, clock)
     return out
+
+
+def closed_loop_condition(
+    manipulator: Manipulator,
+    calibration: ManipulatorCalibration,
+    measure: Measure,
+    clock: Clock,
+    extra: Callable[[], ArrayLike] | None = None,
+    config: ServoConfig | None = None,
+    settle_s: float = 1.0,
+    truth: Callable[[], FloatArray] | None = None,
+) -> ClosedLoop:
+    """The ``closed_loop`` condition: the optimal compensator's move (the matrix one for a
+    matrix model), then visual servoing to the target (:class:`ClosedLoop`)."""
+    return ClosedLoop(manipulator, calibration.model, measure, clock, extra, config, settle_s,
+                      truth=truth)  # fmt: skip

@@ -22,8 +22,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .._validation import FloatArray, check_limits
-from ..control.conditions import open_loop_conditions
+from ..control.conditions import closed_loop_condition, open_loop_conditions
 from ..control.feedforward import FeedForward, extra_inputs_reader
+from ..control.visual_servo import ServoConfig
 from ..devices.base import Camera, Clock, Manipulator
 from ..errors import InputError
 from ..geometry import AnyCamera
@@ -366,6 +367,8 @@ def run_evaluation(
     truth: Callable[[], FloatArray] | None = None,
     sensors: Mapping[str, Callable[[], float]] | None = None,
     progress: Callable[[str, int, int], None] | None = None,
+    control: str = "open",
+    tolerance_um: float = 0.5,
 ) -> dict[str, Any]:
     """The evaluation tests of a calibrated manipulator on any rig (thesis 5.3).
 
@@ -387,12 +390,19 @@ def run_evaluation(
         joint range the model was identified on (the soft limits when not recorded).
     sensors : mapping of name -> callable () -> float, optional
         The rig's sensors of extra inputs by registry name, for models that have some.
+    control : {"open", "closed", "all"}
+        The open-loop conditions (uncalibrated, matrix, optimal), the closed loop
+        (``closed_loop``: the optimal move, then visual servoing to ``tolerance_um`` at 90 %
+        confidence), or both.
 
     Returns
     -------
     dict
-        ``pose_accuracy`` and/or ``decoupling`` objects of results.json.
+        ``pose_accuracy`` and/or ``decoupling`` objects of results.json, and with the closed
+        loop its ``closed_loop`` summary (iterations, frames, how the loops ended).
     """
+    if control not in ("open", "closed", "all"):
+        raise InputError(f"control: expected open, closed or all, got {control!r}")
     missing = sorted(set(cameras) - set(models))
     if missing:
         raise InputError(f"evaluate: no camera calibration for the rig's camera(s) {missing}")
@@ -402,9 +412,17 @@ def run_evaluation(
         read_extra = extra_inputs_reader(calibration.model, sensors)
     except InputError as exc:
         raise InputError(f"evaluate: {exc}") from None
-    conditions = open_loop_conditions(manipulator, calibration, extra=read_extra, clock=clock)
+    conditions: dict[str, FeedForward | None] = {}
+    if control in ("open", "all"):
+        conditions |= open_loop_conditions(manipulator, calibration, extra=read_extra, clock=clock)
     used = {n: models[n] for n in cameras}  # a calibrated camera the rig lacks is not used
     probe = VisionProbe({n: cameras[n] for n in used}, used, board, frames)
+    loop = None
+    if control in ("closed", "all"):
+        loop = closed_loop_condition(manipulator, calibration, probe.measure_with_covariance,
+                                     clock, read_extra, ServoConfig(tolerance_um=tolerance_um),
+                                     truth=truth)  # fmt: skip
+        conditions["closed_loop"] = loop
     kwargs: dict[str, Any] = {"settle_s": settle_s, "truth": truth, "progress": progress}
     parts: dict[str, Any] = {}
     rng = calibration.joint_range_um
@@ -423,4 +441,6 @@ def run_evaluation(
         )
     if tests in ("all", "decoupling"):
         parts["decoupling"] = run_decoupling(manipulator, clock, probe, conditions, **kwargs)
+    if loop is not None:
+        parts["closed_loop"] = loop.summary()
     return parts

@@ -290,10 +290,13 @@ def validation_lines(v: dict[str, Any]) -> list[str]:
     return lines
 
 
-def evaluation_tables(parts: Mapping[str, Any], poses: str, *, thesis: bool) -> list[TextTable]:
+def evaluation_tables(
+    parts: Mapping[str, Any], poses: str, *, thesis: bool
+) -> list[TextTable | str]:
     """What ``microcal evaluate`` prints: pose accuracy over ``poses``, decoupling by vision
-    and truth; the thesis's pose-accuracy figures where ``thesis`` (its poses, its preset)."""
-    out = []
+    and truth; the thesis's pose-accuracy figures where ``thesis`` (its poses, its preset);
+    the closed loop's line where it ran."""
+    out: list[TextTable | str] = []
     if "pose_accuracy" in parts:
         pa = parts["pose_accuracy"]
         title = f"Pose accuracy AP_P (µm): mean / worst over the {poses} poses"
@@ -302,7 +305,27 @@ def evaluation_tables(parts: Mapping[str, Any], poses: str, *, thesis: bool) -> 
         dc = parts["decoupling"]
         title = "Decoupling: undesired displacement \\[min, max] (µm), vision | truth"
         out.append(decoupling_table(dc, list(dc["vision"]), thesis=False, title=title))
+    if "closed_loop" in parts:
+        out.append(closed_loop_line(parts["closed_loop"]))
     return out
+
+
+def closed_loop_line(s: Mapping[str, Any]) -> str:
+    """One line on the closed loop: iterations, frames, how it ended, how sure it was."""
+    status = ", ".join(f"{n} {k}" for k, n in s["status"].items() if n)
+    line = (
+        f"closed loop to {s['tolerance_um']:g} µm at {100 * s['confidence']:.0f} %: "
+        f"{s['targets']} targets, {s['iterations_mean']:.1f} iterations (at most "
+        f"{s['iterations_max']}), {s['frames_mean']:.0f} frames per camera (at most "
+        f"{s['frames_max']}); ended by {status}"
+    )
+    if "truth_within_tolerance" in s:
+        line += (
+            f"; by ground truth within the tolerance at {100 * s['truth_within_tolerance']:.0f} "
+            f"% of targets, inside the last measurement's 95 % region at "
+            f"{100 * s['truth_in_measured_95']:.0f} %"
+        )
+    return line
 
 
 def demo_intro(out: Path, poses: int) -> str:
