@@ -12,7 +12,18 @@ from microcal.cli import app
 runner = CliRunner()
 
 
-COMMANDS = ["demo", "stereo-calibrate", "acquire", "measure", "fit", "solve", "evaluate", "report"]
+COMMANDS = [
+    "demo",
+    "stereo-calibrate",
+    "acquire",
+    "measure",
+    "fit",
+    "solve",
+    "evaluate",
+    "report",
+    "goto",
+    "study",
+]
 
 
 def test_help_lists_every_command_on_one_line_in_workflow_order():

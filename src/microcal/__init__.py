@@ -24,6 +24,7 @@ from .errors import (
 
 if TYPE_CHECKING:  # what the lazy names are, for type checkers; at run time see _LAZY
     from .formats.calibration_file import Calibration, load_calibration
+    from .formats.station_open import open_station
     from .geometry import (
         CameraModel,
         camera_centre,
@@ -62,6 +63,7 @@ __all__ = [
     "fit_matrix_model",
     "fit_polynomial_model",
     "load_calibration",
+    "open_station",
     "project_points",
     "reprojection_error",
     "stepwise_fit",
@@ -75,6 +77,7 @@ __all__ = [
 _LAZY = {
     "Calibration": "formats.calibration_file",  # pydantic
     "load_calibration": "formats.calibration_file",
+    "open_station": "formats.station_open",  # the rig's devices, the vision stack
     "CameraModel": "geometry",  # scipy
     "camera_centre": "geometry",
     "decompose_projection_matrix": "geometry",

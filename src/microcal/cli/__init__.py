@@ -6,11 +6,11 @@ formats function and prints; a user error ends with one line on stderr and exit 
 
 from __future__ import annotations
 
-from . import acquire, demo, evaluate, fit, measure, stereo, study
+from . import acquire, demo, evaluate, fit, goto, measure, stereo, study
 from ._app import WORKFLOW, app
 
 __all__ = ["WORKFLOW", "app", "main"]
-_COMMANDS = (acquire, demo, evaluate, fit, measure, stereo, study)  # registered on import
+_COMMANDS = (acquire, demo, evaluate, fit, goto, measure, stereo, study)  # registered on import
 
 
 def main(argv: list[str] | None = None) -> None:

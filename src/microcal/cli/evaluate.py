@@ -47,8 +47,7 @@ def evaluate(
     by the cameras (and on the simulator also by ground truth). The rig is opened as
     'microcal acquire' opens it: the simulator or a rig file's hardware.
 
-    Example: microcal evaluate --rig sim --calibration calibration.json --test pose-accuracy
-    (add --control all for the closed loop too: visual servoing to --tolerance-um)
+    Example: microcal evaluate --rig sim --calibration calibration.json --control all
     """
     from ..devices.rig import open_rig
     from ..formats.calibration_file import load_calibration

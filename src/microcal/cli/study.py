@@ -18,7 +18,7 @@ _Poses = Annotated[int, Option(min=40, max=20000, help="Poses acquired per platf
 _Design = Annotated[str, Option(help="Command design: random, sobol, lhs, grid, chebyshev.")]
 
 
-@app.command(short_help="Run the procedure on many simulated platforms; their distributions.")
+@app.command(short_help="The procedure on many simulated platforms.")
 def study(
     out: Annotated[Path, Option("--out", "-o", help="Folder for study.json and study.html.")],
     preset: Annotated[str, Option(help="Simulated preset (population: each seed its own).")] = "",

@@ -310,6 +310,23 @@ def evaluation_tables(
     return out
 
 
+def arrival_line(a: Mapping[str, Any]) -> str:
+    """What ``microcal goto`` prints: where the tip arrived, how sure, how it got there."""
+    fmt = ", ".join
+    how = (
+        "open loop"
+        if a["mode"] == "open"
+        else f"closed loop, {a['iterations']} correction(s), ended by {a['status']}"
+    )
+    return (
+        f"arrived at ({fmt(f'{v:.3f}' for v in a['measured_um'])}) µm in {{G}}, "
+        f"std ({fmt(f'{v:.3f}' for v in a['std_um'])}) µm, "
+        f"{sum(v * v for v in a['error_um']) ** 0.5:.3f} µm from the target as measured "
+        f"({how}, {a['frames']} frames per camera); "
+        f"joints ({fmt(f'{v:.3f}' for v in a['d_um'])}) µm"
+    )
+
+
 def closed_loop_line(s: Mapping[str, Any]) -> str:
     """One line on the closed loop: iterations, frames, how it ended, how sure it was."""
     status = ", ".join(f"{n} {k}" for k, n in s["status"].items() if n)

@@ -1,0 +1,204 @@
+"""A calibrated station: one manipulator and its cameras, driven in {G} and measured.
+
+:class:`Station` is what a user opens to use a calibration (``microcal.open_station`` reads
+the files and opens the rig): ``move_to_um(p)`` sends the tip to a position in {G}, open
+loop (the identified model's joints, approached from below when the model has direction
+terms) or closed (then visual servoing to a tolerance, :mod:`~microcal.control.visual_servo`),
+and says where the tip arrived and how sure that is; ``where_um()`` measures the tip now.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Literal
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .._validation import FloatArray, as_array, check_number
+from ..control.closed_loop import ClosedLoop
+from ..control.feedforward import FeedForward, extra_inputs_reader
+from ..control.visual_servo import ServoConfig
+from ..devices.rig import Rig
+from ..errors import DetectionError, InputError
+from ..geometry import AnyCamera
+from ..kinematics.manipulator_calibration import ManipulatorCalibration
+from ..vision.probe import VisionProbe
+
+__all__ = ["Arrival", "Station"]
+
+
+@dataclass(frozen=True)
+class Arrival:
+    """Where a move left the tip, as measured.
+
+    Attributes
+    ----------
+    target_um, d_um, measured_um : (3,) float
+        The target in {G}, the joints commanded, the measured position.
+    cov_um2 : (3, 3) float
+        The measurement's covariance.
+    mode : {"open", "closed"}
+    status : str
+        ``open`` for the open loop; how the closed loop ended (``tolerance``,
+        ``resolution``, ``iterations``).
+    iterations, frames : int
+        Corrections made, frames grabbed per camera.
+    """
+
+    target_um: FloatArray
+    d_um: FloatArray
+    measured_um: FloatArray
+    cov_um2: FloatArray
+    mode: str
+    status: str
+    iterations: int
+    frames: int
+
+    @property
+    def error_um(self) -> FloatArray:
+        """(3,) measured minus target."""
+        out: FloatArray = self.measured_um - self.target_um
+        return out
+
+    @property
+    def std_um(self) -> FloatArray:
+        """(3,) standard deviation of the measurement per axis."""
+        out: FloatArray = np.sqrt(np.diagonal(self.cov_um2))
+        return out
+
+    def as_dict(self) -> dict[str, object]:
+        """Plain dict for printing and JSON."""
+        return {"target_um": self.target_um.tolist(), "d_um": self.d_um.tolist(),
+                "measured_um": self.measured_um.tolist(), "std_um": self.std_um.tolist(),
+                "error_um": self.error_um.tolist(), "mode": self.mode, "status": self.status,
+                "iterations": self.iterations, "frames": self.frames}  # fmt: skip
+
+
+class Station:
+    """A calibrated manipulator with its cameras (see the module docstring).
+
+    Parameters
+    ----------
+    rig : Rig
+        The opened rig; the station closes it.
+    calibration : ManipulatorCalibration
+    cameras : mapping of name -> camera model
+        The calibrated cameras (every camera of the rig needs one).
+    frames : int
+        Frames per camera of a measurement (``where_um``, the open loop's arrival).
+    settle_s : float
+        Wait after a move before measuring.
+    servo : ServoConfig, optional
+        The closed loop's settings.
+
+    Raises
+    ------
+    InputError
+        A camera of the rig without a calibration, or the model needs a sensor the rig lacks.
+    """
+
+    def __init__(
+        self,
+        rig: Rig,
+        calibration: ManipulatorCalibration,
+        cameras: Mapping[str, AnyCamera],
+        *,
+        frames: int = 10,
+        settle_s: float = 1.0,
+        servo: ServoConfig | None = None,
+    ) -> None:
+        missing = sorted(set(rig.cameras) - set(cameras))
+        if missing:
+            raise InputError(f"station: no camera calibration for the rig's camera(s) {missing}")
+        check_number("settle_s", settle_s, low=0)
+        if frames < 1:
+            raise InputError(f"frames: expected 1 or more, got {frames}")
+        self.rig = rig
+        self.calibration = calibration
+        self.frames = int(frames)
+        self.settle_s = float(settle_s)
+        model = calibration.model
+        extra = extra_inputs_reader(model, rig.sensors)
+        models = {n: cameras[n] for n in rig.cameras}
+        self.probe = VisionProbe(rig.cameras, models, rig.board, self.frames)
+        method: Literal["optimal", "matrix"] = "optimal" if model.kind == "polynomial" else "matrix"
+        self._open = FeedForward(rig.manipulator, model, method, extra, rig.clock)
+        self._closed = ClosedLoop(rig.manipulator, model, self.probe.measure_with_covariance,
+                                  rig.clock, extra, servo, self.settle_s)  # fmt: skip
+        self._d = rig.manipulator.position_um()
+
+    def where_um(self, frames: int | None = None) -> tuple[FloatArray, FloatArray]:
+        """The tip now in {G}: position (3,) µm and covariance (3, 3) µm².
+
+        Raises
+        ------
+        DetectionError
+            The cameras do not find the end-effector's target.
+        """
+        p, cov = self.probe.measure_with_covariance(self._d, frames or self.frames)
+        if not np.all(np.isfinite(p)):
+            raise DetectionError(
+                "station: the cameras do not find the end-effector's target (is it in view?)"
+            )
+        return p, cov
+
+    def move_to_um(
+        self,
+        p_um: ArrayLike,
+        mode: Literal["open", "closed"] = "open",
+        tolerance_um: float | None = None,
+    ) -> Arrival:
+        """Send the tip to ``p_um`` in {G}; where it arrived, as measured.
+
+        Parameters
+        ----------
+        p_um : (3,) float
+        mode : {"open", "closed"}
+        tolerance_um : float, optional
+            The closed loop's tolerance (its configured one by default).
+
+        Raises
+        ------
+        LimitError
+            The joints would leave the soft limits (nothing moves).
+        DetectionError
+            The cameras lost the tip (the tip stays where the last move left it).
+        """
+        target = as_array(p_um, "p_um", (3,))
+        if mode not in ("open", "closed"):
+            raise InputError(f"mode: expected 'open' or 'closed', got {mode!r}")
+        if mode == "open":
+            d = self._open.move_to_position_um(target)
+            self._d = d
+            self.rig.manipulator.wait_until_stopped(self.rig.clock)
+            self.rig.clock.sleep(self.settle_s)
+            p, cov = self.where_um()
+            return Arrival(target, d, p, cov, "open", "open", 0, self.frames)
+        if tolerance_um is not None:
+            self._closed.config = dataclasses.replace(
+                self._closed.config, tolerance_um=tolerance_um
+            )
+        d = self._closed.move_to_position_um(target)
+        self._d = d
+        r = self._closed.results[-1]
+        return Arrival(target, d, r.measured_um, r.cov_um2, "closed", r.status, r.iterations,
+                       r.frames)  # fmt: skip
+
+    def close(self) -> None:
+        """Close the rig (again: nothing)."""
+        self.rig.close()
+
+    def __enter__(self) -> Station:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.rig.__exit__(exc_type, exc, tb)
