@@ -8,6 +8,11 @@ drawn once) read at a random offset, which looks the same and costs nothing. The
 shake against the camera by a small random offset per frame (vibration). Faults are
 injected at given rates: dropped frames and timeouts raise the exceptions a real driver
 would; occlusion and glare spoil the image.
+
+Only the box the targets cover is rendered and converted pixel by pixel; the background's
+signal and noise level are the same in every frame and kept per camera, so a frame outside
+the box costs one multiplication (noise level times the pool) and one rounding addition.
+The frames are the same, bit for bit, as converting the whole image each time gives.
 """
 
 from __future__ import annotations
@@ -163,6 +168,9 @@ class SimCamera(Camera):
         # the targets cover get freshly drawn noise (see grab).
         self._pool = self.rng.standard_normal(2 * w * h, dtype=np.float32)
         self._rois: list[tuple[int, int, int, int]] = []
+        # The background's mean DN and noise level (h, w) by (level, gain, DN per e-, read
+        # noise^2): the same for every frame at one exposure.
+        self._background: dict[tuple[float, ...], tuple[FloatArray32, FloatArray32]] = {}
 
     def _blur_sigma(self, placement: Placement) -> float:
         f = self.formation
@@ -176,13 +184,29 @@ class SimCamera(Camera):
     ) -> tuple[NDArray[np.float32], FrameTruth]:
         """Noise-free reflectance image of the scene at ``t_s`` (blurred, no vignetting)."""
         w, h = self.model.image_size_px
+        level, box, patch, truth = self._render_box(t_s, offset_px)
+        image = np.full((h, w), level, dtype=np.float32)
+        if box is not None and patch is not None:
+            x0, y0, x1, y1 = box
+            image[y0:y1, x0:x1] = patch
+        return image, truth
+
+    def _render_box(
+        self, t_s: float, offset_px: FloatArray
+    ) -> tuple[float, Box | None, NDArray[np.float32] | None, FrameTruth]:
+        """The scene at ``t_s`` as the background level and the box the targets cover.
+
+        Returns the background's reflectance, the box (x0, y0, x1, y1) holding every
+        placement's region (None when no target is in view), the reflectance image over that
+        box (blurred, no vignetting), and the frame's truth. Sets ``_rois``.
+        """
         placements = self.scene(t_s)
         # A dot grid's glass plate (25 mm in the thesis) fills the view: glass is the background.
         plate = any(p.target.kind == "dotgrid" for p in placements)
         level = self.reflectance.glass if plate else self.reflectance.background
-        image = np.full((h, w), level, dtype=np.float32)
         truth = FrameTruth(t_s, offset_px)
         self._rois = []
+        rendered = []
         for placement in placements:
             sigma = self._blur_sigma(placement)
             roi = roi_of(self.model, placement, 4.0 * sigma + 3.0, offset_px)
@@ -199,10 +223,17 @@ class SimCamera(Camera):
                 reflectance=self.reflectance,
             )
             self._rois.append(roi)
-            x0, y0, x1, y1 = roi
-            patch = (image[y0:y1, x0:x1] * (1.0 - alpha) + value * alpha).astype(np.float32)
-            image[y0:y1, x0:x1] = cv2.GaussianBlur(patch, (0, 0), sigma)
-        return image, truth
+            rendered.append((roi, sigma, value, alpha))
+        if not rendered:
+            return level, None, None, truth
+        box = _bounding_box(self._rois)
+        bx, by = box[0], box[1]
+        patch = np.full((box[3] - by, box[2] - bx), level, dtype=np.float32)
+        for (x0, y0, x1, y1), sigma, value, alpha in rendered:
+            region = patch[y0 - by : y1 - by, x0 - bx : x1 - bx]
+            blend = (region * (1.0 - alpha) + value * alpha).astype(np.float32)
+            region[...] = cv2.GaussianBlur(blend, (0, 0), sigma)
+        return level, box, patch, truth
 
     def _spoil(self, image: NDArray[np.float32], truth: FrameTruth) -> None:
         f = self.faults
@@ -235,30 +266,114 @@ class SimCamera(Camera):
             raise FrameError(f"{self.name}: frame dropped (incomplete transfer)")
         t = self.clock.now_s()
         offset = self.rng.normal(0.0, 1.0, 2) * np.asarray(self.formation.jitter_px)
-        image, truth = self.render_reflectance(t, offset)
-        self._spoil(image, truth)
         fm = self.formation
         top = 2**self.bit_depth - 1
         k = np.float32(top / fm.full_well_e)  # DN per electron
         signal = fm.full_well_e * fm.illumination * (self.exposure_s / fm.nominal_exposure_s)
-        # Mean DN, then shot and read noise: std in DN = sqrt(DN * k + (read_noise * k)^2).
-        dn = image
-        dn *= self._vignette
-        dn *= np.float32(signal) * k
-        spread = np.multiply(dn, k)
-        np.maximum(spread, 0, out=spread)
-        spread += np.float32((fm.read_noise_e * k) ** 2)
-        np.sqrt(spread, out=spread)
-        h, w = dn.shape
-        start = int(self.rng.integers(0, h * w))
-        noisy = spread * self._pool[start : start + h * w].reshape(h, w)
-        for x0, y0, x1, y1 in self._rois:
-            fresh = self.rng.standard_normal((y1 - y0, x1 - x0), dtype=np.float32)
-            noisy[y0:y1, x0:x1] = spread[y0:y1, x0:x1] * fresh
-        dn += noisy
-        np.rint(dn, out=dn)
-        np.clip(dn, 0, top, out=dn)
+        gain = np.float32(signal) * k
+        read2 = np.float32((fm.read_noise_e * k) ** 2)
+        if f.occlusion_rate or f.glare_rate:  # a fault may paint anywhere: the whole image
+            image, truth = self.render_reflectance(t, offset)
+            self._spoil(image, truth)
+            frame = self._expose(image, None, (0, 0, image.shape[1], image.shape[0]),
+                                 gain, k, read2, top)  # fmt: skip
+        else:
+            level, box, patch, truth = self._render_box(t, offset)
+            frame = self._expose(patch, self._background_of(level, gain, k, read2), box,
+                                 gain, k, read2, top)  # fmt: skip
         self.clock.sleep(self.exposure_s + fm.readout_s)
         self.last_truth = truth
-        frame: NDArray[np.unsignedinteger] = dn.astype(self.dtype)
         return frame
+
+    def _background_of(
+        self, level: float, gain: np.float32, k: np.float32, read2: np.float32
+    ) -> tuple[FloatArray32, FloatArray32]:
+        """Mean DN and noise level (h, w) of a frame showing only the background ``level``."""
+        key = (level, float(gain), float(k), float(read2))
+        hit = self._background.get(key)
+        if hit is None:
+            w, h = self.model.image_size_px
+            flat = np.full((h, w), level, dtype=np.float32)
+            hit = _dn_and_spread(flat, self._vignette, gain, k, read2)
+            if len(self._background) >= 2:
+                self._background.pop(next(iter(self._background)))
+            self._background[key] = hit
+        return hit
+
+    def _expose(
+        self,
+        patch: NDArray[np.float32] | None,
+        background: tuple[FloatArray32, FloatArray32] | None,
+        box: Box | None,
+        gain: np.float32,
+        k: np.float32,
+        read2: np.float32,
+        top: int,
+    ) -> NDArray[np.unsignedinteger]:
+        """The frame: vignetting, electrons, shot and read noise, quantisation.
+
+        ``patch`` is the reflectance over ``box`` (the whole image when ``background`` is
+        None); elsewhere the image is the background, whose mean DN and noise level are
+        ``background``. Mean DN, then noise of std ``sqrt(DN * k + (read_noise * k)^2)`` DN:
+        the pool's at a random offset, fresh over every rendered region.
+        """
+        h, w = self._vignette.shape
+        start = int(self.rng.integers(0, h * w))
+        pool = self._pool[start : start + h * w].reshape(h, w)
+        if background is not None:
+            dn0, spread0 = background
+            frame = _quantise(dn0, cv2.multiply(spread0, pool), top, self.dtype)
+        else:
+            frame = np.empty((h, w), dtype=self.dtype)
+        if box is None or patch is None:
+            return frame
+        x0, y0, x1, y1 = box
+        dn, spread = _dn_and_spread(patch, self._vignette[y0:y1, x0:x1], gain, k, read2)
+        noisy = spread * pool[y0:y1, x0:x1]
+        for rx0, ry0, rx1, ry1 in self._rois:
+            fresh = self.rng.standard_normal((ry1 - ry0, rx1 - rx0), dtype=np.float32)
+            region = (slice(ry0 - y0, ry1 - y0), slice(rx0 - x0, rx1 - x0))
+            noisy[region] = spread[region] * fresh
+        frame[y0:y1, x0:x1] = _quantise(dn, noisy, top, self.dtype)
+        return frame
+
+
+FloatArray32 = NDArray[np.float32]
+Box = tuple[int, int, int, int]
+
+
+def _bounding_box(boxes: list[Box]) -> Box:
+    """The smallest box (x0, y0, x1, y1) holding every box of the list."""
+    x0, y0, x1, y1 = zip(*boxes, strict=True)
+    return min(x0), min(y0), max(x1), max(y1)
+
+
+def _dn_and_spread(
+    image: FloatArray32, vignette: FloatArray32, gain: np.float32, k: np.float32, read2: np.float32
+) -> tuple[FloatArray32, FloatArray32]:
+    """Mean DN (``image`` scaled in place) and the noise's std in DN, both (h, w) float32.
+
+    ``image`` is reflectance, ``vignette`` the light kept, ``gain`` DN of reflectance 1,
+    ``k`` DN per electron, ``read2`` the read noise's variance in DN^2.
+    """
+    dn = image
+    dn *= vignette
+    dn *= gain
+    spread = np.multiply(dn, k)
+    np.maximum(spread, 0, out=spread)
+    spread += read2
+    np.sqrt(spread, out=spread)
+    return dn, spread
+
+
+def _quantise(
+    dn: FloatArray32, noise: FloatArray32, top: int, dtype: type[np.unsignedinteger]
+) -> NDArray[np.unsignedinteger]:
+    """``clip(rint(dn + noise), 0, top)`` (round half to even) as ``dtype``, (h, w)."""
+    if dtype == np.uint8 and top == 255:  # one pass, the same rounding and saturation
+        out: NDArray[np.unsignedinteger] = cv2.add(dn, noise, dtype=cv2.CV_8U)
+        return out
+    total = dn + noise
+    np.rint(total, out=total)
+    np.clip(total, 0, top, out=total)
+    return total.astype(dtype)

@@ -13,10 +13,18 @@ reflectance is evaluated *box-filtered* over the subsample's footprint on the ta
 
 The result is the area-weighted mean reflectance of each pixel; the rendering's own corner
 bias is far below the detection noise (see the tests).
+
+What does not change between the subsamples of a frame (the footprint's half widths, the
+clipping bounds) is computed once per frame, the checker only where the pattern covers the
+subsample, and the square wave's modulo by a floor that gives ``np.mod``'s result bit for
+bit (:func:`_mod`); undistorted pixel coordinates are kept per camera in tiles. A frame is
+the same, bit for bit, as the straightforward evaluation gives.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -91,15 +99,51 @@ def roi_of(
     return x0, y0, x1, y1
 
 
+def _mod(x: FloatArray, period: float) -> FloatArray:
+    """``np.mod(x, period)`` bit for bit (period > 0), several times faster when it can be.
+
+    With ``n = floor(x / period)`` the remainder ``x - n * period`` is rounded once, as
+    ``np.mod`` rounds it, provided ``n * period`` is exact: the period's significand and the
+    largest ``|n|`` must fit in 53 bits together (400 µm and any multiple of a power of two
+    below it do). ``x / period`` rounded up to the next integer makes the remainder negative
+    (and exact, by Sterbenz's lemma); adding one period puts it back. Any other period, or
+    non-finite input, goes to ``np.mod``.
+    """
+    if not (math.isfinite(period) and period > 0) or x.size == 0:
+        return np.asarray(np.mod(x, period), dtype=np.float64)
+    hi = float(np.max(np.abs(x)))
+    significand_bits = period.as_integer_ratio()[0].bit_length()
+    if not math.isfinite(hi) or significand_bits + (int(hi / period) + 2).bit_length() > 53:
+        return np.asarray(np.mod(x, period), dtype=np.float64)
+    out: FloatArray = np.floor(x / period)
+    out *= period
+    np.subtract(x, out, out=out)
+    negative = out < 0
+    if negative.any():
+        out[negative] += period
+    return out
+
+
 def _square_wave_filtered(u: FloatArray, p: float, w: FloatArray) -> FloatArray:
     """Box filter (width w) of the square wave +1 on [0, p), -1 on [p, 2p), period 2p."""
-
-    def integral(x: FloatArray) -> FloatArray:
-        out: FloatArray = p - np.abs(np.mod(x, 2.0 * p) - p)
-        return out
-
     w = np.maximum(w, 1e-9 * p)
-    out: FloatArray = (integral(u + w / 2) - integral(u - w / 2)) / w
+    return _square_wave_prepared(u, p, w, w / 2)
+
+
+def _square_wave_integral(x: FloatArray, p: float) -> FloatArray:
+    """The integral of the square wave of :func:`_square_wave_filtered`, a triangle wave."""
+    out = _mod(x, 2.0 * p)
+    out -= p
+    np.abs(out, out=out)
+    np.subtract(p, out, out=out)
+    return out
+
+
+def _square_wave_prepared(u: FloatArray, p: float, w: FloatArray, half: FloatArray) -> FloatArray:
+    """:func:`_square_wave_filtered` with the width already bounded below and halved."""
+    out = _square_wave_integral(u + half, p)
+    out -= _square_wave_integral(u - half, p)
+    out /= w
     return out
 
 
@@ -176,13 +220,179 @@ def _reflectance(
     return value, board
 
 
-_GRID_CACHE: dict[tuple[str, bytes, bytes, tuple[int, ...]], tuple[FloatArray, ...]] = {}
+Shader = Callable[[FloatArray, FloatArray], tuple[FloatArray, FloatArray]]
+
+
+def _shader(placement: Placement, wu: FloatArray, wv: FloatArray, refl: Reflectance) -> Shader:
+    """:func:`_reflectance` of one frame as a function of the subsample's (u, v) alone.
+
+    ``wu``, ``wv`` (h, w) are the footprint's widths, the same for every subsample of a frame:
+    what depends only on them is computed here once. The shader gives what
+    :func:`_reflectance` gives, bit for bit.
+    """
+    t = placement.target
+    if t.kind == "chessboard":
+        return _chessboard_shader(placement, wu, wv, refl)
+    if t.kind == "dotgrid":
+        return _dotgrid_shader(placement, wu, wv, refl)
+
+    def texture(u: FloatArray, v: FloatArray) -> tuple[FloatArray, FloatArray]:
+        return _reflectance(placement, u, v, wu, wv, refl)
+
+    return texture
+
+
+def _covered(plus: FloatArray, minus: FloatArray, a: float, b: float, w: FloatArray) -> FloatArray:
+    """:func:`_box_filtered_interval` from the box's ends ``plus`` = u + w/2 and ``minus`` =
+    u - w/2 (w bounded below as there)."""
+    inside = np.minimum(plus, b)
+    inside -= np.maximum(minus, a)
+    inside /= w
+    out: FloatArray = np.clip(inside, 0.0, 1.0, out=inside)
+    return out
+
+
+def _chessboard_shader(
+    placement: Placement, wu: FloatArray, wv: FloatArray, refl: Reflectance
+) -> Shader:
+    """The chessboard branch of :func:`_reflectance`, prepared for one frame.
+
+    Where the pattern does not cover the subsample (``pattern == 0``: the white margin and
+    beyond), the value is white whatever the checker, so the checker is evaluated only over
+    the rows and columns where the pattern covers some pixel.
+    """
+    t = placement.target
+    p = t.pitch_um
+    x0, x1, y0, y1 = t.extent_um()
+    m = placement.margin
+    wu_box = np.maximum(wu, 1e-12)
+    wv_box = np.maximum(wv, 1e-12)
+    hu_box, hv_box = wu_box / 2, wv_box / 2
+    lo_u, hi_u = x0 + wu / 2, x1 - wu / 2
+    lo_v, hi_v = y0 + wv / 2, y1 - wv / 2
+    wu_sq = np.maximum(wu, 1e-9 * p)
+    wv_sq = np.maximum(wv, 1e-9 * p)
+    hu_sq, hv_sq = wu_sq / 2, wv_sq / 2
+
+    def shade(u: FloatArray, v: FloatArray) -> tuple[FloatArray, FloatArray]:
+        up, um = u + hu_box, u - hu_box
+        vp, vm = v + hv_box, v - hv_box
+        board = _covered(up, um, x0 - m, x1 + m, wu_box)
+        board *= _covered(vp, vm, y0 - m, y1 + m, wv_box)
+        pattern = _covered(up, um, x0, x1, wu_box)
+        pattern *= _covered(vp, vm, y0, y1, wv_box)
+        value = np.full(u.shape, refl.white)
+        rows = np.flatnonzero(pattern.any(axis=1))
+        cols = np.flatnonzero(pattern.any(axis=0))
+        if rows.size:
+            box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
+            uc = np.clip(u[box], lo_u[box], hi_u[box])
+            vc = np.clip(v[box], lo_v[box], hi_v[box])
+            checker = _square_wave_prepared(uc, p, wu_sq[box], hu_sq[box])
+            checker *= _square_wave_prepared(vc, p, wv_sq[box], hv_sq[box])
+            inner = refl.white + (refl.black - refl.white) * (1.0 + checker) / 2.0
+            value[box] = refl.white + pattern[box] * (inner - refl.white)
+        return value, board
+
+    return shade
+
+
+def _dotgrid_shader(
+    placement: Placement, wu: FloatArray, wv: FloatArray, refl: Reflectance
+) -> Shader:
+    """The dot grid branch of :func:`_reflectance`, prepared for one frame.
+
+    A subsample farther than one footprint width from a dot's edge is all glass or all
+    chrome (coverage exactly 0 or 1), which ``sqrt(dx² + dy²)`` tells apart as surely as the
+    correctly rounded ``hypot`` (a few ulps apart); ``hypot``, much slower, is evaluated only
+    for the subsamples near an edge.
+    """
+    t = placement.target
+    p = t.pitch_um
+    r = t.feature_um / 2
+    width = np.maximum(0.5 * (wu + wv), 1e-12)
+    outside = (r + width) * (1.0 + 1e-12)  # distances surely beyond the edge's ramp
+    inside = (r - width) * (1.0 - 1e-12)  # ... and surely within it
+    alpha = np.ones_like(wu)
+    alpha.flags.writeable = False
+
+    def shade(u: FloatArray, v: FloatArray) -> tuple[FloatArray, FloatArray]:
+        i = np.clip(np.rint(u / p), 0, t.cols - 1)
+        j = np.clip(np.rint(v / p), 0, t.rows - 1)
+        dx = u - i * p
+        dy = v - j * p
+        rough = np.sqrt(dx * dx + dy * dy)
+        cover = (rough <= inside).astype(np.float64)  # 1 within, 0 beyond
+        edge = np.flatnonzero(~((rough >= outside) | (rough <= inside)))
+        dist = np.hypot(dx.ravel()[edge], dy.ravel()[edge])
+        ramp = 0.5 + (r - dist) / width.ravel()[edge]
+        cover.ravel()[edge] = np.clip(ramp, 0.0, 1.0)
+        value: FloatArray = refl.glass + cover * (refl.chrome - refl.glass)
+        return value, alpha
+
+    return shade
+
+
+_GRID_CACHE: dict[tuple[object, ...], tuple[FloatArray, ...]] = {}
 _GRID_CACHE_SIZE = 16
+#: Side of the tiles of undistorted pixel coordinates kept per camera, px.
+_TILE_PX = 64
+_TILES: dict[tuple[object, ...], dict[tuple[int, int], FloatArray]] = {}
+_TILE_CAMERAS = 4
+
+
+def _camera_key(camera: AnyCamera) -> tuple[object, ...]:
+    """What a camera's undistortion depends on."""
+    return (camera.kind, camera.K.tobytes(), camera.dist.tobytes(),
+            tuple(int(v) for v in camera.image_size_px))  # fmt: skip
+
+
+def _undistorted_box(camera: AnyCamera, roi: tuple[int, int, int, int]) -> FloatArray:
+    """``camera.undistort_px`` of the pixel centres of a box, (h, w, 2), from tiles.
+
+    The undistortion of a pixel does not depend on the others undistorted with it (Newton's
+    method stops each point on its own), so a box is put together from tiles of
+    :data:`_TILE_PX` pixels, each undistorted once per camera: a board that moves across the
+    image costs the pixels it reaches once, not once per box.
+    """
+    key = _camera_key(camera)
+    tiles = _TILES.get(key)
+    if tiles is None:
+        if len(_TILES) >= _TILE_CAMERAS:
+            _TILES.pop(next(iter(_TILES)))
+        tiles = _TILES[key] = {}
+    x0, y0, x1, y1 = roi
+    n = _TILE_PX
+    wanted = [(ty, tx) for ty in range(y0 // n, (y1 - 1) // n + 1)
+              for tx in range(x0 // n, (x1 - 1) // n + 1)]  # fmt: skip
+    missing = [k for k in wanted if k not in tiles]
+    if missing:
+        gx, gy = np.meshgrid(np.arange(n, dtype=np.float64), np.arange(n, dtype=np.float64))
+        q = np.concatenate([np.column_stack([gx.ravel() + tx * n, gy.ravel() + ty * n])
+                            for ty, tx in missing])  # fmt: skip
+        ideal = camera.undistort_px(q).reshape(len(missing), n, n, 2)
+        for k, tile in zip(missing, ideal, strict=True):
+            tiles[k] = tile
+    out = np.empty((y1 - y0, x1 - x0, 2))
+    for ty, tx in wanted:
+        ax, ay = max(x0, tx * n), max(y0, ty * n)
+        bx, by = min(x1, (tx + 1) * n), min(y1, (ty + 1) * n)
+        out[ay - y0 : by - y0, ax - x0 : bx - x0] = tiles[ty, tx][
+            ay - ty * n : by - ty * n, ax - tx * n : bx - tx * n
+        ]
+    return out
 
 
 def _ideal_grid(
     camera: AnyCamera, roi: tuple[int, int, int, int]
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Ideal pixel coordinates of a box of pixel centres, (h, w, 2), and their x and y steps
+    (see :func:`_ideal_planes`)."""
+    planes = _ideal_planes(camera, roi)
+    return planes[0], planes[1], planes[2]
+
+
+def _ideal_planes(camera: AnyCamera, roi: tuple[int, int, int, int]) -> tuple[FloatArray, ...]:
     """Ideal pixel coordinates of a box of pixel centres, (h, w, 2), and their x and y steps.
 
     Kept for the last few boxes: a board that settles is rendered over the same box frame
@@ -191,15 +401,20 @@ def _ideal_grid(
     thesis's top camera the difference from undistorting the shifted pixels is about 1e-5 px
     at a 1 px shift, a thousandth of the rendering's corner bias.
     """
-    key = (camera.kind, camera.K.tobytes(), camera.dist.tobytes(), tuple(int(v) for v in roi))
+    roi = (int(roi[0]), int(roi[1]), int(roi[2]), int(roi[3]))
+    key = (*_camera_key(camera), roi)
     hit = _GRID_CACHE.get(key)
     if hit is not None:
-        return hit[0], hit[1], hit[2]
+        return hit
     x0, y0, x1, y1 = roi
-    gx, gy = np.meshgrid(np.arange(x0, x1, dtype=np.float64), np.arange(y0, y1, dtype=np.float64))
-    q = np.column_stack([gx.ravel(), gy.ravel()])
-    ideal = camera.undistort_px(q).reshape(*gx.shape, 2)
-    if camera.has_distortion and min(gx.shape) > 1:
+    if camera.has_distortion:
+        ideal = _undistorted_box(camera, roi)
+    else:
+        gx, gy = np.meshgrid(np.arange(x0, x1, dtype=np.float64),
+                             np.arange(y0, y1, dtype=np.float64))  # fmt: skip
+        ideal = camera.undistort_px(np.column_stack([gx.ravel(), gy.ravel()]))
+        ideal = ideal.reshape(*gx.shape, 2)
+    if camera.has_distortion and min(ideal.shape[:2]) > 1:
         d_dx = np.asarray(np.gradient(ideal, axis=1), dtype=np.float64)
         d_dy = np.asarray(np.gradient(ideal, axis=0), dtype=np.float64)
     else:
@@ -209,8 +424,10 @@ def _ideal_grid(
         d_dy[..., 1] = 1.0
     if len(_GRID_CACHE) >= _GRID_CACHE_SIZE:
         _GRID_CACHE.pop(next(iter(_GRID_CACHE)))
-    _GRID_CACHE[key] = (ideal, d_dx, d_dy)
-    return ideal, d_dx, d_dy
+    planes = tuple(np.ascontiguousarray(a[..., i]) for a in (ideal, d_dx, d_dy) for i in (0, 1))
+    entry = (ideal, d_dx, d_dy, *planes)
+    _GRID_CACHE[key] = entry
+    return entry
 
 
 def render_placement(
@@ -242,43 +459,73 @@ def render_placement(
     """
     refl = reflectance or Reflectance()
     # Ideal (undistorted) pixel coordinates at the pixel centres and their derivatives, from
-    # the neighbours (distortion varies slowly: linear within a pixel).
-    ideal0, d_dx, d_dy = _ideal_grid(camera, roi)
-    ideal = ideal0
+    # the neighbours (distortion varies slowly: linear within a pixel), as (h, w) planes.
+    ix, iy, dx_x, dx_y, dy_x, dy_y = _ideal_planes(camera, roi)[3:]
     if offset_px is not None:  # the scene shifted by a fraction of a pixel: to first order
-        ideal = ideal0 - d_dx * offset_px[0] - d_dy * offset_px[1]
-    shape = ideal.shape[:2]
+        ox, oy = offset_px[0], offset_px[1]
+        ix = ix - dx_x * ox - dy_x * oy
+        iy = iy - dx_y * ox - dy_y * oy
+    shape = ix.shape
     # Homography from the target plane to ideal pixels, and its inverse.
     H = camera.plane_to_ideal_px(placement.R, placement.t_um)
     Hinv = np.linalg.inv(H)
 
-    def to_board(ix: FloatArray, iy: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        w = Hinv[2, 0] * ix + Hinv[2, 1] * iy + Hinv[2, 2]
-        u = (Hinv[0, 0] * ix + Hinv[0, 1] * iy + Hinv[0, 2]) / w
-        v = (Hinv[1, 0] * ix + Hinv[1, 1] * iy + Hinv[1, 2]) / w
-        return u, v, w
+    def affine(a: float, b: float, c: float) -> FloatArray:
+        """``a * ix + b * iy + c``, (h, w)."""
+        out = a * ix
+        out += b * iy
+        out += c
+        return out
 
-    # Footprint of one subsample on the board, from the Jacobian at the pixel centre.
-    u0, v0, w0 = to_board(ideal[..., 0], ideal[..., 1])
-    du_dix = (Hinv[0, 0] - u0 * Hinv[2, 0]) / w0
-    du_diy = (Hinv[0, 1] - u0 * Hinv[2, 1]) / w0
-    dv_dix = (Hinv[1, 0] - v0 * Hinv[2, 0]) / w0
-    dv_diy = (Hinv[1, 1] - v0 * Hinv[2, 1]) / w0
-    du_dx = du_dix * d_dx[..., 0] + du_diy * d_dx[..., 1]
-    du_dy = du_dix * d_dy[..., 0] + du_diy * d_dy[..., 1]
-    dv_dx = dv_dix * d_dx[..., 0] + dv_diy * d_dx[..., 1]
-    dv_dy = dv_dix * d_dy[..., 0] + dv_diy * d_dy[..., 1]
-    wu = (np.abs(du_dx) + np.abs(du_dy)) / supersample
-    wv = (np.abs(dv_dx) + np.abs(dv_dy)) / supersample
+    def slope(a: float, b: float, of: FloatArray, w: FloatArray) -> FloatArray:
+        """``(a - of * b) / w``, (h, w): a derivative of the inverse homography."""
+        out = of * b
+        np.subtract(a, out, out=out)
+        out /= w
+        return out
+
+    def chain(a: FloatArray, b: FloatArray, c: FloatArray, d: FloatArray) -> FloatArray:
+        """``a * c + b * d``, (h, w)."""
+        out = a * c
+        out += b * d
+        return out
+
+    # The board coordinates of the pixel centres and the footprint of one subsample there,
+    # from the Jacobian at the centre.
+    w0 = affine(Hinv[2, 0], Hinv[2, 1], Hinv[2, 2])
+    u0 = affine(Hinv[0, 0], Hinv[0, 1], Hinv[0, 2])
+    u0 /= w0
+    v0 = affine(Hinv[1, 0], Hinv[1, 1], Hinv[1, 2])
+    v0 /= w0
+    du_dix = slope(Hinv[0, 0], Hinv[2, 0], u0, w0)
+    du_diy = slope(Hinv[0, 1], Hinv[2, 1], u0, w0)
+    dv_dix = slope(Hinv[1, 0], Hinv[2, 0], v0, w0)
+    dv_diy = slope(Hinv[1, 1], Hinv[2, 1], v0, w0)
+    du_dx = chain(du_dix, du_diy, dx_x, dx_y)
+    du_dy = chain(du_dix, du_diy, dy_x, dy_y)
+    dv_dx = chain(dv_dix, dv_diy, dx_x, dx_y)
+    dv_dy = chain(dv_dix, dv_diy, dy_x, dy_y)
+    wu = np.abs(du_dx)
+    wu += np.abs(du_dy)
+    wu /= supersample
+    wv = np.abs(dv_dx)
+    wv += np.abs(dv_dy)
+    wv /= supersample
+    shade = _shader(placement, wu, wv, refl)
     value = np.zeros(shape)
     alpha = np.zeros(shape)
     offsets = (np.arange(supersample) + 0.5) / supersample - 0.5
+    # The subsample (ox, oy) is at u0 + du_dx * ox + du_dy * oy: the first two terms are
+    # shared by the subsamples of a column, the last by those of a row.
+    u_cols = [u0 + du_dx * ox for ox in offsets]
+    v_cols = [v0 + dv_dx * ox for ox in offsets]
     for oy in offsets:
-        for ox in offsets:
-            u = u0 + du_dx * ox + du_dy * oy
-            v = v0 + dv_dx * ox + dv_dy * oy
-            val, a = _reflectance(placement, u, v, wu, wv, refl)
-            value += val * a
+        u_row, v_row = du_dy * oy, dv_dy * oy
+        for u_col, v_col in zip(u_cols, v_cols, strict=True):
+            u = u_col + u_row
+            v = v_col + v_row
+            val, a = shade(u, v)
+            value += np.multiply(val, a, out=u)
             alpha += a
     n = supersample * supersample
     with np.errstate(invalid="ignore", divide="ignore"):

@@ -71,7 +71,11 @@ def local_spacing_px(corners_px: FloatArray, cols: int, rows: int) -> FloatArray
 
 
 def _sample(image: NDArray[np.float32], points: FloatArray) -> FloatArray:
-    """Bilinear grey levels at points (..., 2); the border repeated outside."""
+    """Bilinear grey levels at points (..., 2); the border repeated outside.
+
+    ``image`` (H, W) or (H, W, C): the result is (...) or (..., C), each channel as a
+    one-channel image of it would give.
+    """
     p = points.astype(np.float32)
     out: FloatArray = cv2.remap(
         image, p[..., 0], p[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
@@ -93,7 +97,11 @@ def _gradient_step(gray: NDArray[np.float32], corners: FloatArray, half: FloatAr
 
 
 def _symmetry_step(gray: NDArray[np.float32], start: FloatArray, half: FloatArray) -> FloatArray:
-    """Step 2: the centre of point symmetry in each corner's window (Gauss-Newton)."""
+    """Step 2: the centre of point symmetry in each corner's window (Gauss-Newton).
+
+    The grey levels and both gradients are sampled together (one three-channel image), and
+    a corner that has converged is no longer iterated (its sums do not depend on the others').
+    """
     half = np.maximum(half, float(_MIN_HALF_PX))
     reach = int(np.ceil(half.max()))
     oy, ox = np.mgrid[-reach : reach + 1, -reach : reach + 1]
@@ -101,26 +109,35 @@ def _symmetry_step(gray: NDArray[np.float32], start: FloatArray, half: FloatArra
     d = d[(d[:, 1] > 0) | ((d[:, 1] == 0) & (d[:, 0] > 0))]  # one of each pair (d, -d)
     r2 = np.sum(d**2, axis=1)
     sigma = half[:, None] / 1.5
-    w = np.exp(-r2[None, :] / (2.0 * sigma**2)) * (r2[None, :] <= half[:, None] ** 2)
+    w_all = np.exp(-r2[None, :] / (2.0 * sigma**2)) * (r2[None, :] <= half[:, None] ** 2)
     gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=1) * 0.5
     gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=1) * 0.5
+    levels = cv2.merge([gray, gx, gy])  # (H, W, 3): grey level, d/dx, d/dy
     c = start.copy()
     converged = np.zeros(len(c), dtype=bool)
+    m = len(d)
     for _ in range(_ITERATIONS):
-        plus = c[:, None, :] + d[None]
-        minus = c[:, None, :] - d[None]
-        r = _sample(gray, plus) - _sample(gray, minus)
-        jx = _sample(gx, plus) - _sample(gx, minus)
-        jy = _sample(gy, plus) - _sample(gy, minus)
-        a11, a12, a22 = (w * jx * jx).sum(1), (w * jx * jy).sum(1), (w * jy * jy).sum(1)
-        b1, b2 = (w * jx * r).sum(1), (w * jy * r).sum(1)
+        todo = np.flatnonzero(~converged)
+        w = w_all[todo]
+        centre = c[todo, None, :]
+        at = _sample(levels, np.concatenate([centre + d[None], centre - d[None]], axis=1))
+        diff = at[:, :m] - at[:, m:]  # (corners, offsets, 3): I(c + d) - I(c - d), and d/dx, d/dy
+        r, jx, jy = diff[..., 0], diff[..., 1], diff[..., 2]
+        wjx, wjy = w * jx, w * jy
+        terms = np.empty((5, *w.shape))
+        np.multiply(wjx, jx, out=terms[0])
+        np.multiply(wjx, jy, out=terms[1])
+        np.multiply(wjy, jy, out=terms[2])
+        np.multiply(wjx, r, out=terms[3])
+        np.multiply(wjy, r, out=terms[4])
+        a11, a12, a22, b1, b2 = terms.sum(axis=2)
         det = a11 * a22 - a12**2
         with np.errstate(divide="ignore", invalid="ignore"):
             step = -np.column_stack([a22 * b1 - a12 * b2, a11 * b2 - a12 * b1]) / det[:, None]
         step[~np.isfinite(step)] = 0.0
         step = np.clip(step, -0.5, 0.5)
-        c += np.where(converged[:, None], 0.0, step)
-        converged |= np.abs(step).max(axis=1) < 1e-4
+        c[todo] += step
+        converged[todo] = np.abs(step).max(axis=1) < 1e-4
         if converged.all():
             break
     moved = np.linalg.norm(c - start, axis=1)
