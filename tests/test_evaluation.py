@@ -196,28 +196,37 @@ def _calibration_file(demo, tmp_path):
 
 
 def test_closed_loop_pose_accuracy_by_ground_truth(demo):
-    """The closed loop on the thesis preset at the Table 5-2 poses (one cycle here; the
-    documented figures use three): AP by truth within 0.5 µm on average and 1 µm at worst,
-    and the loop's own claims hold against the truth. (With the direction terms the open
+    """The closed loop on the thesis preset at the Table 5-2 poses, 3 cycles: AP by truth
+    within 0.5 µm on average and 1 µm at worst, and the loop's 95 % region holds the true
+    error at 90 % of the targets or more. The probe projects the true end-effector through
+    the true cameras (rendered-pipeline pixel noise, scaled with the frames) and triangulates
+    with the demo's calibrated cameras, so their calibration error is in every measurement;
+    the rendered loop runs in the station test below. (With the direction terms the open
     loop is as good on this preset: the loop is limited by the cameras' calibration.)"""
     from microcal.control.closed_loop import ClosedLoop
     from microcal.control.visual_servo import ServoConfig
+    from microcal.sim.synthetic_run import RENDERED_VIRTUAL_POINT_STD_PX, ProjectedProbe
 
     plat = sim.platform("thesis", seed=101)
-    probe = VisionProbe(plat.cameras, demo.calibration.models(), plat.scene.board, frames=5)
+    names = list(plat.camera_models)
+    calibrated = demo.calibration.models()
+    probe = ProjectedProbe(plat.truth_position_um, (plat.camera_models[names[0]],
+                           plat.camera_models[names[1]]), np.random.default_rng(101),
+                           RENDERED_VIRTUAL_POINT_STD_PX,
+                           triangulate_with=(calibrated[names[0]], calibrated[names[1]]))  # fmt: skip
     model = demo.models["polynomial"].model
     loop = ClosedLoop(plat.manipulator, model, probe.measure_with_covariance, plat.clock,
                       extra_inputs_reader(model, {}), ServoConfig(tolerance_um=0.5),
                       truth=plat.truth_position_um)  # fmt: skip
     conds: dict = {"closed_loop": loop}
-    r = run_pose_accuracy(plat.manipulator, plat.clock, probe, conds, cycles=1,
+    r = run_pose_accuracy(plat.manipulator, plat.clock, probe, conds, cycles=3,
                           truth=plat.truth_position_um)["truth"]  # fmt: skip
     assert r["closed_loop"]["mean_ap_p_um"] <= 0.5
     assert r["closed_loop"]["max_ap_p_um"] <= 1.0
     s = loop.summary()
-    assert s["targets"] == 9  # home and the eight poses
+    assert s["targets"] == 25  # home and the eight poses of each cycle
     assert s["iterations_mean"] >= 1.0
-    assert s["truth_in_measured_95"] >= 0.75  # 9 targets: at most 2 outside a 95 % region
+    assert s["truth_in_measured_95"] >= 0.9
 
 
 def test_station_and_goto_on_the_simulator(demo, tmp_path):

@@ -52,7 +52,7 @@ def test_truth_inverts_exactly_and_creep_is_logarithmic():
 
 
 def test_one_seed_of_a_study_measures_models_against_the_oracle():
-    run = run_seed("population", 5, StudyConfig(poses=80, cycles=1))
+    run = run_seed("population", 5, StudyConfig(poses=80, cycles=1, closed_loop=True))
     val = run["validation_mean_um"]
     assert val["oracle"] < val["quadratic"]
     assert val["oracle"] < val["matrix"]
@@ -61,6 +61,13 @@ def test_one_seed_of_a_study_measures_models_against_the_oracle():
     assert set(run["coverage_95"]) == {"quadratic", "smooth", "auto"}
     assert run["failed"] == {}
     assert run["family"] in FAMILIES
+    # the loop closes on the fast probe: better than the open loop it starts from, and it
+    # says how it ended at each target (home and the eight poses of one cycle)
+    assert ap["closed_loop"] < ap["auto"]
+    loop = run["closed_loop"]
+    assert loop["targets"] == 9
+    assert sum(loop["status"].values()) == 9
+    assert 1 <= loop["iterations_mean"] <= 6
 
 
 def test_study_command_writes_and_refuses_a_foreign_file(tmp_path):

@@ -16,6 +16,8 @@ _Render = Annotated[bool, Option(help="Render and detect (full pipeline) instead
 _Workers = Annotated[int, Option(min=0, help="Processes at once (0: one per core).")]
 _Poses = Annotated[int, Option(min=40, max=20000, help="Poses acquired per platform.")]
 _Design = Annotated[str, Option(help="Command design: random, sobol, lhs, grid, chebyshev.")]
+_Closed = Annotated[bool, Option(help="Evaluate the closed loop (visual servoing) as well.")]
+_Tol = Annotated[float, Option(min=0.001, help="The closed loop's tolerance, µm.")]
 
 
 @app.command(short_help="The procedure on many simulated platforms.")
@@ -24,7 +26,8 @@ def study(
     preset: Annotated[str, Option(help="Simulated preset (population: each seed its own).")] = "",
     rig: Annotated[Path | None, Option(help="A simulated rig file: preset, settings.")] = None,
     seeds: _Seeds = 20, first_seed: _First = 0, render: _Render = False, workers: _Workers = 0,
-    poses: _Poses = 170, design: _Design = "random",
+    poses: _Poses = 170, design: _Design = "random", closed_loop: _Closed = False,
+    tolerance_um: _Tol = 0.5,
 ) -> None:  # fmt: skip
     """Calibrate, identify (matrix, quadratic, smooth, auto) and evaluate on N seeded platforms,
     each in its own process, against the oracle; write study.json and study.html.
@@ -43,7 +46,8 @@ def study(
     def tick(done: int, total: int, run: dict[str, object]) -> None:
         console.print(f"seed {run['seed']}: done ({done}/{total}, {run['wall_s']:.1f} s)")
 
-    config = StudyConfig(poses=poses, render=render, design=design, overrides=overrides)
+    config = StudyConfig(poses=poses, render=render, design=design, overrides=overrides,
+                         closed_loop=closed_loop, tolerance_um=tolerance_um)  # fmt: skip
     result = run_study(preset, range(first_seed, first_seed + seeds), config, workers or None, tick)
     path = write_study(out, result, study_page(result))
     for name, med, p90 in study_table(result):

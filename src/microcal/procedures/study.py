@@ -45,7 +45,10 @@ import numpy as np
 import scipy.stats
 
 from .._validation import FloatArray
+from ..control.closed_loop import ClosedLoop, Measure
+from ..control.conditions import closed_loop_condition
 from ..control.feedforward import APPROACH_UM, FeedForward, extra_inputs_reader
+from ..control.visual_servo import ServoConfig
 from ..devices.base import Clock
 from ..errors import DegenerateDataError, DeviceError, InputError, LimitError
 from ..kinematics.designs import DESIGNS, make_design
@@ -83,6 +86,10 @@ class StudyConfig:
     render: bool = False
     frames_per_pose: int = 5
     design: str = "random"
+    closed_loop: bool = False
+    """Evaluate the ``closed_loop`` condition as well: the ``auto`` model's move, then visual
+    servoing with the probe (:mod:`microcal.control.visual_servo`) to ``tolerance_um``."""
+    tolerance_um: float = 0.5
     overrides: dict[str, Any] = field(default_factory=dict)
     """Simulator settings (a rig file's ``overrides``) applied to every seed's platform."""
 
@@ -93,6 +100,8 @@ class StudyConfig:
             raise InputError(f"poses: expected 40 or more, got {self.poses}")
         if self.cycles < 1:
             raise InputError(f"cycles: expected 1 or more, got {self.cycles}")
+        if not (np.isfinite(self.tolerance_um) and self.tolerance_um > 0):
+            raise InputError(f"tolerance_um: expected > 0, got {self.tolerance_um}")
         if not self.settle_s >= 0 or not self.approach_um >= 0:
             raise InputError("settle_s and approach_um: expected >= 0")
 
@@ -279,6 +288,7 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[
     )  # fmt: skip
     acq = AcquisitionConfig(approach_um=config.approach_um, approach_seed=demo_design_seed(seed))
     probe: PositionProbe = fast_probe
+    servo_measure: Measure = fast_probe.measure_with_covariance
     if config.render:
         from ..vision.probe import VisionProbe
         from .demo import run_demo
@@ -293,8 +303,9 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[
         rec = [r for r, keep in zip(demo.records, ok, strict=True) if keep]
         signs = np.array([[r[a] for a in APPROACH_INPUTS] for r in rec], dtype=float)
         temps = np.array([r["temperature_c"] for r in rec], dtype=float)
-        probe = VisionProbe(plat.cameras, demo.calibration.models(), plat.scene.board,
-                            frames=config.frames_per_pose)  # fmt: skip
+        rendered = VisionProbe(plat.cameras, demo.calibration.models(), plat.scene.board,
+                               frames=config.frames_per_pose)  # fmt: skip
+        probe, servo_measure = rendered, rendered.measure_with_covariance
     else:
         p, cov, signs, temps = _acquire_fast(plat, d, acq, config.settle_s, fast_probe)
         ok = np.all(np.isfinite(p), axis=1)
@@ -328,6 +339,14 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[
         conditions[name] = FeedForward(sim, model, "optimal",
                                        extra_inputs_reader(model, sensors), plat.clock)  # fmt: skip
     conditions["oracle"] = OracleFeedForward(sim, plat.clock, correction)
+    if config.closed_loop:
+        auto = fits["auto"].model
+        conditions["closed_loop"] = closed_loop_condition(
+            sim, fits["auto"], servo_measure, plat.clock,
+            extra_inputs_reader(auto, sensors), ServoConfig(tolerance_um=config.tolerance_um),
+            settle_s=config.settle_s, truth=plat.truth_position_um,
+        )  # fmt: skip
+    loop_summary: dict[str, Any] = {}
     kwargs: dict[str, Any] = {"settle_s": config.settle_s, "truth": plat.truth_position_um,
                               "cycles": config.cycles}  # fmt: skip
     pa: dict[str, dict[str, Any]] = {"truth": {}, "vision": {}}
@@ -347,6 +366,8 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[
             continue
         try:
             got = run_pose_accuracy(sim, plat.clock, probe, one, **kwargs)
+            if isinstance(ff, ClosedLoop):
+                loop_summary = ff.summary()
             # by truth, which has no noise, one cycle of the multi-directional test tells all
             got_v = run_multi_directional(sim, plat.clock, None, one, **(kwargs | {"cycles": 1}))
         except (LimitError, DegenerateDataError, DeviceError) as exc:
@@ -385,6 +406,7 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[
         "vap_truth_mean_um": {k: v["vap_um"] for k, v in vap["truth"].items()},
         "coverage_95": coverage,
         "family": families["auto"],
+        **({"closed_loop": loop_summary} if config.closed_loop else {}),
         "failed": failed,
         "n_poses": len(d),
         "render": config.render,
@@ -416,9 +438,11 @@ def summarize_runs(runs: Sequence[dict[str, Any]]) -> dict[str, dict[str, float]
             f[f"validation_over_oracle.{name}"] = (
                 r["validation_mean_um"][name] / r["validation_mean_um"]["oracle"]
             )
-            f[f"ap_truth_over_oracle.{name}"] = (
-                r["ap_truth_mean_um"][name] / r["ap_truth_mean_um"]["oracle"]
-            )
+        for name in r["ap_truth_mean_um"]:
+            if name not in ("uncalibrated", "oracle"):
+                f[f"ap_truth_over_oracle.{name}"] = (
+                    r["ap_truth_mean_um"][name] / r["ap_truth_mean_um"]["oracle"]
+                )
     keys = sorted({k for f in flat for k in f})
     out: dict[str, dict[str, float]] = {}
     for k in keys:

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._validation import FloatArray
+from ..errors import InputError
 from ..geometry import CameraModel, triangulate_optimal, triangulation_covariance
 from ..kinematics.designs import make_design
 from ..thesis.cameras import thesis_cameras
@@ -58,8 +59,14 @@ def measure_positions(
     cameras: tuple[CameraModel, CameraModel],
     rng: np.random.Generator,
     pixel_std_px: tuple[float, float] = VIRTUAL_POINT_STD_PX,
+    triangulate_with: tuple[CameraModel, CameraModel] | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """Project true points into both cameras, add pixel noise, triangulate optimally.
+
+    ``triangulate_with``: calibrated models of the same cameras (default: the true ones). The
+    noisy pixels are then observed through the true lenses and undistorted and triangulated
+    with the calibrated models, so the cameras' calibration error reaches the positions as it
+    does in a measurement.
 
     Returns
     -------
@@ -74,9 +81,17 @@ def measure_positions(
     # undistorted its detections
     q = [cam.project(p_true_um, distort=False) + rng.normal(0.0, pixel_std_px, (n, 2))
          for cam in cameras]  # fmt: skip
-    P1, P2 = cameras[0].P, cameras[1].P
+    if triangulate_with is None:
+        P1, P2 = cameras[0].P, cameras[1].P
+        p = triangulate_optimal(P1, P2, q[0], q[1], cov_px2, cov_px2)
+        return p, triangulation_covariance(P1, P2, p, cov_px2, cov_px2)
+    q = [seen.undistort_px(true.distort_px(qi))
+         for true, seen, qi in zip(cameras, triangulate_with, q, strict=True)]  # fmt: skip
+    P1, P2 = triangulate_with[0].P, triangulate_with[1].P
     p = triangulate_optimal(P1, P2, q[0], q[1], cov_px2, cov_px2)
-    return p, triangulation_covariance(P1, P2, p, cov_px2, cov_px2)
+    # as a measurement counts it: each calibration's own projection error, in every frame alike
+    c1, c2 = (cov_px2 + np.eye(2) * cam.projection_sigma_px**2 for cam in triangulate_with)
+    return p, triangulation_covariance(P1, P2, p, c1, c2)
 
 
 def synthetic_run(
@@ -110,6 +125,11 @@ class ProjectedProbe:
     rng : numpy.random.Generator
     pixel_std_px : (2,) float
         Each camera's pixel noise (default thesis Table 4-1).
+    frames : int
+        The frames averaged in a measurement of that noise: :meth:`measure_with_covariance`
+        scales it by sqrt(frames / frames asked for), as averaging independent frames does.
+    triangulate_with : two CameraModel, optional
+        Calibrated models of the cameras to measure with (see :func:`measure_positions`).
     """
 
     def __init__(
@@ -118,8 +138,14 @@ class ProjectedProbe:
         cameras: tuple[CameraModel, CameraModel],
         rng: np.random.Generator,
         pixel_std_px: tuple[float, float] = VIRTUAL_POINT_STD_PX,
+        frames: int = 5,
+        triangulate_with: tuple[CameraModel, CameraModel] | None = None,
     ) -> None:
+        if frames < 1:
+            raise InputError(f"frames: expected 1 or more, got {frames}")
         self.truth = truth
+        self.frames = int(frames)
+        self.triangulate_with = triangulate_with
         self.cameras = cameras
         self.rng = rng
         self.pixel_std_px = pixel_std_px
@@ -128,7 +154,20 @@ class ProjectedProbe:
     def measure(self, d_um: FloatArray) -> FloatArray:
         """Position in {G} (3,) µm (``d_um`` is not needed: nothing is searched for)."""
         p, cov = measure_positions(self.truth()[None, :], self.cameras, self.rng,
-                                   self.pixel_std_px)  # fmt: skip
+                                   self.pixel_std_px, self.triangulate_with)  # fmt: skip
         self.last_cov_um2 = cov[0]
         out: FloatArray = p[0]
         return out
+
+    def measure_with_covariance(
+        self, d_um: FloatArray, frames: int
+    ) -> tuple[FloatArray, FloatArray]:
+        """Position in {G} (3,) µm and its covariance (3, 3) µm² from ``frames`` frames per
+        camera (the closed loop's measurement)."""
+        if frames < 1:
+            raise InputError(f"frames: expected 1 or more, got {frames}")
+        scale = np.sqrt(self.frames / frames)
+        std = (self.pixel_std_px[0] * scale, self.pixel_std_px[1] * scale)
+        p, cov = measure_positions(self.truth()[None, :], self.cameras, self.rng, std,
+                                   self.triangulate_with)  # fmt: skip
+        return p[0], cov[0]
