@@ -141,16 +141,16 @@ def test_faults_are_retried_recorded_and_nothing_is_lost(tmp_path):
     rig = fake_rig(tmp_path, faults)
     run = tmp_path / "run"
     out = run_microcal(
-        "acquire", "--rig", rig, "--poses", "170", "--frames", "2", "--store", "roi", "--out", run
+        "acquire", "--rig", rig, "--poses", "60", "--frames", "2", "--store", "roi", "--out", run
     )
     assert out.returncode == 0, out.stderr
-    assert "stored 170 of 170 poses" in out.stdout
-    records = check_run_complete(run, 170)
+    assert "stored 60 of 60 poses" in out.stdout
+    records = check_run_complete(run, 60)
     failed = [r for r in records if r["status"] == "failed"]
     for r in failed:  # listed with its reason, on the terminal and in the journal
         assert r["reason"]
         assert f"pose {r['pose']} failed: {r['reason']}" in out.stdout
-    assert len(failed) < 17  # retries absorb most transient faults
+    assert len(failed) < 6  # retries absorb most transient faults (10 % of frames dropped)
 
 
 def test_resume_refuses_another_rig_or_edited_files(tmp_path):
