@@ -124,14 +124,8 @@ def _mod(x: FloatArray, period: float) -> FloatArray:
     return out
 
 
-def _square_wave_filtered(u: FloatArray, p: float, w: FloatArray) -> FloatArray:
-    """Box filter (width w) of the square wave +1 on [0, p), -1 on [p, 2p), period 2p."""
-    w = np.maximum(w, 1e-9 * p)
-    return _square_wave_prepared(u, p, w, w / 2)
-
-
 def _square_wave_integral(x: FloatArray, p: float) -> FloatArray:
-    """The integral of the square wave of :func:`_square_wave_filtered`, a triangle wave."""
+    """The integral of the square wave of :func:`_square_wave_prepared`, a triangle wave."""
     out = _mod(x, 2.0 * p)
     out -= p
     np.abs(out, out=out)
@@ -140,18 +134,11 @@ def _square_wave_integral(x: FloatArray, p: float) -> FloatArray:
 
 
 def _square_wave_prepared(u: FloatArray, p: float, w: FloatArray, half: FloatArray) -> FloatArray:
-    """:func:`_square_wave_filtered` with the width already bounded below and halved."""
+    """Box filter (width ``w``, bounded below by 1e-9 p; ``half`` = w / 2) of the square wave
+    +1 on [0, p), -1 on [p, 2p), period 2p."""
     out = _square_wave_integral(u + half, p)
     out -= _square_wave_integral(u - half, p)
     out /= w
-    return out
-
-
-def _box_filtered_interval(u: FloatArray, a: float, b: float, w: FloatArray) -> FloatArray:
-    """Fraction of the box [u - w/2, u + w/2] that lies inside [a, b]."""
-    w = np.maximum(w, 1e-12)
-    inside = np.minimum(u + w / 2, b) - np.maximum(u - w / 2, a)
-    out: FloatArray = np.clip(inside / w, 0.0, 1.0)
     return out
 
 
@@ -167,84 +154,26 @@ def _charuco_texture(cols: int, rows: int, pitch_um: float, marker_um: float) ->
     return np.asarray(image, dtype=np.float64) / 255.0
 
 
-def _reflectance(
-    placement: Placement,
-    u: FloatArray,
-    v: FloatArray,
-    wu: FloatArray,
-    wv: FloatArray,
-    refl: Reflectance,
-) -> tuple[FloatArray, FloatArray]:
-    """Reflectance and coverage (alpha) of the target at board coordinates (u, v)."""
-    t = placement.target
-    p = t.pitch_um
-    x0, x1, y0, y1 = t.extent_um()
-    m = placement.margin
-    if t.kind == "dotgrid":
-        r = t.feature_um / 2
-        i = np.clip(np.rint(u / p), 0, t.cols - 1)
-        j = np.clip(np.rint(v / p), 0, t.rows - 1)
-        dist = np.hypot(u - i * p, v - j * p)
-        width = 0.5 * (wu + wv)
-        cover = np.clip(0.5 + (r - dist) / np.maximum(width, 1e-12), 0.0, 1.0)
-        value = refl.glass + cover * (refl.chrome - refl.glass)
-        alpha = np.ones_like(u)
-        return value, alpha
-    board = _box_filtered_interval(u, x0 - m, x1 + m, wu) * _box_filtered_interval(
-        v, y0 - m, y1 + m, wv
-    )
-    pattern = _box_filtered_interval(u, x0, x1, wu) * _box_filtered_interval(v, y0, y1, wv)
-    if t.kind == "chessboard":
-        # Square (i, j) with i = floor(u / p) is black when i + j is even; the corner at
-        # the origin is an inner corner.
-        # Evaluated just inside the pattern: a footprint that straddles the pattern's edge
-        # takes the edge square's colour, weighted by the coverage below.
-        uc = np.clip(u, x0 + wu / 2, x1 - wu / 2)
-        vc = np.clip(v, y0 + wv / 2, y1 - wv / 2)
-        checker = _square_wave_filtered(uc, p, wu) * _square_wave_filtered(vc, p, wv)
-        inner = refl.white + (refl.black - refl.white) * (1.0 + checker) / 2.0
-    else:
-        tex = _charuco_texture(t.cols, t.rows, t.pitch_um, t.feature_um)
-        texels = tex.shape[1] / t.cols
-        tu = (u - x0) / p * texels - 0.5
-        tv = (v - y0) / p * texels - 0.5
-        iu = np.clip(np.floor(tu).astype(int), 0, tex.shape[1] - 2)
-        iv = np.clip(np.floor(tv).astype(int), 0, tex.shape[0] - 2)
-        fu = np.clip(tu - iu, 0.0, 1.0)
-        fv = np.clip(tv - iv, 0.0, 1.0)
-        top = tex[iv, iu] * (1 - fu) + tex[iv, iu + 1] * fu
-        bottom = tex[iv + 1, iu] * (1 - fu) + tex[iv + 1, iu + 1] * fu
-        texel = top * (1 - fv) + bottom * fv
-        inner = refl.black + texel * (refl.white - refl.black)
-    value = refl.white + pattern * (inner - refl.white)
-    return value, board
-
-
 Shader = Callable[[FloatArray, FloatArray], tuple[FloatArray, FloatArray]]
 
 
 def _shader(placement: Placement, wu: FloatArray, wv: FloatArray, refl: Reflectance) -> Shader:
-    """:func:`_reflectance` of one frame as a function of the subsample's (u, v) alone.
+    """The target's reflectance and coverage (alpha) in one frame, as a function of the
+    subsample's board coordinates (u, v) alone.
 
     ``wu``, ``wv`` (h, w) are the footprint's widths, the same for every subsample of a frame:
-    what depends only on them is computed here once. The shader gives what
-    :func:`_reflectance` gives, bit for bit.
+    what depends only on them is computed here once.
     """
     t = placement.target
     if t.kind == "chessboard":
         return _chessboard_shader(placement, wu, wv, refl)
     if t.kind == "dotgrid":
         return _dotgrid_shader(placement, wu, wv, refl)
-
-    def texture(u: FloatArray, v: FloatArray) -> tuple[FloatArray, FloatArray]:
-        return _reflectance(placement, u, v, wu, wv, refl)
-
-    return texture
+    return _charuco_shader(placement, wu, wv, refl)
 
 
 def _covered(plus: FloatArray, minus: FloatArray, a: float, b: float, w: FloatArray) -> FloatArray:
-    """:func:`_box_filtered_interval` from the box's ends ``plus`` = u + w/2 and ``minus`` =
-    u - w/2 (w bounded below as there)."""
+    """Fraction of the box [minus, plus] = [u - w/2, u + w/2] (w >= 1e-12) inside [a, b]."""
     inside = np.minimum(plus, b)
     inside -= np.maximum(minus, a)
     inside /= w
@@ -255,7 +184,10 @@ def _covered(plus: FloatArray, minus: FloatArray, a: float, b: float, w: FloatAr
 def _chessboard_shader(
     placement: Placement, wu: FloatArray, wv: FloatArray, refl: Reflectance
 ) -> Shader:
-    """The chessboard branch of :func:`_reflectance`, prepared for one frame.
+    """A chessboard's shader: square (i, j), i = floor(u / p), is black when i + j is even
+    (the corner at the origin is an inner corner), evaluated just inside the pattern (a
+    footprint that straddles the pattern's edge takes the edge square's colour, weighted by
+    the coverage); white margin around it.
 
     Where the pattern does not cover the subsample (``pattern == 0``: the white margin and
     beyond), the value is white whatever the checker, so the checker is evaluated only over
@@ -297,10 +229,47 @@ def _chessboard_shader(
     return shade
 
 
+def _charuco_shader(
+    placement: Placement, wu: FloatArray, wv: FloatArray, refl: Reflectance
+) -> Shader:
+    """A ChArUco board's shader: its image (:func:`_charuco_texture`) sampled bilinearly,
+    white margin around the pattern."""
+    t = placement.target
+    p = t.pitch_um
+    x0, x1, y0, y1 = t.extent_um()
+    m = placement.margin
+    wu_box, wv_box = np.maximum(wu, 1e-12), np.maximum(wv, 1e-12)
+    hu_box, hv_box = wu_box / 2, wv_box / 2
+    tex = _charuco_texture(t.cols, t.rows, t.pitch_um, t.feature_um)
+    texels = tex.shape[1] / t.cols
+
+    def shade(u: FloatArray, v: FloatArray) -> tuple[FloatArray, FloatArray]:
+        up, um = u + hu_box, u - hu_box
+        vp, vm = v + hv_box, v - hv_box
+        board = _covered(up, um, x0 - m, x1 + m, wu_box)
+        board *= _covered(vp, vm, y0 - m, y1 + m, wv_box)
+        pattern = _covered(up, um, x0, x1, wu_box)
+        pattern *= _covered(vp, vm, y0, y1, wv_box)
+        tu = (u - x0) / p * texels - 0.5
+        tv = (v - y0) / p * texels - 0.5
+        iu = np.clip(np.floor(tu).astype(int), 0, tex.shape[1] - 2)
+        iv = np.clip(np.floor(tv).astype(int), 0, tex.shape[0] - 2)
+        fu = np.clip(tu - iu, 0.0, 1.0)
+        fv = np.clip(tv - iv, 0.0, 1.0)
+        top = tex[iv, iu] * (1 - fu) + tex[iv, iu + 1] * fu
+        bottom = tex[iv + 1, iu] * (1 - fu) + tex[iv + 1, iu + 1] * fu
+        texel = top * (1 - fv) + bottom * fv
+        inner = refl.black + texel * (refl.white - refl.black)
+        value: FloatArray = refl.white + pattern * (inner - refl.white)
+        return value, board
+
+    return shade
+
+
 def _dotgrid_shader(
     placement: Placement, wu: FloatArray, wv: FloatArray, refl: Reflectance
 ) -> Shader:
-    """The dot grid branch of :func:`_reflectance`, prepared for one frame.
+    """A dot grid's shader: chrome dots on glass, each edge ramped over the footprint's width.
 
     A subsample farther than one footprint width from a dot's edge is all glass or all
     chrome (coverage exactly 0 or 1), which ``sqrt(dx² + dy²)`` tells apart as surely as the
