@@ -7,7 +7,7 @@ Runs the demo once (seed 0, 170 poses, rendered: its stereo calibration and poly
 model), then on each platform seed the ISO 9283 pose-accuracy test at the Table 5-2 poses
 with the optimal compensator (open loop) and with the closed loop. The probe projects the
 true tip through the true cameras with the rendered pipeline's pixel noise and triangulates
-with the demo's calibrated cameras (``ProjectedProbe(triangulate_with=...)``), so the
+with the demo's calibrated cameras (``ProjectedProbe.on_platform``), so the
 cameras' calibration error is in every measurement. Prints AP mean / worst by truth, how
 often the loop's 95 % region held the truth, and iterations and frames per target.
 Simulator only.
@@ -25,7 +25,7 @@ from microcal.control.feedforward import FeedForward, extra_inputs_reader
 from microcal.control.visual_servo import ServoConfig
 from microcal.procedures.demo import run_demo
 from microcal.procedures.evaluation import run_pose_accuracy
-from microcal.sim.synthetic_run import RENDERED_VIRTUAL_POINT_STD_PX, ProjectedProbe
+from microcal.sim.synthetic_run import ProjectedProbe
 
 
 def main() -> None:
@@ -40,11 +40,7 @@ def main() -> None:
     print("seed  open mean/worst  closed mean/worst  in 95 %  iterations  frames")
     for seed in args.seeds:
         plat = sim.platform("thesis", seed=seed)
-        a, b = list(plat.camera_models)[:2]
-        true = (plat.camera_models[a], plat.camera_models[b])
-        probe = ProjectedProbe(plat.truth_position_um, true,
-                               np.random.default_rng(seed), RENDERED_VIRTUAL_POINT_STD_PX,
-                               triangulate_with=(calibrated[a], calibrated[b]))  # fmt: skip
+        probe = ProjectedProbe.on_platform(plat, np.random.default_rng(seed), calibrated)
         extra = extra_inputs_reader(model, {})
         loop = ClosedLoop(plat.manipulator, model, probe.measure_with_covariance, plat.clock,
                           extra, ServoConfig(tolerance_um=args.tolerance_um),

@@ -205,15 +205,10 @@ def test_closed_loop_pose_accuracy_by_ground_truth(demo):
     loop is as good on this preset: the loop is limited by the cameras' calibration.)"""
     from microcal.control.closed_loop import ClosedLoop
     from microcal.control.visual_servo import ServoConfig
-    from microcal.sim.synthetic_run import RENDERED_VIRTUAL_POINT_STD_PX, ProjectedProbe
+    from microcal.sim.synthetic_run import ProjectedProbe
 
     plat = sim.platform("thesis", seed=101)
-    names = list(plat.camera_models)
-    calibrated = demo.calibration.models()
-    probe = ProjectedProbe(plat.truth_position_um, (plat.camera_models[names[0]],
-                           plat.camera_models[names[1]]), np.random.default_rng(101),
-                           RENDERED_VIRTUAL_POINT_STD_PX,
-                           triangulate_with=(calibrated[names[0]], calibrated[names[1]]))  # fmt: skip
+    probe = ProjectedProbe.on_platform(plat, np.random.default_rng(101), demo.calibration.models())
     model = demo.models["polynomial"].model
     loop = ClosedLoop(plat.manipulator, model, probe.measure_with_covariance, plat.clock,
                       extra_inputs_reader(model, {}), ServoConfig(tolerance_um=0.5),

@@ -60,7 +60,7 @@ from ..sim import SimPlatform, platform
 from ..sim.kinematics import TrueKinematics, invert_map
 from ..sim.manipulator import SimManipulator
 from ..sim.platforms import PRESETS
-from ..sim.synthetic_run import RENDERED_VIRTUAL_POINT_STD_PX, ProjectedProbe
+from ..sim.synthetic_run import ProjectedProbe
 from ..thesis.experiment import TABLE_5_2_POSES_UM, WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
 from .acquisition import AcquisitionConfig, approach_start_um
 from .demo import demo_design_seed
@@ -279,13 +279,7 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[
     plat = platform(preset, seed=seed, overrides=config.overrides)
     d = make_design(config.design, config.poses, WORKSPACE_MIN_UM, WORKSPACE_MAX_UM,
                     demo_design_seed(seed))  # fmt: skip
-    rng = np.random.default_rng([seed, 7])
-    cams = plat.camera_models
-    names = list(cams)[:2]
-    fast_probe = ProjectedProbe(
-        plat.truth_position_um, (cams[names[0]], cams[names[1]]),  # type: ignore[arg-type]
-        rng, RENDERED_VIRTUAL_POINT_STD_PX,
-    )  # fmt: skip
+    fast_probe = ProjectedProbe.on_platform(plat, np.random.default_rng([seed, 7]))
     acq = AcquisitionConfig(approach_um=config.approach_um, approach_seed=demo_design_seed(seed))
     probe: PositionProbe = fast_probe
     servo_measure: Measure = fast_probe.measure_with_covariance

@@ -9,20 +9,21 @@ pixels with its covariance. Seeded; ground truth included for tests and benchmar
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
 from .._validation import FloatArray
 from ..errors import InputError
-from ..geometry import CameraModel, triangulate_optimal, triangulation_covariance
+from ..geometry import AnyCamera, triangulate_optimal, triangulation_covariance
 from ..kinematics.designs import make_design
 from ..thesis.cameras import thesis_cameras
 from ..thesis.experiment import WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
 from ..thesis.figures import VIRTUAL_POINT_STD_PX
 from ..thesis.kinematics import thesis_kinematics
 from .kinematics import TrueKinematics, approach_signs
+from .platforms import SimPlatform
 
 __all__ = [
     "RENDERED_VIRTUAL_POINT_STD_PX",
@@ -56,10 +57,10 @@ class SyntheticRun:
 
 def measure_positions(
     p_true_um: FloatArray,
-    cameras: tuple[CameraModel, CameraModel],
+    cameras: tuple[AnyCamera, AnyCamera],
     rng: np.random.Generator,
     pixel_std_px: tuple[float, float] = VIRTUAL_POINT_STD_PX,
-    triangulate_with: tuple[CameraModel, CameraModel] | None = None,
+    triangulate_with: tuple[AnyCamera, AnyCamera] | None = None,
 ) -> tuple[FloatArray, FloatArray]:
     """Project true points into both cameras, add pixel noise, triangulate optimally.
 
@@ -81,16 +82,15 @@ def measure_positions(
     # undistorted its detections
     q = [cam.project(p_true_um, distort=False) + rng.normal(0.0, pixel_std_px, (n, 2))
          for cam in cameras]  # fmt: skip
-    if triangulate_with is None:
-        P1, P2 = cameras[0].P, cameras[1].P
-        p = triangulate_optimal(P1, P2, q[0], q[1], cov_px2, cov_px2)
-        return p, triangulation_covariance(P1, P2, p, cov_px2, cov_px2)
-    q = [seen.undistort_px(true.distort_px(qi))
-         for true, seen, qi in zip(cameras, triangulate_with, q, strict=True)]  # fmt: skip
-    P1, P2 = triangulate_with[0].P, triangulate_with[1].P
+    c1 = c2 = cov_px2
+    if triangulate_with is not None:
+        q = [seen.undistort_px(true.distort_px(qi))
+             for true, seen, qi in zip(cameras, triangulate_with, q, strict=True)]  # fmt: skip
+        cameras = triangulate_with
+        # as a measurement counts it: each calibration's own projection error, every frame alike
+        c1, c2 = (cov_px2 + np.eye(2) * cam.projection_sigma_px**2 for cam in cameras)
+    P1, P2 = cameras[0].P, cameras[1].P
     p = triangulate_optimal(P1, P2, q[0], q[1], cov_px2, cov_px2)
-    # as a measurement counts it: each calibration's own projection error, in every frame alike
-    c1, c2 = (cov_px2 + np.eye(2) * cam.projection_sigma_px**2 for cam in triangulate_with)
     return p, triangulation_covariance(P1, P2, p, c1, c2)
 
 
@@ -98,7 +98,7 @@ def synthetic_run(
     n_poses: int = 170,
     seed: int = 0,
     truth: TrueKinematics | None = None,
-    cameras: tuple[CameraModel, CameraModel] | None = None,
+    cameras: tuple[AnyCamera, AnyCamera] | None = None,
     d_um: FloatArray | None = None,
 ) -> SyntheticRun:
     """A run of ``n_poses`` uniform random commands over the thesis's travel (or ``d_um``)."""
@@ -135,11 +135,11 @@ class ProjectedProbe:
     def __init__(
         self,
         truth: Callable[[], FloatArray],
-        cameras: tuple[CameraModel, CameraModel],
+        cameras: tuple[AnyCamera, AnyCamera],
         rng: np.random.Generator,
         pixel_std_px: tuple[float, float] = VIRTUAL_POINT_STD_PX,
         frames: int = 5,
-        triangulate_with: tuple[CameraModel, CameraModel] | None = None,
+        triangulate_with: tuple[AnyCamera, AnyCamera] | None = None,
     ) -> None:
         if frames < 1:
             raise InputError(f"frames: expected 1 or more, got {frames}")
@@ -151,13 +151,26 @@ class ProjectedProbe:
         self.pixel_std_px = pixel_std_px
         self.last_cov_um2: FloatArray = np.full((3, 3), np.nan)
 
+    @classmethod
+    def on_platform(
+        cls,
+        plat: SimPlatform,
+        rng: np.random.Generator,
+        calibrated: Mapping[str, AnyCamera] | None = None,
+    ) -> ProjectedProbe:
+        """The probe of a simulated platform's first two cameras, with the rendered
+        pipeline's pixel noise (:data:`RENDERED_VIRTUAL_POINT_STD_PX`, 5 frames), measuring
+        with their ``calibrated`` models (by camera name) when given, else the true ones."""
+        a, b = list(plat.camera_models)[:2]
+        true = (plat.camera_models[a], plat.camera_models[b])
+        seen = None if calibrated is None else (calibrated[a], calibrated[b])
+        return cls(plat.truth_position_um, true, rng, RENDERED_VIRTUAL_POINT_STD_PX,
+                   triangulate_with=seen)  # fmt: skip
+
     def measure(self, d_um: FloatArray) -> FloatArray:
         """Position in {G} (3,) µm (``d_um`` is not needed: nothing is searched for)."""
-        p, cov = measure_positions(self.truth()[None, :], self.cameras, self.rng,
-                                   self.pixel_std_px, self.triangulate_with)  # fmt: skip
-        self.last_cov_um2 = cov[0]
-        out: FloatArray = p[0]
-        return out
+        p, self.last_cov_um2 = self.measure_with_covariance(d_um, self.frames)
+        return p
 
     def measure_with_covariance(
         self, d_um: FloatArray, frames: int
