@@ -33,10 +33,11 @@ microcal's accuracy claims rest on: one manipulator proves little, the populatio
 
 from __future__ import annotations
 
+import functools
 import os
+import signal
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from multiprocessing import get_all_start_methods, get_context
 from typing import Any
@@ -500,12 +501,14 @@ def run_study(
         try:
             # fork where there is one (a script without a main guard works), else spawn
             method = "fork" if "fork" in get_all_start_methods() else "spawn"
-            with ProcessPoolExecutor(workers, mp_context=get_context(method)) as pool:
-                futures = {pool.submit(run_seed, preset, s, config): s for s in seeds}
-                for future in as_completed(futures):
-                    runs[futures[future]] = future.result()
+            # the workers leave an interrupt to this process, whose leaving the block ends
+            # them (Pool.terminate): an interrupted study stops now, not after every seed
+            with get_context(method).Pool(workers, initializer=_ignore_interrupts) as pool:
+                one = functools.partial(run_seed, preset, config=config)
+                for run in pool.imap_unordered(one, seeds):
+                    runs[run["seed"]] = run
                     if progress:
-                        progress(len(runs), len(seeds), runs[futures[future]])
+                        progress(len(runs), len(seeds), run)
         finally:
             for k, v in saved.items():
                 if v is None:
@@ -517,3 +520,8 @@ def run_study(
 
 
 _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def _ignore_interrupts() -> None:
+    """A worker's start: Ctrl-C, sent to the whole process group, is the parent's to act on."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
