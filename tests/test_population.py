@@ -108,3 +108,18 @@ def test_study_takes_a_simulated_rig_and_refuses_the_rest(tmp_path):
     assert bad.exit_code == 2
     assert "design" in bad.output
     assert not (tmp_path / "o").exists()  # nothing written for a bad input
+
+
+def test_an_interrupted_study_says_so_in_one_line_and_writes_nothing(tmp_path, monkeypatch):
+    import microcal.procedures.study as study
+
+    def interrupted(*_args, **_kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(study, "run_study", interrupted)
+    out = tmp_path / "st"
+    result = CliRunner().invoke(app, ["study", "--preset", "population", "--seeds", "2",
+                                      "--out", str(out)])  # fmt: skip
+    assert result.exit_code == 130
+    assert result.output.strip().splitlines() == ["microcal: error: interrupted"]
+    assert not (out / "study.json").exists()

@@ -14,6 +14,10 @@ from ..errors import MicrocalError
 WORKFLOW = ("demo", "stereo-calibrate", "acquire", "measure", "fit", "solve", "evaluate", "report")
 
 
+#: The exit code of a command interrupted by Ctrl-C (128 + SIGINT, as shells report it).
+INTERRUPTED = 130
+
+
 def fail(message: str) -> NoReturn:
     """The one line a user error ends with, and exit code 2."""
     print(f"microcal: error: {message}", file=sys.stderr)
@@ -38,7 +42,7 @@ class _Commands(TyperGroup):
             hint = f" (see: {ctx.command_path} --help)" if ctx is not None else ""
             fail(f"{exc.format_message()}{hint}")
         except (typer.Abort, KeyboardInterrupt):
-            fail("interrupted")
+            code = INTERRUPTED
         except MicrocalError as exc:
             fail(str(exc))
         except Exception as exc:
@@ -46,6 +50,8 @@ class _Commands(TyperGroup):
                 raise
             reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else "no reason"
             fail(f"OpenCV could not use an input ({reason}); check the images and --target")
+        if code == INTERRUPTED:  # Ctrl-C (typer makes it this exit code, and says nothing)
+            print("microcal: error: interrupted", file=sys.stderr)
         sys.exit(code if isinstance(code, int) else 0)
 
     def list_commands(self, ctx: Any) -> list[str]:
