@@ -3,25 +3,24 @@
 from __future__ import annotations
 
 import sys
-from typing import Any, NoReturn
+from typing import Annotated, Any, NoReturn
 
 import typer
+from typer import Option
 from typer.core import TyperGroup
 
 from .._version import __version__
 from ..errors import MicrocalError
 
 WORKFLOW = ("demo", "stereo-calibrate", "acquire", "measure", "fit", "solve", "evaluate", "report")
+INTERRUPTED = 130  # the exit code after Ctrl-C (128 + SIGINT, as shells report it)
+Tolerance = Annotated[float, Option(min=0.01, help="The closed loop's tolerance, µm (90 % sure).")]
 
 
-#: The exit code of a command interrupted by Ctrl-C (128 + SIGINT, as shells report it).
-INTERRUPTED = 130
-
-
-def fail(message: str) -> NoReturn:
-    """The one line a user error ends with, and exit code 2."""
+def fail(message: str, code: int = 2) -> NoReturn:
+    """The one line a user error ends with, and its exit code (2; 130 when interrupted)."""
     print(f"microcal: error: {message}", file=sys.stderr)
-    sys.exit(2)
+    sys.exit(code)
 
 
 class _Commands(TyperGroup):
@@ -42,7 +41,7 @@ class _Commands(TyperGroup):
             hint = f" (see: {ctx.command_path} --help)" if ctx is not None else ""
             fail(f"{exc.format_message()}{hint}")
         except (typer.Abort, KeyboardInterrupt):
-            code = INTERRUPTED
+            fail("interrupted", INTERRUPTED)
         except MicrocalError as exc:
             fail(str(exc))
         except Exception as exc:
@@ -51,7 +50,7 @@ class _Commands(TyperGroup):
             reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else "no reason"
             fail(f"OpenCV could not use an input ({reason}); check the images and --target")
         if code == INTERRUPTED:  # Ctrl-C (typer makes it this exit code, and says nothing)
-            print("microcal: error: interrupted", file=sys.stderr)
+            fail("interrupted", INTERRUPTED)
         sys.exit(code if isinstance(code, int) else 0)
 
     def list_commands(self, ctx: Any) -> list[str]:

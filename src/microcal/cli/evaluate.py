@@ -10,7 +10,7 @@ from rich.console import Console
 from typer import Option
 
 from ..report.console import print_parts, staged_progress
-from ._app import app
+from ._app import Tolerance, app
 
 PoseChoice = StrEnum("PoseChoice", {"table": "table-5-2", "cube": "iso-cube"})
 TestChoice = StrEnum(
@@ -30,7 +30,6 @@ _Seed = Annotated[int | None, Option(min=0, help="Seed of the simulated rig 'sim
 _Out = Annotated[Path, Option("--out", "-o", help="results.json to write or update.")]
 ControlChoice = StrEnum("ControlChoice", {"open": "open", "closed": "closed", "all": "all"})
 _Control = Annotated[ControlChoice, Option(help="Open-loop conditions, the closed loop, or all.")]
-_Tol = Annotated[float, Option(min=0.01, help="The closed loop's tolerance, µm (90 % sure).")]
 
 
 @app.command(short_help="Pose accuracy (ISO 9283) and decoupling tests.")
@@ -39,7 +38,7 @@ def evaluate(
     manipulator: _Which = None, cycles: _Cycles = 3, poses: _Poses = PoseChoice.table,
     frames: _Frames = 5, settle_s: _Settle = 5.0, seed: _Seed = None,
     out: _Out = Path("results.json"), control: _Control = ControlChoice.open,
-    tolerance_um: _Tol = 0.5,
+    tolerance_um: Tolerance = 0.5,
 ) -> None:  # fmt: skip
     """Pose accuracy (ISO 9283) and decoupling tests without and with compensation.
 

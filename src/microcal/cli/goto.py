@@ -7,12 +7,11 @@ from typing import Annotated
 
 from typer import Argument, Option
 
-from ._app import app
+from ._app import Tolerance, app
 
 _Rig = Annotated[str, Option(help="'sim' (the simulated thesis platform) or a rig file.")]
 _Cal = Annotated[Path, Option(help="calibration.json with the cameras ('fit --cameras').")]
 _Closed = Annotated[bool, Option(help="Close the loop: visual servoing to the tolerance.")]
-_Tol = Annotated[float, Option(min=0.01, help="The closed loop's tolerance, µm (90 % sure).")]
 
 
 @app.command(short_help="Move the tip to a position in {G}, open or closed loop.")
@@ -20,7 +19,7 @@ def goto(
     x: Annotated[float, Argument(help="Target x in {G}, µm.")],
     y: Annotated[float, Argument(help="Target y in {G}, µm.")],
     z: Annotated[float, Argument(help="Target z in {G}, µm.")],
-    calibration: _Cal, rig: _Rig = "sim", closed: _Closed = False, tolerance_um: _Tol = 0.5,
+    calibration: _Cal, rig: _Rig = "sim", closed: _Closed = False, tolerance_um: Tolerance = 0.5,
     manipulator: Annotated[str | None, Option(help="Manipulator (if several).")] = None,
     seed: Annotated[int | None, Option(min=0, help="Seed of the simulated rig.")] = None,
 ) -> None:  # fmt: skip

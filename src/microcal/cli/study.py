@@ -8,7 +8,7 @@ from typing import Annotated
 from rich.console import Console
 from typer import Option
 
-from ._app import app
+from ._app import Tolerance, app
 
 _Seeds = Annotated[int, Option(min=1, max=10000, help="Number of platforms (seeds).")]
 _First = Annotated[int, Option(min=0, help="The first seed.")]
@@ -17,7 +17,6 @@ _Workers = Annotated[int, Option(min=0, help="Processes at once (0: one per core
 _Poses = Annotated[int, Option(min=40, max=20000, help="Poses acquired per platform.")]
 _Design = Annotated[str, Option(help="Command design: random, sobol, lhs, grid, chebyshev.")]
 _Closed = Annotated[bool, Option(help="Evaluate the closed loop (visual servoing) as well.")]
-_Tol = Annotated[float, Option(min=0.001, help="The closed loop's tolerance, µm.")]
 
 
 @app.command(short_help="The procedure on many simulated platforms.")
@@ -27,7 +26,7 @@ def study(
     rig: Annotated[Path | None, Option(help="A simulated rig file: preset, settings.")] = None,
     seeds: _Seeds = 20, first_seed: _First = 0, render: _Render = False, workers: _Workers = 0,
     poses: _Poses = 170, design: _Design = "random", closed_loop: _Closed = False,
-    tolerance_um: _Tol = 0.5,
+    tolerance_um: Tolerance = 0.5,
 ) -> None:  # fmt: skip
     """Calibrate, identify (matrix, quadratic, smooth, auto) and evaluate on N seeded platforms,
     each in its own process, against the oracle; write study.json and study.html.
