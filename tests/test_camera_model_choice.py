@@ -11,8 +11,9 @@ import pytest
 
 from microcal import DegenerateDataError
 from microcal.procedures.camera_model_trial import camera_model_trial
-from microcal.procedures.demo import CALIBRATION_STEPS_UM, CALIBRATION_TARGET, target_views
+from microcal.procedures.demo import CALIBRATION_STEPS_UM, target_views
 from microcal.sim import platform
+from microcal.sim.platforms import CALIBRATION_TARGET
 from microcal.vision.known_displacements import calibrate_known_displacements
 from microcal.vision.targets import parse_target
 

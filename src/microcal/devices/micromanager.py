@@ -12,7 +12,7 @@ from __future__ import annotations
 import contextlib
 import importlib
 import logging
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from typing import Any
 
 import numpy as np
@@ -34,7 +34,11 @@ def mm_available() -> str | None:
     return None
 
 
-def open_core(config: str | None = None, python_devices: str | None = None) -> Any:
+def open_core(
+    config: str | None = None,
+    python_devices: str | None = None,
+    options: Mapping[str, Any] | None = None,
+) -> Any:
     """A Micro-Manager core with its devices loaded and initialised.
 
     Parameters
@@ -52,10 +56,10 @@ def open_core(config: str | None = None, python_devices: str | None = None) -> A
     if (config is None) == (python_devices is None):
         raise InputError("micromanager: give exactly one of 'config' or 'python_devices'")
     with _quiet("pymmcore-plus"):
-        return _load_core(config, python_devices)
+        return _load_core(config, python_devices, dict(options or {}))
 
 
-def _load_core(config: str | None, python_devices: str | None) -> Any:
+def _load_core(config: str | None, python_devices: str | None, options: dict[str, Any]) -> Any:
     try:
         if config is not None:
             from pymmcore_plus import CMMCorePlus
@@ -74,7 +78,12 @@ def _load_core(config: str | None, python_devices: str | None) -> Any:
                 f"expected 'module:function'"
             ) from None
         core = UniMMCore()
-        loader(core)
+        try:
+            loader(core, **options)
+        except TypeError as exc:
+            raise InputError(
+                f"python_devices: {python_devices} refused the options ({exc})"
+            ) from None
         core.initializeAllDevices()
         return core
     except (RuntimeError, OSError) as exc:

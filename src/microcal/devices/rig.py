@@ -187,7 +187,8 @@ def _open_hardware(
     if spec.micromanager is not None:
         from .micromanager import open_core
 
-        core = open_core(spec.micromanager.config, spec.micromanager.python_devices)
+        mm = spec.micromanager
+        core = open_core(mm.config, mm.python_devices, mm.options)
         resources.append(core.unloadAllDevices)
     manipulator = _open_manipulator(spec.manipulator, core, description)
     opened.append(("manipulator", manipulator))

@@ -347,10 +347,14 @@ class MicroManagerSpec:
         A Micro-Manager configuration file (``.cfg``, C++ device adapters).
     python_devices : str or None
         ``"module:function"``, a function that loads pure-Python devices into a ``UniMMCore``.
+    options : mapping of str to str, int or float
+        Keyword arguments of that function (``function(core, **options)``), e.g. the address
+        of a frame source; empty by default.
     """
 
     config: str | None = None
     python_devices: str | None = None
+    options: Mapping[str, str | int | float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if (self.config is None) == (self.python_devices is None):
@@ -358,12 +362,16 @@ class MicroManagerSpec:
                 "micromanager: give exactly one of 'config' (a .cfg file) or "
                 "'python_devices' (module:function)"
             )
+        object.__setattr__(self, "options", dict(self.options))
+        if self.options and self.python_devices is None:
+            raise InputError("micromanager.options: only 'python_devices' takes options")
 
     def to_dict(self) -> dict[str, Any]:
         """The core's record (JSON types)."""
         if self.config is not None:
             return {"config": self.config}
-        return {"python_devices": self.python_devices}
+        out: dict[str, Any] = {"python_devices": self.python_devices}
+        return out | ({"options": dict(self.options)} if self.options else {})
 
 
 ManipulatorSpec = MCS2Spec | MMStageSpec
@@ -383,6 +391,11 @@ class HardwareRigSpec:
         The end-effector's target (``microcal.vision.targets.parse_target``).
     micromanager : MicroManagerSpec or None
         Needed when a device is a Micro-Manager one.
+    target_stage : MCS2Spec or MMStageSpec or None
+        The stage that carries the camera-calibration target (``stereo-calibrate --rig``
+        moves it by the known steps of method (a)); None when the rig has none.
+    calibration_target : str or None
+        The target on that stage (e.g. ``dotgrid:40x30:250``); given with the stage.
     """
 
     driver: ClassVar[str] = "hardware"
@@ -391,6 +404,8 @@ class HardwareRigSpec:
     cameras: Mapping[str, CameraSpec]
     board: str = DEFAULT_BOARD
     micromanager: MicroManagerSpec | None = None
+    target_stage: ManipulatorSpec | None = None
+    calibration_target: str | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "cameras", dict(self.cameras))
@@ -404,11 +419,17 @@ class HardwareRigSpec:
                 "micromanager: Micro-Manager devices need the core: give 'config' (a .cfg "
                 "file) or 'python_devices' (module:function)"
             )
+        if (self.target_stage is None) != (self.calibration_target is None):
+            raise InputError(
+                "target_stage: give the stage and the target it carries together "
+                '([target_stage] and calibration_target = "dotgrid:40x30:250", say)'
+            )
 
     @property
     def uses_micromanager(self) -> bool:
         """True when a device is a Micro-Manager one."""
-        return isinstance(self.manipulator, MMStageSpec) or any(
+        stages = (self.manipulator, self.target_stage)
+        return any(isinstance(s, MMStageSpec) for s in stages) or any(
             isinstance(c, MMCameraSpec) for c in self.cameras.values()
         )
 
@@ -422,6 +443,9 @@ class HardwareRigSpec:
         }
         if self.micromanager is not None:
             out["micromanager"] = self.micromanager.to_dict()
+        if self.target_stage is not None:
+            out["target_stage"] = self.target_stage.to_dict()
+            out["calibration_target"] = self.calibration_target
         return out
 
 

@@ -220,6 +220,7 @@ class _Camera(_Strict):
 class _MicroManager(_Strict):
     config: str | None = None
     python_devices: str | None = None
+    options: dict[str, str | int | float] | None = None
 
 
 class _Hardware(_Strict):
@@ -228,6 +229,8 @@ class _Hardware(_Strict):
     manipulator: _Manipulator
     cameras: dict[str, _Camera]
     micromanager: _MicroManager | None = None
+    target_stage: _Manipulator | None = None
+    calibration_target: str | None = None
 
 
 _MANIPULATORS: dict[str, type[ManipulatorSpec]] = {
@@ -310,6 +313,7 @@ def _hardware(path: Path, data: dict[str, Any]) -> HardwareRigSpec:
     _check_keys(path, "", data, _Hardware)
     _check_keys(path, "manipulator.", data.get("manipulator"), _Manipulator)
     _check_keys(path, "micromanager.", data.get("micromanager"), _MicroManager)
+    _check_keys(path, "target_stage.", data.get("target_stage"), _Manipulator)
     cameras = data.get("cameras")
     for name, camera in cameras.items() if isinstance(cameras, dict) else ():
         _check_keys(path, f"cameras.{name}.", camera, _Camera)
@@ -334,14 +338,21 @@ def _hardware(path: Path, data: dict[str, Any]) -> HardwareRigSpec:
             micromanager = MicroManagerSpec(**mm)
         except InputError as exc:
             raise FormatError(f"{path}: {exc}") from None
-    given = {"board": rig.board} if rig.board is not None else {}
-    if rig.board is not None:
-        from ..vision.targets import parse_target
+    given: dict[str, Any] = {}
+    for key in ("board", "calibration_target"):
+        if getattr(rig, key) is not None:
+            from ..vision.targets import parse_target
 
-        try:
-            parse_target(rig.board)
-        except InputError as exc:
-            raise FormatError(f"{path}: board: {exc}") from None
+            given[key] = getattr(rig, key)
+            try:
+                parse_target(given[key])
+            except InputError as exc:
+                raise FormatError(f"{path}: {key}: {exc}") from None
+    if rig.target_stage is not None:
+        stage = rig.target_stage
+        given["target_stage"] = _build(
+            path, "target_stage", _MANIPULATORS[stage.kind], _given(stage)
+        )
     try:
         return HardwareRigSpec(manipulator, cameras, micromanager=micromanager, **given)
     except InputError as exc:

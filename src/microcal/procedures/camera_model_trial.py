@@ -19,12 +19,13 @@ from .._validation import FloatArray
 from ..errors import DegenerateDataError
 from ..geometry import AnyCamera
 from ..sim import SimPlatform, platform
+from ..sim.platforms import CALIBRATION_TARGET
 from ..vision.detect import Detection
 from ..vision.known_displacements import calibrate_known_displacements, fit_known_points
 from ..vision.measurement import PoseMeasurement, measure_poses
 from ..vision.stereo_calibration import StereoCalibration
 from ..vision.targets import Target, parse_target
-from .demo import CALIBRATION_STEPS_UM, CALIBRATION_TARGET, target_views
+from .demo import CALIBRATION_STEPS_UM, target_views
 
 __all__ = ["CameraModelTrial", "camera_model_trial"]
 

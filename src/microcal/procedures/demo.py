@@ -30,6 +30,7 @@ from ..kinematics.extra_inputs import APPROACH_INPUTS
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..metrics.error_summary import summarize_errors
 from ..sim import SimPlatform, platform
+from ..sim.platforms import CALIBRATION_TARGET
 from ..sim.render import Placement
 from ..thesis.experiment import WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
 from ..vision.detect import Detection, detect
@@ -58,7 +59,6 @@ def demo_family(preset: str) -> str:
     return "auto" if preset == "population" else "quadratic"
 
 
-CALIBRATION_TARGET = "dotgrid:40x30:250"
 CALIBRATION_STEPS_UM = (0.0, 1000.0, 2000.0, 3000.0, 4000.0)
 
 

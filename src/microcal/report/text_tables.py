@@ -237,7 +237,7 @@ def terms_table(model: KinematicModel) -> TextTable:
 
 def demo_summary(result: Any, frames: int) -> list[TextTable | str]:
     """What ``microcal demo`` prints of a ``DemoResult``, step by step, next to the thesis."""
-    from ..procedures.demo import CALIBRATION_TARGET
+    from ..sim.platforms import CALIBRATION_TARGET
 
     out: list[TextTable | str] = [
         demo_stereo_table(result.calibration, result.calibration_truth_px, CALIBRATION_TARGET),

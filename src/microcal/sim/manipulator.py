@@ -102,6 +102,8 @@ class SimManipulator(Manipulator):
         self._target = self._start.copy()
         self._t0 = clock.now_s()
         self._t_arrive = self._t0
+        #: When the last move was sent, s (construction counts as one).
+        self.last_move_s = self._t0
         self._step = np.zeros(3)
         self._signs = np.ones(3)
 
@@ -119,6 +121,7 @@ class SimManipulator(Manipulator):
         step = d_um - current
         self._signs = np.where(step > 0, 1.0, np.where(step < 0, -1.0, self._signs))
         self._start, self._target, self._t0 = current, d_um.copy(), now
+        self.last_move_s = now
         self._step = step
         self._t_arrive = now + float(np.abs(step).max()) / self.speed_um_s
 

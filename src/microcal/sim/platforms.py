@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from .._validation import FloatArray, check_number, did_you_mean
+from ..devices.base import Clock
 from ..errors import InputError
 from ..geometry.affine_camera import AffineCamera
 from ..geometry.camera_kinds import CAMERA_KINDS, AnyCamera
@@ -42,6 +43,7 @@ from .clock import SimClock
 from .manipulator import ManipulatorFaults, SimManipulator
 from .population import draw_population
 from .render import Placement
+from .stage import SimStage
 
 __all__ = ["PlatformConfig", "Scene", "SimPlatform", "check_overrides", "platform"]
 
@@ -121,11 +123,17 @@ def _rows_of_two(value: object) -> bool:
     )  # fmt: skip
 
 
+#: The camera-calibration target on the target stage: a dot grid, 40 x 30 dots at 250 µm.
+CALIBRATION_TARGET = "dotgrid:40x30:250"
+
+
 @dataclass
 class PlatformConfig:
     """Every parameter of a simulated platform."""
 
     board: str = "chessboard:4x3:400"
+    calibration_target: str = CALIBRATION_TARGET
+    """The target on the target stage (method (a) of the stereo calibration)."""
     top: CameraConfig = field(
         default_factory=lambda: CameraConfig(
             dist=(0.5, 0.0, 1e-3, -1e-3, 0.0),
@@ -236,14 +244,27 @@ def check_overrides(overrides: dict[str, Any], preset: str = "thesis") -> Platfo
 
 
 class Scene:
-    """What the cameras see: the board on the end-effector and an optional fixed target."""
+    """What the cameras see: the board on the end-effector and an optional fixed target.
 
-    def __init__(self, manipulator: SimManipulator, board: Target, board_R: FloatArray) -> None:
+    With a target stage, the calibration target on it is seen instead of the board while the
+    stage was moved more recently than the manipulator (see :mod:`microcal.sim.stage`).
+    """
+
+    def __init__(
+        self,
+        manipulator: SimManipulator,
+        board: Target,
+        board_R: FloatArray,
+        stage: SimStage | None = None,
+        calibration_target: Target | None = None,
+    ) -> None:
         self.manipulator = manipulator
         self.board = board
         self.board_R = board_R
         self.show_board = True
         self.fixed: Placement | None = None
+        self.stage = stage
+        self.calibration_target = calibration_target
 
     def board_placement(self, t_s: float) -> Placement:
         """The board, its inner-corner centroid at the end-effector's true position."""
@@ -251,6 +272,10 @@ class Scene:
         return Placement(self.board, self.board_R, p - self.board_R @ self.board.centre_um)
 
     def __call__(self, t_s: float) -> list[Placement]:
+        stage, target = self.stage, self.calibration_target
+        if stage is not None and target is not None:
+            if stage.last_move_s > self.manipulator.last_move_s:
+                return [Placement(target, np.eye(3), stage.joints_um(t_s))]
         out = [] if self.fixed is None else [self.fixed]
         if self.show_board:
             out.append(self.board_placement(t_s))
@@ -262,11 +287,12 @@ class SimPlatform:
     """The simulated platform; ``truth_*`` members are for tests and benchmarks only."""
 
     config: PlatformConfig
-    clock: SimClock
+    clock: Clock
     manipulator: SimManipulator
     cameras: dict[str, SimCamera]
     scene: Scene
     seed: int
+    target_stage: SimStage | None = None
 
     @property
     def camera_models(self) -> dict[str, AnyCamera]:
@@ -279,7 +305,10 @@ class SimPlatform:
 
 
 def platform(
-    preset: str = "thesis", seed: int = 0, overrides: dict[str, Any] | None = None
+    preset: str = "thesis",
+    seed: int = 0,
+    overrides: dict[str, Any] | None = None,
+    clock: Clock | None = None,
 ) -> SimPlatform:
     """Build a simulated platform.
 
@@ -292,13 +321,16 @@ def platform(
         Seed of every random draw (noise, faults, vibration); same seed, same frames.
     overrides : dict, optional
         Dotted settings of :class:`PlatformConfig`, e.g. ``{"top.bit_depth": 12}``.
+    clock : Clock, optional
+        The platform's time; a :class:`SimClock` from 0 by default (the digital twin gives
+        one that follows the wall clock).
     """
     from ..thesis.kinematics import thesis_kinematics  # the preset builds on this package
 
     config = check_overrides(overrides or {}, preset)
     root = np.random.SeedSequence(seed)
     s_manip, s_top, s_side, s_front = root.spawn(4)  # the first three as with two cameras
-    clock = SimClock()
+    clock = SimClock() if clock is None else clock
     mc = config.manipulator
     n_cameras = 2 if config.front is None else 3
     draw = draw_population(root.spawn(1)[0], n_cameras) if preset == "population" else None
@@ -316,7 +348,8 @@ def platform(
         manipulator.temperature_period_h = draw.temperature_period_h
         manipulator.temperature_phase = draw.temperature_phase
     board = parse_target(config.board)
-    scene = Scene(manipulator, board, np.eye(3))
+    stage = SimStage(clock, np.random.default_rng(root.spawn(1)[0]))
+    scene = Scene(manipulator, board, np.eye(3), stage, parse_target(config.calibration_target))
     top, side = thesis_cameras()
     views: list[tuple[CameraModel, CameraConfig, np.random.SeedSequence]] = [
         (top, config.top, s_top), (side, config.side, s_side)
@@ -337,7 +370,7 @@ def platform(
             camera, scene, clock, np.random.default_rng(seq), pixel_size_um=cfg.pixel_size_um,
             bit_depth=cfg.bit_depth, formation=formation, faults=cfg.faults,
         )  # fmt: skip
-    return SimPlatform(config, clock, manipulator, cameras, scene, seed)
+    return SimPlatform(config, clock, manipulator, cameras, scene, seed, stage)
 
 
 #: The middle of the end-effector's travel in {G}, µm: where the cameras focus.
