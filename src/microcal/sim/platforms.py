@@ -273,9 +273,9 @@ class Scene:
 
     def __call__(self, t_s: float) -> list[Placement]:
         stage, target = self.stage, self.calibration_target
-        if stage is not None and target is not None:
-            if stage.last_move_s > self.manipulator.last_move_s:
-                return [Placement(target, np.eye(3), stage.joints_um(t_s))]
+        moved_last = stage is not None and stage.last_move_s > self.manipulator.last_move_s
+        if moved_last and stage is not None and target is not None:
+            return [Placement(target, np.eye(3), stage.joints_um(t_s))]
         out = [] if self.fixed is None else [self.fixed]
         if self.show_board:
             out.append(self.board_placement(t_s))
