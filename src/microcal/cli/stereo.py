@@ -9,10 +9,17 @@ from rich.console import Console
 from typer import Option
 
 from ..report.console import print_parts
-from ._app import app
+from ._app import app, fail
 
-_Target = Annotated[str, Option(help="Target spec, e.g. dotgrid:40x30:250, chessboard:9x6:25000.")]
-_Images = Annotated[list[str], Option(help="CAMERA=GLOB, once per camera; views in sorted order.")]
+_Target = Annotated[
+    str | None, Option(help="Target spec, e.g. dotgrid:40x30:250 (--rig: its own).")
+]
+_Images = Annotated[list[str] | None, Option(help="CAMERA=GLOB, once per camera; sorted views.")]
+_Rig = Annotated[
+    str | None, Option(help="Instead of images: 'sim' or a rig file with a target stage.")
+]
+_Views = Annotated[Path | None, Option(help="--rig: folder for the frames (OUT-views).")]
+_Frames = Annotated[int, Option(min=1, max=100, help="--rig: frames per view and camera.")]
 _Out = Annotated[Path, Option("--out", "-o", help="cameras.json to write.")]
 _Steps = Annotated[Path | None, Option(help="CSV dx_um,dy_um,dz_um: steps per view (method a).")]
 _Reference = Annotated[int, Option(help="Method b: the view that defines {V}.")]
@@ -22,19 +29,29 @@ _Model = Annotated[str, Option(help="Method a: pinhole, affine (telecentric) or 
 
 @app.command("stereo-calibrate", short_help="Calibrate two or more cameras from target images.")
 def stereo_calibrate(
-    target: _Target, images: _Images, out: _Out = Path("cameras.json"),
+    target: _Target = None, images: _Images = None, out: _Out = Path("cameras.json"),
     known_displacements: _Steps = None, reference_view: _Reference = 0, lens_model: _Lens = "auto",
-    camera_model: _Model = "auto",
+    camera_model: _Model = "auto", rig: _Rig = None, views: _Views = None,
+    frames_per_view: _Frames = 8,
+    seed: Annotated[int | None, Option(min=0, help="Seed of the simulated rig.")] = None,
 ) -> None:  # fmt: skip
     """Calibrate two or more cameras from images of a target, all in one frame.
 
     With --known-displacements the thesis's method (DLT per camera, refined; pinhole or
     affine); without, unknown target poses (lens model chosen by held-out error). Multi-page
-    TIFFs are averaged per view.
+    TIFFs are averaged per view. With --rig the rig's target stage moves the target by the
+    steps (default 0-4 mm along z) and the cameras grab each view (kept in --views).
 
     Example: microcal stereo-calibrate --target dotgrid:40x30:250 --images top='cal/top_*.tiff'
     --images side='cal/side_*.tiff' --known-displacements cal/steps.csv --out cameras.json
+
+    Example: microcal stereo-calibrate --rig examples/rigs/twin.toml --out cameras.json
     """
+    if rig is not None:
+        return _on_rig(rig, out, views, known_displacements, target, seed, frames_per_view,
+                       camera_model)  # fmt: skip
+    if target is None or not images:
+        fail("give --target and --images (image files), or --rig (a rig with a target stage)")
     from ..formats.cameras_file import CAMERAS_FORMAT, save_stereo_calibration
     from ..formats.commands_csv import read_joint_csv
     from ..formats.images import read_frames
@@ -58,3 +75,18 @@ def stereo_calibrate(
                               camera_model=check_camera_model(camera_model))  # fmt: skip
     save_stereo_calibration(out, cal, files, known_displacements, tgt.spec)
     print_parts(Console(), stereo_lines(cal, out))
+
+
+def _on_rig(rig: str, out: Path, views: Path | None, steps: Path | None, target: str | None,
+            seed: int | None, frames: int, camera_model: str) -> None:  # fmt: skip
+    from ..formats.options import check_camera_model
+    from ..formats.rig_calibration import stereo_calibrate_rig
+    from ..procedures.rig_stereo import RigViewsConfig
+    from ..report.text_tables import stereo_lines
+
+    cfg = RigViewsConfig(frames_per_view=frames, camera_model=check_camera_model(camera_model))
+    with Console(stderr=True).status("moving the target and grabbing the views ...") as status:
+        tick = lambda done, total: status.update(f"view {done} of {total} grabbed ...")  # noqa: E731
+        cal, path, folder = stereo_calibrate_rig(rig, out, views=views, steps=steps, target=target,
+                                                 seed=seed, config=cfg, progress=tick)  # fmt: skip
+    print_parts(Console(), [*stereo_lines(cal, path), f"views: {folder}"])

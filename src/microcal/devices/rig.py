@@ -53,6 +53,10 @@ class Rig:
     resources : list of callable
         Releases of what the rig holds besides its devices (a Micro-Manager core's
         ``unloadAllDevices``), called after the devices are closed, last first.
+    target_stage : Manipulator, optional
+        The stage carrying the camera-calibration target (None when the rig has none).
+    calibration_target : Target, optional
+        The target on it.
     """
 
     manipulator: Manipulator
@@ -63,6 +67,8 @@ class Rig:
     truth: Callable[[], FloatArray] | None = None
     description: dict[str, str] = field(default_factory=dict)
     resources: list[Callable[[], None]] = field(default_factory=list)
+    target_stage: Manipulator | None = None
+    calibration_target: Target | None = None
     _closed: bool = field(default=False, init=False, repr=False)
 
     @property
@@ -90,6 +96,8 @@ class Rig:
         self._closed = True
         devices: list[tuple[str, Device]] = [*self.cameras.items()]
         devices.append(("manipulator", self.manipulator))
+        if self.target_stage is not None:
+            devices.append(("target stage", self.target_stage))
         failed = _close_all(devices, self.resources)
         self.resources.clear()
         if failed:
@@ -164,6 +172,8 @@ def _sim(spec: SimRigSpec) -> Rig:
         temperature=lambda: plat.manipulator.temperature_at(plat.clock.now_s()),
         truth=plat.truth_position_um,
         description={"platform": f"simulated, preset {spec.preset}, seed {spec.seed}"},
+        target_stage=plat.target_stage,
+        calibration_target=parse_target(plat.config.calibration_target),
     )
 
 
@@ -192,6 +202,10 @@ def _open_hardware(
         resources.append(core.unloadAllDevices)
     manipulator = _open_manipulator(spec.manipulator, core, description)
     opened.append(("manipulator", manipulator))
+    stage = None
+    if spec.target_stage is not None:
+        stage = _open_manipulator(spec.target_stage, core, description, "target_stage")
+        opened.append(("target stage", stage))
     cameras: dict[str, Camera] = {}
     for name, cam_spec in spec.cameras.items():
         cameras[name] = _open_camera(name, cam_spec, core, description)
@@ -203,11 +217,13 @@ def _open_hardware(
         parse_target(spec.board),
         description=description,
         resources=resources,
+        target_stage=stage,
+        calibration_target=None if stage is None else parse_target(str(spec.calibration_target)),
     )
 
 
 def _open_manipulator(
-    m: MCS2Spec | MMStageSpec, core: Any, description: dict[str, str]
+    m: MCS2Spec | MMStageSpec, core: Any, description: dict[str, str], role: str = "manipulator"
 ) -> Manipulator:
     if isinstance(m, MCS2Spec):
         from .smaract_mcs2 import MCS2Manipulator
@@ -220,18 +236,25 @@ def _open_manipulator(
             timeout_s=m.timeout_s,
             reconnects=m.reconnects,
             speed_um_s=m.speed_um_s,
+            name="mcs2" if role == "manipulator" else role,
         )
         try:
             mcs2.connect()
         except BaseException:
             mcs2.close()
             raise
-        description["manipulator"] = f"SmarAct MCS2 {mcs2.serial} at {m.address}"
+        description[role] = f"SmarAct MCS2 {mcs2.serial} at {m.address}"
         return mcs2
     from .micromanager import MMManipulator
 
-    stage = MMManipulator(core, xy_stage=m.xy_stage, focus=m.focus, limits_um=m.limits_array())
-    description["manipulator"] = f"Micro-Manager {m.xy_stage} + {m.focus}"
+    stage = MMManipulator(
+        core,
+        xy_stage=m.xy_stage,
+        focus=m.focus,
+        limits_um=m.limits_array(),
+        name="mm" if role == "manipulator" else role,
+    )
+    description[role] = f"Micro-Manager {m.xy_stage} + {m.focus}"
     return stage
 
 

@@ -118,10 +118,16 @@ def _frames_of(data: NDArray[np.generic], p: Path) -> list[NDArray[np.generic]]:
 def write_tiff(
     path: str | os.PathLike[str], frames: list[NDArray[np.generic]] | NDArray[np.generic]
 ) -> Path:
-    """Write one frame or several (as pages) losslessly compressed, atomically."""
+    """Write one frame or several (as pages) losslessly compressed, atomically.
+
+    zlib at level 1: noisy camera frames shrink to about 70 % at any level, and level 1 takes
+    less than half the time of the default (6).
+    """
     stack = np.asarray(frames)
 
     def write(tmp: Path) -> None:
-        tifffile.imwrite(tmp, stack, compression="zlib", photometric="minisblack")
+        tifffile.imwrite(
+            tmp, stack, compression="zlib", compressionargs={"level": 1}, photometric="minisblack"
+        )
 
     return write_atomic(path, write)

@@ -102,8 +102,8 @@ class SimManipulator(Manipulator):
         self._target = self._start.copy()
         self._t0 = clock.now_s()
         self._t_arrive = self._t0
-        #: When the last move was sent, s (construction counts as one).
-        self.last_move_s = self._t0
+        #: When the last move was sent, s (``-inf`` until the first one).
+        self.last_move_s = -np.inf
         self._step = np.zeros(3)
         self._signs = np.ones(3)
 
