@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._validation import FloatArray
-from ..errors import DeviceError, DeviceTimeoutError, InputError
+from ..errors import DeviceError, DeviceTimeoutError, InputError, MicrocalError
 from .base import Camera, Manipulator
 
 __all__ = ["MMCamera", "MMManipulator", "mm_available", "open_core"]
@@ -86,6 +86,8 @@ def _load_core(config: str | None, python_devices: str | None, options: dict[str
             ) from None
         core.initializeAllDevices()
         return core
+    except MicrocalError:
+        raise  # a loader's own one-line error (its frame source not running) says it best
     except (RuntimeError, OSError) as exc:
         raise DeviceError(f"micromanager: cannot load the devices ({exc})") from None
 
@@ -104,7 +106,13 @@ def _quiet(name: str) -> Iterator[None]:
 
 
 def _device_error(message: str, exc: RuntimeError) -> DeviceError:
-    """The core's error as microcal's: a timeout is transient (tried again), others are not."""
+    """The core's error as microcal's: a timeout is transient (tried again), others are not.
+
+    A pure-Python device that raises microcal's own error keeps its kind (a ``FrameError``
+    stays transient).
+    """
+    if isinstance(exc, DeviceError):
+        return type(exc)(message)
     kind = DeviceTimeoutError if "timeout" in str(exc).lower() else DeviceError
     return kind(message)
 

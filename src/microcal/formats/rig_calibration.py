@@ -14,6 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ..devices.rig import open_rig
+from ..devices.rig_spec import HardwareRigSpec
 from ..errors import InputError
 from ..procedures.rig_stereo import (
     RigViewsConfig,
@@ -34,6 +35,10 @@ __all__ = ["STEPS_FILE", "stereo_calibrate_rig"]
 
 #: The steps' file in the views directory.
 STEPS_FILE = "steps.csv"
+_NO_STAGE = (
+    "--rig: the rig has no target stage; add [target_stage] and calibration_target to the "
+    "rig file (docs/hardware.md), or calibrate from image files with --images"
+)
 _OURS = re.compile(r"^[A-Za-z0-9_.-]+_\d{2,}\.tiff$")
 
 
@@ -93,6 +98,8 @@ def stereo_calibrate_rig(
     if steps is not None:
         steps_um = read_joint_csv(steps, what="--known-displacements")[1]
     spec = rig_with_seed(load_rig(str(rig)), seed)
+    if isinstance(spec, HardwareRigSpec) and spec.target_stage is None:
+        raise InputError(_NO_STAGE)
     files: dict[str, list[Path]] = {}
 
     def store(view: int, camera: str, frames: list) -> None:  # type: ignore[type-arg]
@@ -101,11 +108,7 @@ def stereo_calibrate_rig(
 
     with open_rig(spec) as opened:
         if opened.target_stage is None or opened.calibration_target is None:
-            raise InputError(
-                "--rig: the rig has no target stage; add [target_stage] and "
-                "calibration_target to the rig file (docs/hardware.md), or calibrate from "
-                "image files with --images"
-            )
+            raise InputError(_NO_STAGE)
         tgt = parse_target(target) if target is not None else opened.calibration_target
         cal = calibrate_on_rig(
             opened.target_stage,
