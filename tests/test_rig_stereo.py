@@ -77,7 +77,8 @@ def test_every_view_is_kept_and_the_calibration_repeats_exactly_from_the_files(
 
 def test_a_step_beyond_the_stage_limits_is_refused_before_anything_moves():
     with open_rig(SimRigSpec(seed=2)) as rig:
-        assert rig.target_stage is not None and rig.calibration_target is not None
+        assert rig.target_stage is not None
+        assert rig.calibration_target is not None
         steps = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 9000.0]])
         with pytest.raises(LimitError, match="z"):
             calibrate_on_rig(rig.target_stage, rig.cameras, rig.clock, rig.calibration_target,
@@ -101,7 +102,8 @@ class _Lost:
 def test_a_camera_lost_midway_is_an_error_and_the_stage_goes_back_where_it_started():
     with open_rig(SimRigSpec(seed=2)) as rig:
         stage = rig.target_stage
-        assert stage is not None and rig.calibration_target is not None
+        assert stage is not None
+        assert rig.calibration_target is not None
         cameras = {"top": rig.cameras["top"], "side": _Lost(rig.cameras["side"], 5)}
         with pytest.raises(DeviceError, match="camera lost"):
             calibrate_on_rig(stage, cameras, rig.clock, rig.calibration_target,  # type: ignore[arg-type]
@@ -133,7 +135,8 @@ def test_cli_refusals_are_one_line(tmp_path):
     theirs.write_text("{}")
     one_line_error(runner.invoke(app, ["stereo-calibrate", "--rig", "sim", "--out", str(theirs)]),
                    "did not write")  # fmt: skip
-    assert theirs.read_text() == "{}" and (foreign / "notes.txt").read_text() == "mine"
+    assert theirs.read_text() == "{}"
+    assert (foreign / "notes.txt").read_text() == "mine"
 
 
 def test_a_hardware_rig_without_a_target_stage_is_refused_before_connecting(tmp_path):
