@@ -139,6 +139,16 @@ def test_evaluate_command(demo, tmp_path):
     assert res.returncode == 0, res.stderr
     data = json.loads((tmp_path / "rig-results.json").read_text())
     assert set(data["decoupling"]["vision"]) == {"uncalibrated", "matrix", "optimal"}
+    # ISO 9283's distance test and the drift of AP (a fifth of an hour, on the simulator)
+    res = run_microcal("evaluate", "--rig", "sim", "--calibration", cal_path, "--test", "distance",
+                       "--drift-h", "0.2", "--cycles", "2", "--frames", "1",
+                       "--out", tmp_path / "iso.json")  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    data = json.loads((tmp_path / "iso.json").read_text())
+    assert data["distance_accuracy"]["truth"]["optimal"]["n"] == 2
+    assert len(data["drift"]["vision"]["optimal"]["t_s"]) == 3  # at 0, 6 and 12 minutes
+    assert "(ISO 9283 7.6)" in res.stdout
+    assert "(ISO 9283 7.7)" in res.stdout
     # A calibration without cameras, a foreign rig, an unknown manipulator: one line, exit 2.
     bare = write_calibration(tmp_path / "bare.json", Calibration({"m1": entry}))
     for args, message in (
@@ -255,3 +265,38 @@ def test_station_and_goto_on_the_simulator(demo, tmp_path):
     res = run_microcal("goto", "--calibration", cal, "1e9", "0", "0")
     assert res.returncode == 2
     assert len(res.stderr.strip().splitlines()) == 1
+
+
+def test_distance_stabilisation_and_drift_on_the_simulator(demo, tmp_path):
+    from microcal.procedures.iso_tests import run_distance, run_drift, run_stabilisation
+
+    plat = sim.platform("thesis", seed=5)
+    conditions = {"uncalibrated": None, "optimal": optimal(plat, demo)}
+    p1, p2 = np.array([2000.0, 2000.0, 1000.0]), np.array([6000.0, 5000.0, 3000.0])
+    args = (plat.manipulator, plat.clock, None, conditions)
+    dist = run_distance(*args, p1, p2, cycles=3, settle_s=5.0, truth=plat.truth_position_um)
+    commanded = float(np.linalg.norm(p1 - p2))
+    for cond in conditions:
+        d = dist["truth"][cond]
+        assert d["commanded_um"] == pytest.approx(commanded)
+        assert d["ad_p_um"] == pytest.approx(d["mean_um"] - commanded)
+    # compensated, the distance is right to within the model's error; uncompensated, the
+    # manipulator's scale errors show (several µm over 5.4 mm)
+    assert abs(dist["truth"]["optimal"]["ad_p_um"]) < 1.0
+    assert abs(dist["truth"]["uncalibrated"]["ad_p_um"]) > 2.0
+    # stabilisation: a wider band is reached sooner; a band far below the creep is not
+    wide = run_stabilisation(*args, p1, p2, cycles=2, band_um=5.0, truth=plat.truth_position_um)
+    narrow = run_stabilisation(*args, p1, p2, cycles=2, band_um=0.05, window_s=3.0,
+                               truth=plat.truth_position_um)  # fmt: skip
+    for cond in conditions:
+        w, n = wide["truth"][cond], narrow["truth"][cond]
+        assert all(t is not None and 0 <= t <= 6.0 for t in w["times_s"])
+        assert all(t is None or t >= tw for t, tw in zip(n["times_s"], w["times_s"], strict=True))
+    # drift over half an hour: every 10 minutes, AP at p1; no thermal drift in this preset
+    dr = run_drift(*args, p1, duration_s=1800.0, interval_s=600.0, truth=plat.truth_position_um)
+    for cond in conditions:
+        d = dr["truth"][cond]
+        assert len(d["t_s"]) == 4
+        assert d["t_s"][-1] - d["t_s"][0] == pytest.approx(1800.0, abs=60.0)
+        assert d["drift_ap_um"] == pytest.approx(abs(d["ap_p_um"][-1] - d["ap_p_um"][0]))
+    assert dr["truth"]["optimal"]["drift_ap_um"] < 0.3

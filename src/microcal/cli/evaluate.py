@@ -13,9 +13,11 @@ from ..report.console import print_parts, staged_progress
 from ._app import Tolerance, app
 
 PoseChoice = StrEnum("PoseChoice", {"table": "table-5-2", "cube": "iso-cube"})
-TestChoice = StrEnum(
-    "TestChoice", {"pose_accuracy": "pose-accuracy", "decoupling": "decoupling", "all": "all"}
-)
+TestChoice = StrEnum("TestChoice", {"pose_accuracy": "pose-accuracy", "decoupling": "decoupling",
+                                    "distance": "distance", "stabilisation": "stabilisation",
+                                    "all": "all"})  # fmt: skip
+_Drift = Annotated[float, Option(min=0.0, help="Also the drift of AP over this many hours.")]
+_Band = Annotated[float, Option(min=0.01, help="Stabilisation band, µm (ISO 9283 7.5).")]
 
 
 _Calibration = Annotated[Path, Option(help="calibration.json (with cameras, see 'fit --cameras').")]
@@ -38,13 +40,14 @@ def evaluate(
     manipulator: _Which = None, cycles: _Cycles = 3, poses: _Poses = PoseChoice.table,
     frames: _Frames = 5, settle_s: _Settle = 5.0, seed: _Seed = None,
     out: _Out = Path("results.json"), control: _Control = ControlChoice.open,
-    tolerance_um: Tolerance = 0.5,
+    tolerance_um: Tolerance = 0.5, drift_h: _Drift = 0.0, band_um: _Band = 2.0,
 ) -> None:  # fmt: skip
     """Pose accuracy (ISO 9283) and decoupling tests without and with compensation.
 
     Each test runs uncalibrated, with the matrix compensator and with the optimal one, measured
-    by the cameras (and on the simulator also by ground truth). The rig is opened as
-    'microcal acquire' opens it: the simulator or a rig file's hardware.
+    by the cameras (and on the simulator also by ground truth): ISO 9283's AP/RP, AD/RD and
+    stabilisation time, the decoupling test, and with --drift-h the drift of AP. The rig is
+    opened as 'microcal acquire' opens it: the simulator or a rig file's hardware.
 
     Example: microcal evaluate --rig sim --calibration calibration.json --control all
     """
@@ -67,7 +70,8 @@ def evaluate(
             opened.manipulator, opened.clock, opened.cameras, models, opened.board, m,
             tests=test.value, poses=poses.value, cycles=cycles, frames=frames, settle_s=settle_s,
             truth=opened.truth, sensors=opened.sensors, progress=progress,
-            control=control.value, tolerance_um=tolerance_um,
+            control=control.value, tolerance_um=tolerance_um, drift_s=drift_h * 3600.0,
+            band_um=band_um,
         )  # fmt: skip
     update_results(out, parts)
     thesis = is_thesis_rig(spec.to_dict()) and poses == PoseChoice.table

@@ -307,6 +307,30 @@ def evaluation_tables(
         out.append(decoupling_table(dc, list(dc["vision"]), thesis=False, title=title))
     if "closed_loop" in parts:
         out.append(closed_loop_line(parts["closed_loop"]))
+    return out + iso_lines(parts)
+
+
+def _s(value: float | None) -> str:
+    return "not settled" if value is None else f"{value:.2f} s"
+
+
+def iso_lines(parts: Mapping[str, Any]) -> list[str]:
+    """One line per source and condition for ISO 9283's distance, stabilisation and drift."""
+    out: list[str] = []
+    for source, per in parts.get("distance_accuracy", {}).items():
+        out += [f"distance {c} ({source}): AD_P {d['ad_p_um']:+.3f} µm, RD {d['rd_p_um']:.3f} µm "
+                f"over {d['commanded_um']:.0f} µm, {d['n']} cycles (ISO 9283 7.6)"
+                for c, d in per.items()]  # fmt: skip
+    for source, per in parts.get("stabilisation", {}).items():
+        out += [f"stabilisation {c} ({source}): mean {_s(d['mean_s'])}, worst {_s(d['max_s'])} "
+                f"within ±{d['band_um']:g} µm (ISO 9283 7.5)" for c, d in per.items()]  # fmt: skip
+    for source, per in parts.get("drift", {}).items():
+        for c, d in per.items():
+            if d["drift_ap_um"] is not None:
+                span = d["t_s"][-1] - d["t_s"][0]
+                out.append(f"drift {c} ({source}): dAP {d['drift_ap_um']:.3f} µm over "
+                           f"{span / 3600:.2f} h, AP {d['ap_p_um'][0]:.3f} -> "
+                           f"{d['ap_p_um'][-1]:.3f} µm (ISO 9283 7.7)")  # fmt: skip
     return out
 
 
