@@ -147,7 +147,7 @@ def test_evaluate_command(demo, tmp_path):
     data = json.loads((tmp_path / "iso.json").read_text())
     assert data["distance_accuracy"]["truth"]["optimal"]["n"] == 2
     assert len(data["drift"]["vision"]["optimal"]["t_s"]) == 3  # at 0, 6 and 12 minutes
-    assert "(ISO 9283 7.6)" in res.stdout
+    assert "(ISO 9283 7.4)" in res.stdout
     assert "(ISO 9283 7.7)" in res.stdout
     # A calibration without cameras, a foreign rig, an unknown manipulator: one line, exit 2.
     bare = write_calibration(tmp_path / "bare.json", Calibration({"m1": entry}))

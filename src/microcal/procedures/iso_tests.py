@@ -7,7 +7,7 @@ condition (uncompensated, matrix, optimal, closed loop), measured by the cameras
 simulator, by ground truth.
 
 - :func:`run_distance`: the two poses ``p1`` and ``p2`` visited in turn, ``cycles`` times;
-  AD and RD (clause 7.6) from the attained distances.
+  AD and RD (clause 7.4) from the attained distances.
 - :func:`run_stabilisation`: ``cycles`` moves from ``p2`` to ``p1``; after the device reports
   "stopped" the position is sampled for ``window_s``; the time until it stays within
   ``band_um`` of where it comes to rest (clause 7.5).
@@ -47,7 +47,7 @@ def run_distance(
     truth: Callable[[], FloatArray] | None = None,
     progress: Progress | None = None,
 ) -> dict[str, dict[str, Any]]:
-    """Distance accuracy AD and repeatability RD (ISO 9283 clause 7.6) between two poses.
+    """Distance accuracy AD and repeatability RD (ISO 9283 clause 7.4) between two poses.
 
     Returns
     -------

@@ -319,7 +319,7 @@ def iso_lines(parts: Mapping[str, Any]) -> list[str]:
     out: list[str] = []
     for source, per in parts.get("distance_accuracy", {}).items():
         out += [f"distance {c} ({source}): AD_P {d['ad_p_um']:+.3f} µm, RD {d['rd_p_um']:.3f} µm "
-                f"over {d['commanded_um']:.0f} µm, {d['n']} cycles (ISO 9283 7.6)"
+                f"over {d['commanded_um']:.0f} µm, {d['n']} cycles (ISO 9283 7.4)"
                 for c, d in per.items()]  # fmt: skip
     for source, per in parts.get("stabilisation", {}).items():
         out += [f"stabilisation {c} ({source}): mean {_s(d['mean_s'])}, worst {_s(d['max_s'])} "
