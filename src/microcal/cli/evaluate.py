@@ -52,19 +52,15 @@ def evaluate(
     Example: microcal evaluate --rig sim --calibration calibration.json --control all
     """
     from ..devices.rig import open_rig
-    from ..formats.calibration_file import load_calibration
-    from ..formats.calibration_update import camera_models
-    from ..formats.json_file import check_json_output
-    from ..formats.options import rig_with_seed
-    from ..formats.results_file import RESULTS_FORMAT, update_results
+    from ..formats import calibration_file, calibration_update, json_file, options, results_file
     from ..formats.rig_file import load_rig
     from ..procedures.evaluation import run_evaluation
     from ..report.text_tables import evaluation_tables, is_thesis_rig
 
-    check_json_output(out, RESULTS_FORMAT, "results.json")
-    cal = load_calibration(calibration)
-    m, models = cal.manipulator(manipulator), camera_models(cal)
-    spec = rig_with_seed(load_rig(rig), seed)
+    json_file.check_json_output(out, results_file.RESULTS_FORMAT, "results.json")
+    cal = calibration_file.load_calibration(calibration)
+    m, models = cal.manipulator(manipulator), calibration_update.camera_models(cal)
+    spec = options.rig_with_seed(load_rig(rig), seed)
     with open_rig(spec) as opened, staged_progress() as progress:
         parts = run_evaluation(
             opened.manipulator, opened.clock, opened.cameras, models, opened.board, m,
@@ -73,6 +69,6 @@ def evaluate(
             control=control.value, tolerance_um=tolerance_um, drift_s=drift_h * 3600.0,
             band_um=band_um,
         )  # fmt: skip
-    update_results(out, parts)
+    results_file.update_results(out, parts)
     thesis = is_thesis_rig(spec.to_dict()) and poses == PoseChoice.table
     print_parts(Console(), [*evaluation_tables(parts, poses.value, thesis=thesis), f"wrote {out}"])

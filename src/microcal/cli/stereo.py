@@ -52,6 +52,12 @@ def stereo_calibrate(
                        camera_model)  # fmt: skip
     if target is None or not images:
         fail("give --target and --images (image files), or --rig (a rig with a target stage)")
+    _from_images(target, images, out, known_displacements, reference_view, lens_model,
+                 camera_model)  # fmt: skip
+
+
+def _from_images(target: str, images: list[str], out: Path, known_displacements: Path | None,
+                 reference_view: int, lens_model: str, camera_model: str) -> None:  # fmt: skip
     from ..formats.cameras_file import CAMERAS_FORMAT, save_stereo_calibration
     from ..formats.commands_csv import read_joint_csv
     from ..formats.images import read_frames

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from ..errors import InputError
 
-__all__ = ["check_output", "check_writable", "foreign_mat", "foreign_report"]
+__all__ = ["check_output", "check_writable", "foreign_mat", "foreign_report", "foreign_twin_rig"]
 
 
 def check_output(
@@ -81,6 +81,13 @@ _NOT_OURS = "a file microcal did not write"
 def foreign_report(path: Path) -> str | None:
     """None for an HTML report microcal wrote (its generator tag)."""
     return None if b'<meta name="generator" content="microcal' in _head(path, 4096) else _NOT_OURS
+
+
+def foreign_twin_rig(path: Path) -> str | None:
+    """None for a rig file ``microcal twin --rig-out`` wrote (its first line)."""
+    from ..sim.twin import RIG_HEADER
+
+    return None if _head(path, 256).startswith(RIG_HEADER.encode("utf-8")) else _NOT_OURS
 
 
 def foreign_mat(path: Path) -> str | None:

@@ -124,6 +124,7 @@ MAX_LIFETIME_S = 7 * 24 * 3600.0
 _MAX_LINE_BYTES = 4096
 _MAX_COMMANDS_PER_LINE = 32
 _POLL_S = 0.2  # the servers' socket timeout: how soon they notice close()
+_SEND_TIMEOUT_S = 30.0  # longest time to hand one answer (a frame) to a client
 MOVING, CLOSED_LOOP = 0x1, 0x2
 # the controller's error codes (SCPI's where it has one)
 ERR_DATA_TYPE = -104
@@ -499,7 +500,9 @@ class _LineServer:
                     line, _, buffer = buffer.partition(b"\n")
                     answer = self.handle(line.rstrip(b"\r"))
                     if answer is not None:
+                        conn.settimeout(_SEND_TIMEOUT_S)  # a frame: the whole of it
                         conn.sendall(answer)
+                        conn.settimeout(_POLL_S)
                 if len(buffer) > _MAX_LINE_BYTES:
                     return  # not a line of this protocol: drop the connection
         except OSError:
@@ -643,11 +646,14 @@ class Twin:
     ) -> None:
         self.close()
 
-    def serve(self, duration_s: float | None = None) -> str:
+    def serve(
+        self, duration_s: float | None = None, ready: Callable[[], None] | None = None
+    ) -> str:
         """Block until ``duration_s`` passed, SIGTERM, Ctrl-C or :meth:`close`; say which.
 
         SIGTERM ends the wait only when called from the main thread (where the handler can
-        be installed; the previous one is put back).
+        be installed; the previous one is put back). ``ready`` is called once it is in place
+        (say there that the twin is listening: a SIGTERM from then on stops it cleanly).
 
         Returns
         -------
@@ -666,6 +672,8 @@ class Twin:
         main = threading.current_thread() is threading.main_thread()
         previous = signal.signal(signal.SIGTERM, terminate) if main else None
         try:
+            if ready is not None:
+                ready()
             end = time.monotonic() + limit
             for _ in range(int(limit / 0.5) + 2):  # bounded: one wait of <= 0.5 s per turn
                 left = end - time.monotonic()
@@ -675,17 +683,18 @@ class Twin:
             reason[0] = "interrupted"
         finally:
             if main:
-                signal.signal(signal.SIGTERM, previous)
+                signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
         if reason[0] == "duration" and self._stop.is_set():
             reason[0] = "closed"
         return reason[0]
 
     # --- the rig ----------------------------------------------------------------------------
-    def rig_toml(self) -> str:
-        """The rig file for the twin as started (its host and actual ports)."""
+    def rig_toml(self, rig_path: str = "twin.toml") -> str:
+        """The rig file for the twin as started (its host and actual ports), to be saved as
+        ``rig_path`` (named in its comments)."""
         return twin_rig_toml(self.platform, host=self.host, mcs2_port=self.mcs2_port,
                              frames_port=self.frames_port, preset=self.preset,
-                             time_scale=self.time_scale)  # fmt: skip
+                             time_scale=self.time_scale, rig_path=rig_path)  # fmt: skip
 
     def describe(self) -> str:
         """One line: what listens where."""
@@ -712,13 +721,15 @@ def twin_rig_toml(
     frames_port: int = FRAMES_PORT,
     preset: str = "thesis",
     time_scale: float = 1.0,
+    rig_path: str = "twin.toml",
 ) -> str:
     """The hardware rig file that drives a twin of ``plat`` through the real drivers.
 
     The manipulator and the target stage are SmarAct MCS2 channels 0-2 and 3-5 at
     ``host:mcs2_port`` with the simulated devices' limits; the cameras are Micro-Manager
     devices of :mod:`microcal.devices.twin_camera` fed by the frame server at
-    ``host:frames_port``, with the simulated cameras' pixel sizes.
+    ``host:frames_port``, with the simulated cameras' pixel sizes. The comments say how to
+    start the twin (``preset``, ``time_scale``) and check the rig (``rig_path``).
 
     Returns
     -------
@@ -736,14 +747,17 @@ def twin_rig_toml(
     if time_scale != 1.0:
         start += f" --time-scale {time_scale:g}"
     address = json.dumps(host)
+    faster = ["# (--time-scale 10: simulated time runs ten times faster than the wall clock)"]
+    faster = faster if time_scale == 1.0 else []
     lines = [
         RIG_HEADER,
         "# The simulated platform served through the real device protocols: the manipulator and",
         "# the target stage through the SmarAct MCS2 driver, the cameras through Micro-Manager.",
         "# Start the twin first, in another terminal (it runs until Ctrl-C):",
         f"#   {start}",
+        *faster,
         "# then use this rig like any other, e.g. check it without moving anything:",
-        "#   microcal acquire --rig THIS_FILE --out runs/a --dry-run",
+        f"#   microcal acquire --rig {rig_path} --out runs/a --dry-run",
         "# Needs: pip install 'microcal[mm]'  (see docs/hardware.md, 'The digital twin')",
         'driver = "hardware"',
         "# the chessboard on the end-effector, and the target on the target stage (the cameras",
