@@ -181,9 +181,9 @@ def pose_accuracy_table(
             f"{pose_accuracy[s][name]['max_ap_p_um']:.2f}"
             for s in sources
         ]
-        if thesis:
-            mean, worst = POSE_ACCURACY_UM[name]
-            row.append(f"{mean:.2f} / {worst:.2f}")
+        if thesis:  # the thesis has no closed loop: nothing to set beside it
+            published = POSE_ACCURACY_UM.get(name)
+            row.append("-" if published is None else f"{published[0]:.2f} / {published[1]:.2f}")
         row += [f"{pose_accuracy[s][name]['vap_um']:.2f} / "
                 f"{pose_accuracy[s][name]['max_vap_um']:.2f}" for s in vap]  # fmt: skip
         table.rows.append(row)
@@ -204,8 +204,9 @@ def decoupling_table(
         for axis in "xyz":
             if thesis:
                 lo, hi = decoupling["truth"][name]["undesired_um"][axis]
-                t_lo, t_hi = DECOUPLING_UM[name][axis]
-                cells.append(f"[{lo:.1f}, {hi:.1f}] ({t_lo:.1f}, {t_hi:.1f})")
+                published = DECOUPLING_UM.get(name)
+                beside = "" if published is None else " ({:.1f}, {:.1f})".format(*published[axis])
+                cells.append(f"[{lo:.1f}, {hi:.1f}]{beside}")
                 continue
             parts = [decoupling[s][name]["undesired_um"][axis]
                      for s in ("vision", "truth") if s in decoupling]  # fmt: skip
