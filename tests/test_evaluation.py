@@ -306,12 +306,12 @@ def test_station_goto_and_evaluate_on_the_digital_twin(demo, tmp_path):
     """The same calibration driven through the real drivers: the twin's MCS2 controller and
     its Micro-Manager cameras, on loopback in a network namespace of the test's own."""
     pytest.importorskip("pymmcore_plus")
-    from netns import own_network_namespace, unavailable_reason
     from typer.testing import CliRunner
 
     import microcal
     from microcal.cli import app
     from microcal.sim.twin import Twin
+    from netns import own_network_namespace, unavailable_reason
 
     reason = unavailable_reason()
     if reason:
