@@ -476,3 +476,25 @@ def solution_lines(solution: Any, calibration: Any) -> list[str]:
     kind, name = calibration.model.kind, calibration.name
     lines.append(f"{kind} model of {name!r}: model(d) - target = {residual} µm")
     return lines
+
+
+def check_lines(data: Mapping[str, Any]) -> list[str]:
+    """What ``microcal check`` prints: the verdict, the offset, the tests, a flag, the update."""
+    off = ", ".join(f"{v:+.2f}" for v in data["offset_um"])
+    std = ", ".join(f"{v:.2f}" for v in data["offset_std_um"])
+    says = {"valid": "the calibration is still valid",
+            "offset": f"the offset moved by ({off}) ± ({std}) µm; the model still fits "
+                      "(--update writes a calibration with the new offset)",
+            "refit": "the model no longer fits these poses: calibrate again (acquire, measure, "
+                     "fit)"}[data["verdict"]]  # fmt: skip
+    out = [f"{data['verdict']}: {says}",
+           f"{data['n_poses']} poses against the {data['against']}: fit chi2 "
+           f"{data['chi2']:.1f} (p {data['p_value']:.3f}), offset ({off}) ± ({std}) µm "
+           f"(p {data['offset_p_value']:.3f})"]  # fmt: skip
+    if data.get("flag"):
+        out.append(f"flag: {data['flag']}")
+    if "update" in data:
+        u = data["update"]
+        out.append(f"wrote {u['calibration']} (offset re-fitted); checked again: "
+                   f"{u['verdict_after']}")  # fmt: skip
+    return out

@@ -106,6 +106,11 @@ class SimManipulator(Manipulator):
         self.last_move_s = -np.inf
         self._step = np.zeros(3)
         self._signs = np.ones(3)
+        #: A change of the device since it was calibrated (tests of ``microcal check``): the
+        #: end-effector shifted in {G} (a re-mounted device, an exchanged tool), µm ...
+        self.mount_offset_um = np.zeros(3)
+        #: ... and each joint's scale (1: as calibrated; 1.002: moves 0.2 % further).
+        self.joint_scale = np.ones(3)
 
     # --- the device protocol -------------------------------------------------------------
     def _fault(self, what: str) -> None:
@@ -164,8 +169,8 @@ class SimManipulator(Manipulator):
     def true_position_um(self, t_s: float | None = None) -> FloatArray:
         """True end-effector position in {G} at time ``t_s`` (now by default), (3,) µm."""
         t = self.clock.now_s() if t_s is None else t_s
-        d = self.joints_um(t)
+        d = self.joints_um(t) * self.joint_scale
         p = self.truth.position_um(d, self._signs[None, :], self.temperature_at(t))[0]
         creep = self.truth.creep_um(self._step, t - self._t_arrive)[0]
-        out: FloatArray = p + creep
+        out: FloatArray = p + creep + self.mount_offset_um
         return out

@@ -96,6 +96,10 @@ class ManipulatorConfig:
     temperature_c: float = 22.0
     temperature_drift_c_per_h: float = 0.0
     faults: ManipulatorFaults = field(default_factory=ManipulatorFaults)
+    #: A change since the calibration (for ``microcal check``): the end-effector shifted in
+    #: {G} (a re-mounted device, an exchanged tool), µm, and each joint's scale.
+    mount_offset_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    joint_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def __post_init__(self) -> None:
         lim = np.asarray(self.limits_um, dtype=np.float64) if _rows_of_two(self.limits_um) else None
@@ -113,6 +117,19 @@ class ManipulatorConfig:
         check_number("sensor_noise_um", self.sensor_noise_um, low=0)
         check_number("temperature_c", self.temperature_c, low=-50, high=100)
         check_number("temperature_drift_c_per_h", self.temperature_drift_c_per_h, low=-20, high=20)
+        for name, value, low, high in (("mount_offset_um", self.mount_offset_um, -1e4, 1e4),
+                                       ("joint_scale", self.joint_scale, 0.5, 2.0)):  # fmt: skip
+            v = np.asarray(value, dtype=np.float64) if _numbers(value) else None
+            if v is None or v.shape != (3,) or not np.all((v >= low) & (v <= high)):
+                raise InputError(
+                    f"{name}: expected three numbers in [{low:g}, {high:g}], got {value!r}"
+                )
+
+
+def _numbers(value: object) -> bool:
+    return isinstance(value, list | tuple) and all(
+        isinstance(v, int | float) and not isinstance(v, bool) for v in value
+    )
 
 
 def _rows_of_two(value: object) -> bool:
@@ -343,6 +360,8 @@ def platform(
         + (0.0 if draw is None else draw.temperature_drift_c_per_h),
         faults=mc.faults,
     )  # fmt: skip
+    manipulator.mount_offset_um = np.array(mc.mount_offset_um, dtype=np.float64)
+    manipulator.joint_scale = np.array(mc.joint_scale, dtype=np.float64)
     if draw is not None:  # the room's temperature cycle
         manipulator.temperature_swing_c = draw.temperature_swing_c
         manipulator.temperature_period_h = draw.temperature_period_h

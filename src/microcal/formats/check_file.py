@@ -1,0 +1,175 @@
+"""``microcal check``: check.json, the history of checks beside a calibration, and the update.
+
+- check.json (``microcal.check/1``): the verdict and its figures (keys in docs/formats.md).
+- The history: ``<calibration>.checks.jsonl`` beside calibration.json, one JSON line per
+  check of that file (identified by its SHA-256). The first check of a calibration that
+  found it valid is the reference of the later ones (their residuals are compared with its
+  residuals, pose by pose). A check whose offset lies more than ``history_sigma`` standard
+  deviations from the offsets of the history (three or more checks) is flagged.
+- The update (``--update NEW``): for the verdict ``offset`` only, a new calibration.json with
+  the base offset moved by the measured offset, its provenance naming the old file; then
+  checked again.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as _dt
+import json
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._version import __version__
+from ..errors import FormatError, InputError
+from ..procedures.check import CheckConfig, CheckResult, offset_updated, run_check
+from .atomic import write_text_atomic
+from .calibration_file import Calibration, load_calibration, provenance, write_calibration
+from .hashing import sha256_file
+from .json_file import check_json_output
+from .station_open import open_station
+
+__all__ = ["CHECK_FORMAT", "check_calibration", "history_path", "read_history"]
+
+CHECK_FORMAT = "microcal.check/1"
+
+
+def history_path(calibration: str | os.PathLike[str]) -> Path:
+    """``calibration.json`` -> ``calibration.checks.jsonl`` beside it."""
+    p = Path(calibration)
+    return p.with_name(f"{p.stem}.checks.jsonl")
+
+
+def read_history(calibration: str | os.PathLike[str]) -> list[dict[str, Any]]:
+    """The checks of this calibration file (its current SHA-256), oldest first."""
+    path = history_path(calibration)
+    if not path.is_file():
+        return []
+    digest = sha256_file(calibration)
+    out = []
+    for k, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            entry = json.loads(line)
+        except json.JSONDecodeError:
+            raise FormatError(
+                f"{path}: line {k} is not JSON; move the file away to start a new history"
+            ) from None
+        if isinstance(entry, dict) and entry.get("calibration_sha256") == digest:
+            out.append(entry)
+    return out
+
+
+def _reference(history: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray] | None:
+    for entry in history:
+        if entry.get("verdict") == "valid" and entry.get("against") == "calibration":
+            poses = entry["poses"]
+            return (np.array([p["residual_um"] for p in poses]),
+                    np.array([p["cov_um2"] for p in poses]))  # fmt: skip
+    return None
+
+
+def _far_from_history(result: CheckResult, history: list[dict[str, Any]], sigma: float) -> str:
+    offsets = np.array([h["offset_um"] for h in history])
+    if len(offsets) < 3:
+        return ""
+    spread = offsets.std(axis=0, ddof=1)
+    z = (result.offset_um - offsets.mean(axis=0)) / np.sqrt(spread**2 + result.offset_std_um**2)
+    worst = int(np.argmax(np.abs(z)))
+    if abs(z[worst]) <= sigma:
+        return ""
+    return (f"far from the {len(offsets)} earlier checks: offset {'xyz'[worst]} "
+            f"{result.offset_um[worst]:+.2f} µm is {abs(z[worst]):.1f} sigma from their "
+            f"{offsets[:, worst].mean():+.2f} ± {spread[worst]:.2f} µm")  # fmt: skip
+
+
+def _append(path: Path, entry: dict[str, Any]) -> None:
+    old = path.read_text(encoding="utf-8") if path.is_file() else ""
+    if old and not old.endswith("\n"):
+        old += "\n"
+    write_text_atomic(path, old + json.dumps(entry, allow_nan=False) + "\n")
+
+
+def check_calibration(
+    rig: str | os.PathLike[str],
+    calibration: str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    *,
+    manipulator: str | None = None,
+    seed: int | None = None,
+    config: CheckConfig | None = None,
+    history_sigma: float = 3.0,
+    update: str | os.PathLike[str] | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> dict[str, Any]:
+    """Check a calibration on its rig, write check.json, add to the history, update if asked.
+
+    Returns
+    -------
+    dict
+        check.json's object (with ``flag`` and, after an update, ``update``).
+    """
+    cfg = config or CheckConfig()
+    out_path = check_json_output(out, CHECK_FORMAT, "check.json")
+    if update is not None:
+        from .calibration_file import CALIBRATION_FORMAT
+
+        check_json_output(update, CALIBRATION_FORMAT, "calibration-updated.json", "--update")
+        if Path(update).resolve() == Path(calibration).resolve():
+            raise InputError("--update: write the updated calibration to a new file")
+    history = read_history(calibration)
+    reference = _reference(history)
+    cal = load_calibration(calibration)
+    with open_station(rig, calibration, manipulator=manipulator, seed=seed,
+                      settle_s=cfg.settle_s) as station:  # fmt: skip
+        rig_ = station.rig
+        m = station.calibration
+        measure = station.probe.measure_with_covariance
+        result = run_check(rig_.manipulator, rig_.clock, measure, m, config=cfg,
+                           reference=reference, progress=progress)  # fmt: skip
+        data: dict[str, Any] = {"format": CHECK_FORMAT, **result.as_dict()}
+        data["flag"] = _far_from_history(result, history, history_sigma)
+        data["provenance"] = provenance({"calibration": calibration}, command="check")
+        if update is not None:
+            data["update"] = _update(cal, m.name, result, calibration, update, rig_, measure, cfg)
+    write_text_atomic(out_path, json.dumps(data, indent=1, allow_nan=False) + "\n")
+    entry = {k: v for k, v in data.items() if k not in ("format", "provenance", "update")}
+    entry |= {"calibration_sha256": sha256_file(calibration),
+              "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+              "software": f"microcal {__version__}"}  # fmt: skip
+    _append(history_path(calibration), entry)
+    return data
+
+
+def _update(
+    cal: Calibration,
+    name: str,
+    result: CheckResult,
+    old: str | os.PathLike[str],
+    new: str | os.PathLike[str],
+    rig: Any,
+    measure: Any,
+    cfg: CheckConfig,
+) -> dict[str, Any]:
+    """Re-fit the base offset only, write the new calibration, check it again."""
+    if result.verdict != "offset":
+        why = ("nothing to update: the calibration is valid" if result.verdict == "valid" else
+               "the model no longer fits: an update re-fits only the offset; calibrate again "
+               "(acquire, measure, fit)")  # fmt: skip
+        raise InputError(f"--update: {why}")
+    m = cal.manipulators[name]
+    model = offset_updated(m.model, result.offset_um)
+    updated = dataclasses.replace(m, model=model)
+    manipulators = {**cal.manipulators, name: updated}
+    prov = provenance({"calibration": old}, command="check --update",
+                      offset_um=result.offset_um.tolist(),
+                      offset_std_um=result.offset_std_um.tolist())  # fmt: skip
+    write_calibration(new, Calibration(manipulators, cal.cameras, prov))
+    again = run_check(rig.manipulator, rig.clock, measure, updated, config=cfg)
+    return {"calibration": str(new), "verdict_after": again.verdict,
+            "offset_after_um": again.offset_um.tolist(),
+            "offset_after_std_um": again.offset_std_um.tolist()}  # fmt: skip
