@@ -369,3 +369,46 @@ def test_the_thesis_tables_leave_the_closed_loop_without_a_published_figure():
     table = decoupling_table(dc, ["optimal", "closed_loop"], thesis=True)
     assert table.rows[1] == ["closed_loop", "[-0.1, 0.2]", "[-0.1, 0.2]", "[-0.1, 0.2]"]
     assert "(" in table.rows[0][1]
+
+
+def test_check_and_its_update_through_the_command(demo, tmp_path):
+    """``microcal check`` on rendered frames: valid on an unchanged platform (the reference),
+    ``offset`` on one whose end-effector moved, ``--update`` fixes it; the history grows."""
+    from microcal.formats.check_file import history_path, read_history
+
+    cal = _calibration_file(demo, tmp_path)
+    res = run_microcal("check", "--calibration", cal, "--seed", "3", "--out", tmp_path / "c1.json")
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.startswith("valid: ")
+    moved = tmp_path / "moved.toml"
+    moved.write_text('driver = "sim"\nseed = 4\n[overrides.manipulator]\n'
+                     "mount_offset_um = [0.0, -1.0, 0.5]\n")  # fmt: skip
+    new = tmp_path / "moved-calibration.json"
+    res = run_microcal("check", "--calibration", cal, "--rig", moved, "--out",
+                       tmp_path / "c2.json", "--update", new)  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    data = json.loads((tmp_path / "c2.json").read_text())
+    assert data["format"] == "microcal.check/1"
+    assert data["verdict"] == "offset"
+    assert data["against"] == "reference check"
+    np.testing.assert_allclose(data["offset_um"], [0.0, -1.0, 0.5],
+                               atol=4 * max(data["offset_std_um"]))  # fmt: skip
+    assert data["update"]["verdict_after"] == "valid"
+    assert data["duration_s"] < 120.0  # simulated seconds for ten poses
+    updated = json.loads(new.read_text())
+    assert updated["provenance"]["inputs"]["calibration"]["path"] == str(cal)
+    assert len(read_history(cal)) == 2
+    assert history_path(cal).name == "calibration.checks.jsonl"
+    # nothing moved: no update is written (the check is kept), and a check.json is not
+    # someone else's file
+    res = run_microcal("check", "--calibration", cal, "--seed", "5", "--out",
+                       tmp_path / "c3.json", "--update", tmp_path / "x.json")  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    assert "no update written: nothing to update" in res.stdout
+    assert not (tmp_path / "x.json").exists()
+    assert json.loads((tmp_path / "c3.json").read_text())["verdict"] == "valid"
+    theirs = tmp_path / "notes.json"
+    theirs.write_text("{}")
+    res = run_microcal("check", "--calibration", cal, "--out", theirs)
+    assert res.returncode == 2
+    assert theirs.read_text() == "{}"

@@ -8,7 +8,7 @@
   deviations from the offsets of the history (three or more checks) is flagged.
 - The update (``--update NEW``): for the verdict ``offset`` only, a new calibration.json with
   the base offset moved by the measured offset, its provenance naming the old file; then
-  checked again.
+  checked again. For another verdict nothing is written and check.json says why.
 """
 
 from __future__ import annotations
@@ -160,7 +160,7 @@ def _update(
         why = ("nothing to update: the calibration is valid" if result.verdict == "valid" else
                "the model no longer fits: an update re-fits only the offset; calibrate again "
                "(acquire, measure, fit)")  # fmt: skip
-        raise InputError(f"--update: {why}")
+        return {"calibration": None, "refused": why}
     m = cal.manipulators[name]
     model = offset_updated(m.model, result.offset_um)
     updated = dataclasses.replace(m, model=model)

@@ -493,7 +493,9 @@ def check_lines(data: Mapping[str, Any]) -> list[str]:
            f"(p {data['offset_p_value']:.3f})"]  # fmt: skip
     if data.get("flag"):
         out.append(f"flag: {data['flag']}")
-    if "update" in data:
+    if "update" in data and data["update"]["calibration"] is None:
+        out.append(f"no update written: {data['update']['refused']}")
+    elif "update" in data:
         u = data["update"]
         out.append(f"wrote {u['calibration']} (offset re-fitted); checked again: "
                    f"{u['verdict_after']}")  # fmt: skip
