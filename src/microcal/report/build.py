@@ -242,6 +242,35 @@ def _decoupling(data: RunData, thesis: bool) -> dict[str, Any] | None:
     }
 
 
+def _iso(data: RunData) -> list[dict[str, Any]]:
+    """ISO 9283's distance, stabilisation and drift rows, where evaluate ran them."""
+    rows = []
+    for source, per in data.results.get("distance_accuracy", {}).items():
+        rows += [{"what": "distance AD_P / RD (7.4)", "source": source, "condition": c,
+                  "value": f"{_fmt(d['ad_p_um'])} / {_fmt(d['rd_p_um'])} µm over "
+                           f"{_fmt(d['commanded_um'], 0)} µm"} for c, d in per.items()]  # fmt: skip
+    for source, per in data.results.get("stabilisation", {}).items():
+        rows += [{"what": f"stabilisation mean / worst, ±{d['band_um']} µm (7.5)",
+                  "source": source, "condition": c,
+                  "value": f"{_fmt(d['mean_s'])} / {_fmt(d['max_s'])} s"}
+                 for c, d in per.items()]  # fmt: skip
+    for source, per in data.results.get("drift", {}).items():
+        rows += [{"what": "drift dAP (7.7)", "source": source, "condition": c,
+                  "value": f"{_fmt(d['drift_ap_um'])} µm over "
+                           f"{_fmt((d['t_s'][-1] - d['t_s'][0]) / 3600 if d['t_s'] else None)} h"}
+                 for c, d in per.items()]  # fmt: skip
+    return rows
+
+
+def _checks(data: RunData) -> dict[str, Any] | None:
+    if not data.checks:
+        return None
+    offsets = np.array([c["offset_um"] for c in data.checks], dtype=float)
+    std = np.array([c["offset_std_um"] for c in data.checks], dtype=float)
+    verdicts = [str(c["verdict"]) for c in data.checks]
+    return {"rows": data.checks, "figure": figures.check_history(offsets, std, verdicts)}
+
+
 def _provenance(data: RunData) -> list[tuple[str, Any]]:
     rows: list[tuple[str, Any]] = [("run directory", str(data.run_dir))]
     for label, prov in (
@@ -282,6 +311,8 @@ def build_report(run_dir: str | os.PathLike[str]) -> str:
         "models": _models(data, thesis),
         "pose_accuracy": _pose_accuracy(data, thesis),
         "decoupling": _decoupling(data, thesis),
+        "iso": _iso(data),
+        "checks": _checks(data),
         "provenance": _provenance(data),
         "rig": _rig_text(data),
         "thesis": (

@@ -49,6 +49,7 @@ class RunData:
     cameras: dict[str, Any] | None = None
     calibration: Calibration | None = None
     results: dict[str, Any] = field(default_factory=dict)
+    checks: list[dict[str, Any]] = field(default_factory=list)  # the calibration's history
 
     @property
     def rig(self) -> dict[str, Any] | None:
@@ -153,4 +154,8 @@ def load_run(run_dir: str | os.PathLike[str]) -> RunData:
             data.cameras = {"cameras": data.calibration.cameras}
     if (root / "results.json").exists():
         data.results = load_results(root / "results.json")
+    if data.calibration is not None:
+        from ..formats.check_file import read_history
+
+        data.checks = read_history(root / "calibration.json")
     return data

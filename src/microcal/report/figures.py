@@ -282,3 +282,30 @@ def decoupling(condition: str, runs: Mapping[str, tuple[FloatArray, np.ndarray]]
         ax.legend(fontsize=7, loc="upper left")
     fig.suptitle(f"decoupling, {condition}", fontsize=10)
     return _uri(fig)
+
+
+def check_history(offsets_um: FloatArray, std_um: FloatArray, verdicts: list[str]) -> str:
+    """Offset found by each check of a calibration, per axis, with ±2 standard deviations.
+
+    Parameters
+    ----------
+    offsets_um, std_um : (n, 3) float
+    verdicts : n str
+    """
+    fig = Figure(figsize=(7.0, 3.0), layout="constrained")
+    ax = fig.add_subplot(1, 1, 1)
+    k = np.arange(1, len(offsets_um) + 1)
+    for a, (axis, colour) in enumerate(zip("xyz", ("tab:red", "tab:green", "tab:blue"),
+                                           strict=True)):  # fmt: skip
+        ax.errorbar(k + (a - 1) * 0.08, offsets_um[:, a], yerr=2 * std_um[:, a], fmt="o",
+                    ms=3, color=colour, label=axis, capsize=2)  # fmt: skip
+    for i, verdict in enumerate(verdicts):
+        if verdict != "valid":
+            ax.annotate(verdict, (k[i], float(np.max(offsets_um[i]))), fontsize=7,
+                        textcoords="offset points", xytext=(0, 6), ha="center")  # fmt: skip
+    ax.axhline(0.0, color="grey", lw=0.6)
+    ax.set_xticks(k)
+    ax.set_xlabel("check")
+    ax.set_ylabel("offset, µm (±2 std)")
+    ax.legend(fontsize=8)
+    return _uri(fig)
