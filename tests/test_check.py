@@ -191,3 +191,34 @@ def test_the_report_shows_the_check_history_and_the_iso_characteristics(tmp_path
     assert ">refit<" not in html  # the line of another calibration file is not its history
     assert "distance AD_P / RD (7.4)" in html
     assert "0.20 / 0.40 µm over 5000 µm" in html
+
+
+def test_a_run_records_its_device_and_a_calibration_refuses_another(tmp_path):
+    from typer.testing import CliRunner
+
+    from microcal.cli import app
+    from microcal.formats.run_directory import RunDirectory
+
+    runner = CliRunner()
+    got = runner.invoke(app, ["acquire", "--rig", "sim", "--poses", "12", "--settle", "fixed:1",
+                              "--frames", "1", "--out", str(tmp_path / "run")])  # fmt: skip
+    assert got.exit_code == 0, got.output
+    manifest = RunDirectory(tmp_path / "run").manifest
+    assert manifest is not None
+    assert manifest.device == "simulated m1"
+    from microcal.formats.calibration_file import load_calibration
+    from microcal.formats.calibration_update import add_manipulator
+
+    entry = ManipulatorCalibration("m1", _matrix_model())
+    (tmp_path / "run" / "measurements.csv").write_text("pose\n")  # only hashed here
+    add_manipulator(tmp_path / "cal.json", entry, None,
+                    {"measurements": tmp_path / "run" / "measurements.csv"}, "matrix")  # fmt: skip
+    assert load_calibration(tmp_path / "cal.json").manipulator().device == "simulated m1"
+    m = ManipulatorCalibration(
+        "m1", _matrix_model(), extra={"device": "SmarAct MCS2 A1 channels 0,1,2"}
+    )
+    m.check_device("SmarAct MCS2 A1 channels 0,1,2")
+    m.check_device("")  # a backend that cannot tell
+    with pytest.raises(InputError, match=r"calibrated on SmarAct MCS2 A1 .* manipulator is B2"):
+        m.check_device("B2")
+    ManipulatorCalibration("m1", _matrix_model()).check_device("B2")  # an older calibration

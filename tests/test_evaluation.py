@@ -347,6 +347,19 @@ def test_station_goto_and_evaluate_on_the_digital_twin(demo, tmp_path):
                                   "--test", "pose-accuracy", "--poses", "iso-cube", "--cycles",
                                   "1", "--frames", "2", "--settle-s", "0.1", "--out", str(out)])  # fmt: skip
         assert got.exit_code == 0, got.output
+        # a calibration made on another controller is refused, naming both serial numbers
+        other = json.loads(cal.read_text())
+        other["manipulators"]["m1"]["device"] = "SmarAct MCS2 MCS2-TWIN-0 channels 0,1,2"
+        elsewhere = tmp_path / "elsewhere.json"
+        elsewhere.write_text(json.dumps(other))
+        with pytest.raises(InputError, match=r"calibrated on SmarAct MCS2 MCS2-TWIN-0 .*"
+                                             r"manipulator is SmarAct MCS2 MCS2-TWIN-7"):  # fmt: skip
+            microcal.open_station(rig, elsewhere)
+        got = runner.invoke(app, ["goto", "--rig", str(rig), "--calibration", str(elsewhere),
+                                  *map(str, target)])  # fmt: skip
+        assert got.exit_code == 2
+        assert "MCS2-TWIN-0" in got.stderr
+        assert "MCS2-TWIN-7" in got.stderr
     data = json.loads(out.read_text())
     assert "truth" not in data["pose_accuracy"]  # measured by the cameras alone
     vision = data["pose_accuracy"]["vision"]

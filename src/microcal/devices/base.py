@@ -152,6 +152,13 @@ class Manipulator(Device):
         """Number of joints."""
         return len(self.axes)
 
+    @property
+    def identity(self) -> str:
+        """Which device this is, as it says itself (a controller's serial number and the
+        channels; empty when the backend cannot tell). A calibration records it, and a
+        calibration of another device is refused."""
+        return ""
+
     def check_limits(self, d_um: ArrayLike) -> FloatArray:
         """Validate a joint command, (n_axes,) µm: shape, finiteness and the soft limits."""
         d = as_array(d_um, "d_um", (self.n_axes,))

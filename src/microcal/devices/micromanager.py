@@ -125,6 +125,7 @@ class MMManipulator(Manipulator):
     ) -> None:
         super().__init__(name, ("x", "y", "z"), limits_um)
         self.core, self.xy_stage, self.focus = core, xy_stage, focus
+        self._identity = f"Micro-Manager {xy_stage} + {focus}"
         loaded = set(core.getLoadedDevices())
         missing = [d for d in (xy_stage, focus) if d not in loaded]
         if missing:
@@ -132,6 +133,11 @@ class MMManipulator(Manipulator):
                 f"{name}: device(s) {missing} not in the Micro-Manager configuration "
                 f"(loaded: {sorted(loaded)})"
             )
+
+    @property
+    def identity(self) -> str:
+        """``Micro-Manager <XY stage> + <focus>``: the configuration's device labels."""
+        return self._identity
 
     def _call(self, what: str, fn: Any, *args: Any) -> Any:
         try:

@@ -111,6 +111,11 @@ class MCS2Manipulator(Manipulator):
         self._connected = False
         self.reconnections = 0  # connections opened again after a loss (for the journal)
 
+    @property
+    def identity(self) -> str:
+        """``SmarAct MCS2 <serial> channels 0,1,2`` (the serial once connected)."""
+        return f"SmarAct MCS2 {self.serial} channels {','.join(map(str, self.channels))}"
+
     # --- connection -----------------------------------------------------------------------
     def connect(self) -> None:
         """Open the connection and set every channel to closed-loop absolute moves.

@@ -231,7 +231,15 @@ def _open_run(
 ) -> tuple[RunWriter, list[int], FloatArray]:
     """The writer of the run, its pose numbers and commands: a new run from ``plan``, or the
     run in ``out`` resumed (it must come from the same rig and be unedited)."""
+    device = opened.manipulator.identity
     if plan is None:
+        recorded = RunDirectory(out).manifest
+        before = recorded.device if recorded is not None else None
+        if before and device and before != device:
+            raise InputError(
+                f"{out}: this run was begun on {before}, but the rig's manipulator is {device}; "
+                "resume it on the same device, or start a new run"
+            )
         writer = RunDirectory.resume(out, rig.to_dict())
         pose_ids, d = RunDirectory.open(out).commands()
         return writer, pose_ids, d
@@ -244,6 +252,7 @@ def _open_run(
         frames_per_pose=cast(int, req.frames),
         store=str(req.store),
         command="acquire",
+        device=device,
     )
     writer = RunDirectory.create(out, manifest, plan.d_um)
     return writer, list(range(1, plan.poses + 1)), plan.d_um

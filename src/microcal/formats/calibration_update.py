@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +27,13 @@ def add_manipulator(
     An existing file keeps its other manipulators and its cameras, unless ``cameras`` (a
     cameras.json) gives new ones. ``inputs`` are the files the calibration was made from.
     """
+    from .run_directory import RunDirectory
+
+    run = Path(inputs.get("measurements", "")).parent / "run.json"
+    if run.is_file() and "device" not in entry.extra:  # the device the poses were measured on
+        manifest = RunDirectory(run.parent).manifest
+        if manifest is not None and manifest.device:
+            entry = dataclasses.replace(entry, extra={**entry.extra, "device": manifest.device})
     existing = load_calibration(out) if out.exists() else None
     camera_data = existing.cameras if existing else {}
     if cameras is not None:

@@ -167,6 +167,7 @@ class RunManifest(FileSchema):
     store: str | None = None  # "full" frames or "roi"
     provenance: dict[str, Any] = Field(default_factory=dict)
     commands_sha256: str | None = None
+    device: str | None = None  # the manipulator's identity as it answered (serial, channels)
 
     def to_json(self) -> dict[str, Any]:
         """The object of run.json: ``format`` first, then the keys that were given."""

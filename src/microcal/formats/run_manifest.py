@@ -29,6 +29,7 @@ def new_manifest(
     frames_per_pose: int,
     store: str,
     command: str,
+    device: str = "",
     **provenance_extra: Any,
 ) -> dict[str, Any]:
     """The manifest of a new run: every option that shapes it, and where it came from.
@@ -44,6 +45,8 @@ def new_manifest(
         ``vision`` or ``fixed:SECONDS``.
     store : str
         ``full`` frames or ``roi``.
+    device : str
+        The manipulator's identity (``Manipulator.identity``; left out when empty).
     """
     return {
         "rig": rig,
@@ -54,7 +57,7 @@ def new_manifest(
         "frames_per_pose": frames_per_pose,
         "store": store,
         "provenance": provenance(command=command, **provenance_extra),
-    }
+    } | ({"device": device} if device else {})
 
 
 def clear_demo_dir(out: Path) -> None:

@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .._validation import FloatArray
-from ..errors import DegenerateDataError
+from ..errors import DegenerateDataError, InputError
 from .compensators import Compensator
 from .models import KinematicModel
 
@@ -95,6 +95,26 @@ class ManipulatorCalibration:
                 f"is the target inside the calibrated workspace?"
             )
         return result.d_um
+
+    @property
+    def device(self) -> str:
+        """The identity of the device it was made on (empty when not recorded)."""
+        return str(self.extra.get("device") or "")
+
+    def check_device(self, identity: str) -> None:
+        """Refuse to drive a device other than the one this calibration was made on.
+
+        Raises
+        ------
+        InputError
+            Both identities are known and differ (the message gives both).
+        """
+        if self.device and identity and identity != self.device:
+            raise InputError(
+                f"manipulator {self.name!r} was calibrated on {self.device}, but the rig's "
+                f"manipulator is {identity}; calibrate this device (acquire, measure, fit) or "
+                "open the rig it was calibrated on"
+            )
 
     def to_dict(self) -> dict[str, Any]:
         """The manipulator's object in calibration.json."""

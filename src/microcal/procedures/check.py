@@ -263,6 +263,7 @@ def run_check(
         The cameras did not see the board at some pose.
     """
     cfg = config or CheckConfig()
+    calibration.check_device(manipulator.identity)
     model = calibration.model
     rng = calibration.joint_range_um
     box = manipulator.limits_um if rng is None else rng

@@ -447,6 +447,7 @@ def run_evaluation(
         ``pose_accuracy`` and/or ``decoupling`` objects of results.json, and with the closed
         loop its ``closed_loop`` summary (iterations, frames, how the loops ended).
     """
+    calibration.check_device(manipulator.identity)
     if tests not in TESTS:
         raise InputError(f"tests: expected one of {', '.join(TESTS)}, got {tests!r}")
     if control not in ("open", "closed", "all"):

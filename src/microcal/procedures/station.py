@@ -114,6 +114,7 @@ class Station:
         missing = sorted(set(rig.cameras) - set(cameras))
         if missing:
             raise InputError(f"station: no camera calibration for the rig's camera(s) {missing}")
+        calibration.check_device(rig.manipulator.identity)
         check_number("settle_s", settle_s, low=0)
         if frames < 1:
             raise InputError(f"frames: expected 1 or more, got {frames}")

@@ -112,6 +112,11 @@ class SimManipulator(Manipulator):
         #: ... and each joint's scale (1: as calibrated; 1.002: moves 0.2 % further).
         self.joint_scale = np.ones(3)
 
+    @property
+    def identity(self) -> str:
+        """``simulated m1``: the simulator's manipulator (the same for every seed)."""
+        return f"simulated {self.name}"
+
     # --- the device protocol -------------------------------------------------------------
     def _fault(self, what: str) -> None:
         if self.faults.timeout_rate and self.rng.random() < self.faults.timeout_rate:
