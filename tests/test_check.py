@@ -209,7 +209,9 @@ def test_a_run_records_its_device_and_a_calibration_refuses_another(tmp_path):
     from microcal.formats.calibration_file import load_calibration
     from microcal.formats.calibration_update import add_manipulator
 
-    entry = ManipulatorCalibration("m1", _matrix_model())
+    validation = {"n_fit": 10, "n_validate": 2, "mean_um": 0.5, "std_um": 0.2, "max_um": 1.0,
+                  "rms_um": 0.55}  # fmt: skip
+    entry = ManipulatorCalibration("m1", _matrix_model(), validation)
     (tmp_path / "run" / "measurements.csv").write_text("pose\n")  # only hashed here
     add_manipulator(tmp_path / "cal.json", entry, None,
                     {"measurements": tmp_path / "run" / "measurements.csv"}, "matrix")  # fmt: skip
