@@ -171,6 +171,14 @@ def test_micromanager_config_path_is_relative_to_the_rig_file():
          r"manipulator\.limits_um\.z: expected \[low, high\] with low < high"),
         (lambda t: t.replace("exposure_ms = 5", "exposure_ms = nan"), r"cameras\.side\.exposure_ms"),
         (lambda t: t.split("[cameras.side]")[0], r"cameras: expected two cameras"),
+        (lambda t: t + '[target_stage]\nkind = "smaract-mcs2"\naddress = "127.0.0.1"\n'
+                       'channels = { x = 3, y = 4, z = 5 }\n'
+                       'limits_um = { x = [0, 1], y = [0, 1], z = [0, 1] }\n',
+         r"target_stage: give the stage and the target it carries together"),
+        (lambda t: 'calibration_target = "dotgrid:40x30:250"\n' + t + '[target_stage]\n'
+                   'kind = "smaract-mcs2"\naddress = "127.0.0.1"\nchanels = { x = 3 }\n'
+                   'limits_um = { x = [0, 1] }\n',
+         r"target_stage\.chanels: not a setting \(did you mean 'channels'"),
         (lambda t: t.replace('kind = "aravis"', 'kind = "micromanager"\ndevice = "C"', 1)
          .replace('address = "127.0.0.1"\nregion_px = [0, 0, 320, 240]\n', ""),
          r"micromanager: Micro-Manager devices need the core"),
