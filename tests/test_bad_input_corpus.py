@@ -1178,6 +1178,46 @@ def evaluate_cases() -> list[Case]:
     ]  # fmt: skip
 
 
+def _check(
+    w: Work, *extra: str, calibration: Path | None = None, out: Path | None = None
+) -> list[str]:
+    cal = calibration if calibration is not None else w.copy("calibration.json")
+    target = out if out is not None else w / "check.json"
+    return ["check", "--calibration", str(cal), "--frames", "1", "--settle-s", "0",
+            "--out", str(target), *extra]  # fmt: skip
+
+
+def check_cases() -> list[Case]:
+    c = "check-"
+    device = ("manipulators", "m1", "device")
+    return [
+        Case(c + "calibration-option-missing", lambda w: ["check"], "--calibration"),
+        Case(c + "calibration-missing-file", lambda w: _check(w, calibration=w / "nocal.json"), "nocal.json"),
+        Case(c + "calibration-binary-garbage", lambda w: _check(w, calibration=w.write("calibration.json", GARBAGE)),
+             "calibration.json"),
+        Case(c + "calibration-is-a-cameras-json", lambda w: _check(w, calibration=w.copy("cameras.json")), "cameras.json"),
+        Case(c + "calibration-without-cameras",
+             lambda w: _check(w, calibration=w.copy("calibration-no-cameras.json")), "--cameras"),
+        Case(c + "calibration-of-another-device",
+             lambda w: _check(w, calibration=_cal(w, put(device, "SmarAct MCS2 MCS2-0042 channels 0,1,2"))),
+             "MCS2-0042"),
+        Case(c + "history-not-json",
+             lambda w: (w.write("calibration.checks.jsonl", "{not json\n"), _check(w))[1], "calibration.checks.jsonl"),
+        Case(c + "frames-zero", lambda w: _check(w, "--frames", "0"), "--frames"),
+        Case(c + "alpha-too-large", lambda w: _check(w, "--alpha", "0.9"), "--alpha"),
+        Case(c + "settle-nan", lambda w: _check(w, "--settle-s", "nan"), "settle"),
+        Case(c + "seed-with-a-hardware-rig", lambda w: _check(w, "--rig", str(w.copy("hardware.toml")), "--seed", "1"),
+             "--seed"),
+        Case(c + "rig-missing-file", lambda w: _check(w, "--rig", str(w / "norig.toml")), "norig.toml"),
+        Case(c + "out-is-a-directory", lambda w: _check(w, out=w.mkdir("outdir", "keep.txt")), "--out"),
+        Case(c + "out-is-a-cameras-json", lambda w: _check(w, out=w.copy("cameras.json")), "--out"),
+        Case(c + "out-is-a-text-file", lambda w: _check(w, out=w.copy("notes.txt")), "--out"),
+        Case(c + "update-is-the-calibration",
+             lambda w: _check(w, "--update", str(w / "calibration.json")), "--update"),
+        Case(c + "update-is-a-text-file", lambda w: _check(w, "--update", str(w.copy("notes.txt"))), "--update"),
+    ]  # fmt: skip
+
+
 def _report(w: Work, *extra: str, run: Path | None = None) -> list[str]:
     run_dir = (
         run
@@ -1277,6 +1317,7 @@ CASES: list[Case] = [
     *solve_cases(),
     *evaluate_cases(),
     *report_cases(),
+    *check_cases(),
 ]
 
 

@@ -21,8 +21,10 @@ COMMANDS = [
     "solve",
     "evaluate",
     "report",
+    "check",
     "goto",
     "study",
+    "twin",
 ]
 
 
@@ -50,7 +52,7 @@ BAD_INVOCATIONS = [
     (["demo", "--seed", "abc"], "Invalid value for '--seed'"),
     (["demo", "--bogus"], "No such option: --bogus"),
     (["demo", "--out", "{bad}"], "is a file"),
-    (["stereo-calibrate", "--target", "chessboard:9x6:25000"], "Missing option '--images'"),
+    (["stereo-calibrate", "--target", "chessboard:9x6:25000"], "give --target and --images"),
     (
         [
             "stereo-calibrate",

@@ -16,7 +16,7 @@ _RigOut = Annotated[Path | None, Option(help="Write the twin's rig file here (TO
 _Duration = Annotated[float | None, Option(min=0, help="Stop after this long, s (else Ctrl-C).")]
 
 
-@app.command(short_help="Serve the simulated platform through the real device protocols.")
+@app.command(short_help="Serve the simulator through the real device protocols.")
 def twin(
     preset: Annotated[str, Option(help="The simulated platform's preset.")] = "thesis",
     seed: Annotated[int, Option(min=0, help="Seed of the simulated platform.")] = 0,
