@@ -326,13 +326,13 @@ def test_station_goto_and_evaluate_on_the_digital_twin(demo, tmp_path):
             assert station.rig.truth is None  # hardware: no ground truth reaches microcal
             opened = station.move_to_um(target)
             true_open = twin.platform.truth_position_um()
-            closed = station.move_to_um(target, "closed", tolerance_um=0.5)
+            closed = station.move_to_um(target, "closed", tolerance_um=1.0)
             true_closed = twin.platform.truth_position_um()
             p, cov = station.where_um()
         assert station.rig.closed
-        # open loop within the model's few µm by truth; closed, within about a micrometre
+        # open loop within the model's few µm by truth; closed (to 1 µm at 90 %), about one
         assert np.linalg.norm(true_open - target) < 3.0
-        assert np.linalg.norm(true_closed - target) < 1.5
+        assert np.linalg.norm(true_closed - target) < 2.0
         assert closed.status in ("tolerance", "resolution", "iterations")
         assert np.linalg.norm(p - true_closed) < 2.0
         assert np.all(np.linalg.eigvalsh(cov) > 0)
@@ -389,15 +389,17 @@ def test_check_and_its_update_through_the_command(demo, tmp_path):
     ``offset`` on one whose end-effector moved, ``--update`` fixes it; the history grows."""
     from microcal.formats.check_file import history_path, read_history
 
+    QUICK = ("--frames", "5")  # 98 % power for a 1 µm offset (scripts/check_power.py)
+
     cal = _calibration_file(demo, tmp_path)
-    res = run_microcal("check", "--calibration", cal, "--seed", "3", "--out", tmp_path / "c1.json")
+    res = run_microcal("check", *QUICK, "--calibration", cal, "--seed", "3", "--out", tmp_path / "c1.json")
     assert res.returncode == 0, res.stderr
     assert res.stdout.startswith("valid: ")
     moved = tmp_path / "moved.toml"
     moved.write_text('driver = "sim"\nseed = 4\n[overrides.manipulator]\n'
                      "mount_offset_um = [0.0, -1.0, 0.5]\n")  # fmt: skip
     new = tmp_path / "moved-calibration.json"
-    res = run_microcal("check", "--calibration", cal, "--rig", moved, "--out",
+    res = run_microcal("check", *QUICK, "--calibration", cal, "--rig", moved, "--out",
                        tmp_path / "c2.json", "--update", new)  # fmt: skip
     assert res.returncode == 0, res.stderr
     data = json.loads((tmp_path / "c2.json").read_text())
@@ -414,7 +416,7 @@ def test_check_and_its_update_through_the_command(demo, tmp_path):
     assert history_path(cal).name == "calibration.checks.jsonl"
     # nothing moved: no update is written (the check is kept), and a check.json is not
     # someone else's file
-    res = run_microcal("check", "--calibration", cal, "--seed", "5", "--out",
+    res = run_microcal("check", *QUICK, "--calibration", cal, "--seed", "5", "--out",
                        tmp_path / "c3.json", "--update", tmp_path / "x.json")  # fmt: skip
     assert res.returncode == 0, res.stderr
     assert "no update written: nothing to update" in res.stdout
@@ -422,6 +424,6 @@ def test_check_and_its_update_through_the_command(demo, tmp_path):
     assert json.loads((tmp_path / "c3.json").read_text())["verdict"] == "valid"
     theirs = tmp_path / "notes.json"
     theirs.write_text("{}")
-    res = run_microcal("check", "--calibration", cal, "--out", theirs)
+    res = run_microcal("check", *QUICK, "--calibration", cal, "--out", theirs)
     assert res.returncode == 2
     assert theirs.read_text() == "{}"
