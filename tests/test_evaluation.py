@@ -392,7 +392,9 @@ def test_check_and_its_update_through_the_command(demo, tmp_path):
     QUICK = ("--frames", "5")  # 98 % power for a 1 µm offset (scripts/check_power.py)
 
     cal = _calibration_file(demo, tmp_path)
-    res = run_microcal("check", *QUICK, "--calibration", cal, "--seed", "3", "--out", tmp_path / "c1.json")
+    res = run_microcal(
+        "check", *QUICK, "--calibration", cal, "--seed", "3", "--out", tmp_path / "c1.json"
+    )
     assert res.returncode == 0, res.stderr
     assert res.stdout.startswith("valid: ")
     moved = tmp_path / "moved.toml"
