@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import get_args
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,7 +29,7 @@ from ..errors import InputError, MicrocalError
 from ..vision.detect import detect
 from ..vision.stereo_calibration import StereoCalibration
 from ..vision.targets import Target
-from .acquisition import grab_retrying
+from .acquisition import Settle, grab_retrying
 from .stereo import calibrate_views
 
 __all__ = ["RigViewsConfig", "calibrate_on_rig", "default_steps_um", "view_name"]
@@ -68,7 +69,7 @@ class RigViewsConfig:
     """
 
     frames_per_view: int = 8
-    settle: str = "vision"
+    settle: Settle = "vision"
     block: int = 3
     threshold_px: float = 0.05
     settle_timeout_s: float = 10.0
@@ -78,7 +79,7 @@ class RigViewsConfig:
     camera_model: str = "auto"
 
     def __post_init__(self) -> None:
-        if self.settle not in ("vision", "fixed"):
+        if self.settle not in get_args(Settle):
             raise InputError(f"settle: expected 'vision' or 'fixed', got {self.settle!r}")
         if not 1 <= self.frames_per_view <= 100:
             raise InputError(

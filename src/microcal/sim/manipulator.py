@@ -22,7 +22,18 @@ from ..devices.base import Clock, Manipulator
 from ..errors import DeviceTimeoutError, MoveError
 from .kinematics import TrueKinematics
 
-__all__ = ["ManipulatorFaults", "SimManipulator"]
+__all__ = ["ManipulatorFaults", "SimManipulator", "joints_travelled_um"]
+
+
+def joints_travelled_um(
+    start_um: FloatArray, target_um: FloatArray, speed_um_s: float, elapsed_s: float
+) -> FloatArray:
+    """Joints moving from ``start_um`` to ``target_um`` (3,), each at ``speed_um_s``, after
+    ``elapsed_s`` (negative counts as 0), µm."""
+    delta = target_um - start_um
+    travelled = np.minimum(np.abs(delta), speed_um_s * max(elapsed_s, 0.0))
+    out: FloatArray = start_um + np.sign(delta) * travelled
+    return out
 
 
 @dataclass(frozen=True)
@@ -158,10 +169,7 @@ class SimManipulator(Manipulator):
     # --- ground truth (tests and benchmarks only) ---------------------------------------
     def joints_um(self, t_s: float) -> FloatArray:
         """True joint positions at time ``t_s`` (each joint at its own constant speed)."""
-        delta = self._target - self._start
-        travelled = np.minimum(np.abs(delta), self.speed_um_s * max(t_s - self._t0, 0.0))
-        out: FloatArray = self._start + np.sign(delta) * travelled
-        return out
+        return joints_travelled_um(self._start, self._target, self.speed_um_s, t_s - self._t0)
 
     def temperature_at(self, t_s: float) -> float:
         """Ambient temperature at time ``t_s``, °C."""

@@ -22,6 +22,7 @@ from numpy.typing import ArrayLike
 
 from .._validation import FloatArray
 from ..devices.base import Clock, Manipulator
+from .manipulator import joints_travelled_um
 
 __all__ = ["SimStage"]
 
@@ -91,7 +92,4 @@ class SimStage(Manipulator):
 
     def joints_um(self, t_s: float) -> FloatArray:
         """True position at time ``t_s``, (3,) µm (each joint at its own constant speed)."""
-        delta = self._target - self._start
-        travelled = np.minimum(np.abs(delta), self.speed_um_s * max(t_s - self._t0, 0.0))
-        out: FloatArray = self._start + np.sign(delta) * travelled
-        return out
+        return joints_travelled_um(self._start, self._target, self.speed_um_s, t_s - self._t0)
