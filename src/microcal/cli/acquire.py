@@ -18,6 +18,7 @@ _Resume = Annotated[bool, Option(help="Continue a run that stopped (as it was be
 _Settle = Annotated[str | None, Option(help="'vision' or 'fixed:SECONDS'. [default: vision]")]
 _Frames = Annotated[int | None, Option(min=1, help="Frames per camera and pose. [default: 5]")]
 _Store = Annotated[str | None, Option(help="'full' frames or 'roi' (around the board). [full]")]
+_Manip = Annotated[str | None, Option(help="The rig's device to move (m1, m2, p1 ...). [m1]")]
 _DryRun = Annotated[bool, Option("--dry-run", help="Check rig and design; nothing moves.")]
 
 
@@ -25,7 +26,7 @@ _DryRun = Annotated[bool, Option("--dry-run", help="Check rig and design; nothin
 def acquire(
     out: _Out, rig: _Rig = None, design: _Design = None, poses: _Poses = None,
     seed: _Seed = None, resume: _Resume = False, settle: _Settle = None, frames: _Frames = None,
-    store: _Store = None, dry_run: _DryRun = False,
+    store: _Store = None, dry_run: _DryRun = False, manipulator: _Manip = None,
 ) -> None:  # fmt: skip
     """Drive the manipulator through a design and store images of every pose.
 
@@ -38,6 +39,8 @@ def acquire(
     """
     from ..formats.acquisition_run import AcquireRequest, run_acquire
 
-    request = AcquireRequest(out, rig, design, poses, seed, resume, settle, frames, store, dry_run)
+    request = AcquireRequest(
+        out, rig, design, poses, seed, resume, settle, frames, store, dry_run, manipulator
+    )
     for line in run_acquire(request):
         print(line, flush=True)

@@ -19,7 +19,11 @@ _Poses = Annotated[int, Option(min=20, max=20000, help="Poses to acquire (the th
 _Quick = Annotated[bool, Option(help="A short run: 40 poses, 2 frames each, 1 ISO cycle.")]
 _Out = Annotated[Path, Option("--out", "-o", help="Run directory (replaces an earlier demo).")]
 _Preset = Annotated[
-    str, Option(help="Simulated platform: thesis, telecentric, thesis-3cam, population.")
+    str,
+    Option(
+        help="Simulated platform: thesis, telecentric, thesis-3cam, population, "
+        "thesis-platform (two manipulators and a positioner)."
+    ),
 ]
 _Model = Annotated[str, Option(help="Camera model: pinhole, affine or auto (by held-out error).")]
 
@@ -36,6 +40,10 @@ def demo(
     tests; writes the run directory, cameras.json, calibration.json, results.json and
     report.html, and compares the figures with the thesis's.
 
+    With --preset thesis-platform every device (m1, m2, the positioner p1) is calibrated in
+    the one camera frame, each into its own directory under --out, followed by the meet test
+    of the two manipulators' tips.
+
     Example: microcal demo --seed 3 --out demo-3 (or --preset telecentric)
     """
     from ..formats.demo_outputs import write_demo_outputs
@@ -48,6 +56,9 @@ def demo(
     console = Console()
     n_poses, frames = (QUICK_POSES, QUICK_FRAMES) if quick else (poses, 5)
     check_camera_model(camera_model)
+    if preset == "thesis-platform":
+        _station(out, seed, n_poses, frames, quick, camera_model, console, wall0)
+        return
     plat, writer = start_demo_run(out, seed, n_poses, frames, preset)
     console.print(demo_intro(out, n_poses))
     with staged_progress(console) as progress:
@@ -60,3 +71,32 @@ def demo(
     print_parts(console, demo_summary(result, frames))
     write_demo_outputs(out, result, wall_s=time.monotonic() - wall0)
     print_parts(console, demo_closing(result, out, time.monotonic() - wall0))
+
+
+def _station(out: Path, seed: int, poses: int, frames: int, quick: bool, camera_model: str,
+             console: Console, wall0: float) -> None:  # fmt: skip
+    from ..formats.demo_outputs import write_station_outputs
+    from ..formats.run_manifest import start_station_demo
+    from ..procedures.station_demo import run_station_demo
+    from ..report.text_tables import station_summary
+
+    plat, writers = start_station_demo(out, seed, poses, frames)
+    console.print(f"microcal demo on the simulated thesis-platform ({', '.join(writers)} in "
+                  f"one camera frame, then the meet test), writing {out}/")  # fmt: skip
+    with staged_progress(console) as progress:
+        result = run_station_demo(
+            plat, seed=seed, progress=progress, store_for=lambda n: writers[n].store,
+            poses=poses, frames_per_pose=frames, frames_per_view=4 if quick else 8,
+            cycles=1 if quick else 3, decoupling_samples=5 if quick else 17,
+            camera_model=camera_model, meet_cycles=1 if quick else 2,
+        )  # fmt: skip
+    write_station_outputs(out, result, wall_s=time.monotonic() - wall0)
+    print_parts(
+        console,
+        [
+            *station_summary(result),
+            f"wrote {out}/: {', '.join(f'{n}/' for n in writers)} (each a demo "
+            "run with its report.html), calibration.json (every device), "
+            f"cameras.json, results.json ({time.monotonic() - wall0:.0f} s)",
+        ],
+    )

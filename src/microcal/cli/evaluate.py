@@ -61,7 +61,8 @@ def evaluate(
     cal = calibration_file.load_calibration(calibration)
     m, models = cal.manipulator(manipulator), calibration_update.camera_models(cal)
     spec = options.rig_with_seed(load_rig(rig), seed)
-    with open_rig(spec) as opened, staged_progress() as progress:
+    with open_rig(spec) as rig_, staged_progress() as progress:
+        opened = rig_.for_calibration(m.name)
         parts = run_evaluation(
             opened.manipulator, opened.clock, opened.cameras, models, opened.board, m,
             tests=test.value, poses=poses.value, cycles=cycles, frames=frames, settle_s=settle_s,

@@ -26,7 +26,9 @@ _Folds = Annotated[int | None, Option(min=2, help="Validate by K-fold cross-vali
 _FoldSeed = Annotated[int, Option(help="Seed of the cross-validation folds.")]
 _Extra = Annotated[list[str] | None, Option(help="Extra input: temperature, approach (sx,sy,sz).")]
 _Temperature = Annotated[bool, Option(help="Same as --extra temperature (T, T² terms).")]
-_Name = Annotated[str, Option(help="Name of the manipulator in the calibration file.")]
+_Name = Annotated[
+    str | None, Option(help="Name of the manipulator in the calibration file. [the run's: m1]")
+]
 _Cameras = Annotated[Path | None, Option(help="cameras.json to include (for evaluate).")]
 _Mat = Annotated[Path | None, Option(help="Also export the calibration as a .mat file.")]
 _Exclude = Annotated[bool, Option(help="Leave out poses the model misses by > 6 robust sigmas.")]
@@ -37,7 +39,7 @@ def fit(
     source: _Source, out: _Out = Path("calibration.json"), model: _Model = ModelChoice.polynomial,
     select: _Select = SelectChoice.stepwise, penter: _Penter = 0.05, premove: _Premove = 0.10,
     train: _Train = None, folds: _Folds = None, seed: _FoldSeed = 0, extra: _Extra = None,
-    temperature: _Temperature = False, manipulator: _Name = "m1", cameras: _Cameras = None,
+    temperature: _Temperature = False, manipulator: _Name = None, cameras: _Cameras = None,
     mat: _Mat = None, exclude_outliers: _Exclude = False,
 ) -> None:  # fmt: skip
     """Identify a manipulator's kinematic model from measured positions.
@@ -45,7 +47,7 @@ def fit(
     Example: microcal fit runs/a --model polynomial --train 110 --out calibration.json
     """
     from ..formats.calibration_file import export_mat
-    from ..formats.calibration_update import add_manipulator, check_fit_outputs
+    from ..formats.calibration_update import add_manipulator, check_fit_outputs, measured_device
     from ..formats.measurements import read_measurements
     from ..procedures.identification import calibrate_manipulator
     from ..procedures.planning import MIN_DESIGN_POSES
@@ -54,6 +56,7 @@ def fit(
     check_fit_outputs(out, mat, manipulator)
     path = source / "measurements.csv" if source.is_dir() else source
     meas = read_measurements(path, min_poses=MIN_DESIGN_POSES)
+    manipulator = manipulator or measured_device(path)
     names = [*(extra or []), *(["temperature"] if temperature else [])]
     inputs = meas.extra_inputs(names, path)
     entry, fits = calibrate_manipulator(

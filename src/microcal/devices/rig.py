@@ -9,13 +9,14 @@ rig holds besides (a Micro-Manager core).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any
 
 from .._validation import FloatArray
-from ..errors import DeviceError
+from ..errors import DeviceError, InputError
 from ..vision.targets import Target, parse_target
 from .base import Camera, Clock, Device, Manipulator, RealClock
 from .rig_spec import (
@@ -28,7 +29,7 @@ from .rig_spec import (
     SimRigSpec,
 )
 
-__all__ = ["Rig", "open_rig"]
+__all__ = ["Rig", "open_rig", "platform_rig"]
 
 
 @dataclass
@@ -57,6 +58,16 @@ class Rig:
         The stage carrying the camera-calibration target (None when the rig has none).
     calibration_target : Target, optional
         The target on it.
+    manipulators : dict of str to Manipulator
+        Every device the cameras measure, by the names calibrations use (``m1``, ``m2``,
+        ``p1`` ...): ``manipulator`` is the :attr:`selected` one (see :meth:`select`).
+    truths : dict of str to callable
+        Each device's ground truth (the simulator's; empty for hardware).
+    show : callable (str) -> None, optional
+        Make the cameras see a device's target (the simulator shows one board at a time);
+        None when every target is always in view.
+    selected : str
+        The name of ``manipulator``.
     """
 
     manipulator: Manipulator
@@ -69,7 +80,47 @@ class Rig:
     resources: list[Callable[[], None]] = field(default_factory=list)
     target_stage: Manipulator | None = None
     calibration_target: Target | None = None
+    manipulators: dict[str, Manipulator] = field(default_factory=dict)
+    truths: dict[str, Callable[[], FloatArray]] = field(default_factory=dict)
+    show: Callable[[str], None] | None = None
+    selected: str = "m1"
     _closed: bool = field(default=False, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if not self.manipulators:
+            self.manipulators = {self.selected: self.manipulator}
+
+    def select(self, name: str | None) -> Rig:
+        """The rig with device ``name`` as its manipulator (and truth); None: as it is.
+
+        The result shares the devices (closing either closes them all).
+
+        Raises
+        ------
+        InputError
+            A name the rig has no device of, naming those it has.
+        """
+        if name is None or name == self.selected:
+            return self
+        if name not in self.manipulators:
+            raise InputError(
+                f"--manipulator {name}: this rig has no such device (it has "
+                f"{', '.join(self.manipulators)})"
+            )
+        return dataclasses.replace(
+            self, manipulator=self.manipulators[name], truth=self.truths.get(name), selected=name
+        )
+
+    def for_calibration(self, name: str) -> Rig:
+        """The rig with the device a calibration entry ``name`` is for: the one of that name,
+        or a rig's only device whatever the calibration calls it (the device's identity is
+        checked against the calibration's by whoever uses it)."""
+        return self if len(self.manipulators) == 1 else self.select(name)
+
+    def look_at(self) -> None:
+        """Make the cameras see the selected device's target (see ``show``)."""
+        if self.show is not None:
+            self.show(self.selected)
 
     @property
     def sensors(self) -> dict[str, Callable[[], float]]:
@@ -95,7 +146,10 @@ class Rig:
             return
         self._closed = True
         devices: list[tuple[str, Device]] = [*self.cameras.items()]
-        devices.append(("manipulator", self.manipulator))
+        devices += [
+            ("manipulator" if len(self.manipulators) == 1 else f"manipulator {n}", m)
+            for n, m in self.manipulators.items()
+        ]
         if self.target_stage is not None:
             devices.append(("target stage", self.target_stage))
         failed = _close_all(devices, self.resources)
@@ -137,12 +191,14 @@ def _close_all(devices: list[tuple[str, Device]], resources: list[Callable[[], N
     return failed
 
 
-def open_rig(spec: RigSpec) -> Rig:
+def open_rig(spec: RigSpec, manipulator: str | None = None) -> Rig:
     """Open the devices of a rig (``formats.rig_file.load_rig``'s result).
 
     Parameters
     ----------
     spec : SimRigSpec or HardwareRigSpec
+    manipulator : str, optional
+        The device the rig's ``manipulator`` is (:meth:`Rig.select`); the first by default.
 
     Raises
     ------
@@ -150,10 +206,14 @@ def open_rig(spec: RigSpec) -> Rig:
         A device that cannot be reached or set up; the message names it. Whatever was
         opened before it is closed again.
     """
-    if isinstance(spec, SimRigSpec):
-        return _sim(spec)
-    if isinstance(spec, HardwareRigSpec):
-        return _hardware(spec)
+    if isinstance(spec, SimRigSpec | HardwareRigSpec):
+        if manipulator is not None and manipulator not in spec.manipulator_names:
+            raise InputError(
+                f"--manipulator {manipulator}: this rig has no such device (it has "
+                f"{', '.join(spec.manipulator_names)})"
+            )
+        rig = _sim(spec) if isinstance(spec, SimRigSpec) else _hardware(spec)
+        return rig.select(manipulator)
     raise DeviceError(
         f"rig: expected a SimRigSpec or HardwareRigSpec (formats.rig_file.load_rig), "
         f"got {type(spec).__name__}"
@@ -164,6 +224,17 @@ def _sim(spec: SimRigSpec) -> Rig:
     from ..sim import platform
 
     plat = platform(spec.preset, seed=spec.seed, overrides=dict(spec.overrides))
+    return platform_rig(plat, f"simulated, preset {spec.preset}, seed {spec.seed}")
+
+
+def platform_rig(plat: Any, description: str = "simulated") -> Rig:
+    """The rig of a simulated platform (``microcal.sim.platform``'s result), every device
+    with its ground truth; ``manipulator`` is ``m1``."""
+    devices = plat.manipulators
+
+    def truth_of(m: Any) -> Callable[[], FloatArray]:
+        return lambda: m.true_position_um()
+
     return Rig(
         plat.manipulator,
         dict(plat.cameras),
@@ -171,9 +242,12 @@ def _sim(spec: SimRigSpec) -> Rig:
         plat.scene.board,
         temperature=lambda: plat.manipulator.temperature_at(plat.clock.now_s()),
         truth=plat.truth_position_um,
-        description={"platform": f"simulated, preset {spec.preset}, seed {spec.seed}"},
+        description={"platform": description},
         target_stage=plat.target_stage,
         calibration_target=parse_target(plat.config.calibration_target),
+        manipulators=dict(devices),
+        truths={name: truth_of(m) for name, m in devices.items()},
+        show=None if len(devices) == 1 else lambda n: plat.scene.show(n, plat.clock.now_s()),
     )
 
 
@@ -202,6 +276,10 @@ def _open_hardware(
         resources.append(core.unloadAllDevices)
     manipulator = _open_manipulator(spec.manipulator, core, description)
     opened.append(("manipulator", manipulator))
+    devices: dict[str, Manipulator] = {"m1": manipulator}
+    for name, m_spec in spec.manipulators.items():
+        devices[name] = _open_manipulator(m_spec, core, description, name)
+        opened.append((f"manipulator {name}", devices[name]))
     stage = None
     if spec.target_stage is not None:
         stage = _open_manipulator(spec.target_stage, core, description, "target_stage")
@@ -219,6 +297,7 @@ def _open_hardware(
         resources=resources,
         target_stage=stage,
         calibration_target=None if stage is None else parse_target(str(spec.calibration_target)),
+        manipulators=devices,
     )
 
 

@@ -117,6 +117,11 @@ class SimRigSpec:
         object.__setattr__(self, "seed", _integer("seed", self.seed, 0))
         object.__setattr__(self, "overrides", dict(self.overrides))
 
+    @property
+    def manipulator_names(self) -> tuple[str, ...]:
+        """The devices the preset has (``m1``; ``m1, m2, p1`` for ``thesis-platform``)."""
+        return ("m1", "m2", "p1") if self.preset == "thesis-platform" else ("m1",)
+
     def to_dict(self) -> dict[str, Any]:
         """The rig's record (JSON types), as stored in ``run.json``."""
         return {
@@ -396,6 +401,9 @@ class HardwareRigSpec:
         moves it by the known steps of method (a)); None when the rig has none.
     calibration_target : str or None
         The target on that stage (e.g. ``dotgrid:40x30:250``); given with the stage.
+    manipulators : mapping of str to MCS2Spec or MMStageSpec
+        Further devices in the cameras' view (a second manipulator, the sample's
+        positioner), by the names calibrations use; ``manipulator`` is ``m1``.
     """
 
     driver: ClassVar[str] = "hardware"
@@ -406,9 +414,17 @@ class HardwareRigSpec:
     micromanager: MicroManagerSpec | None = None
     target_stage: ManipulatorSpec | None = None
     calibration_target: str | None = None
+    manipulators: Mapping[str, ManipulatorSpec] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "cameras", dict(self.cameras))
+        object.__setattr__(self, "manipulators", dict(self.manipulators))
+        for name in self.manipulators:
+            if name == "m1" or not name.replace("_", "").replace("-", "").isalnum():
+                raise InputError(
+                    f"manipulators.{name}: expected a name such as m2 or p1 (letters, digits, "
+                    "- and _; m1 is [manipulator])"
+                )
         if len(self.cameras) < 2:
             raise InputError(
                 f"cameras: expected two cameras or more (e.g. [cameras.top], [cameras.side]), "
@@ -428,7 +444,7 @@ class HardwareRigSpec:
     @property
     def uses_micromanager(self) -> bool:
         """True when a device is a Micro-Manager one."""
-        stages = (self.manipulator, self.target_stage)
+        stages = (self.manipulator, self.target_stage, *self.manipulators.values())
         return any(isinstance(s, MMStageSpec) for s in stages) or any(
             isinstance(c, MMCameraSpec) for c in self.cameras.values()
         )
@@ -446,7 +462,14 @@ class HardwareRigSpec:
         if self.target_stage is not None:
             out["target_stage"] = self.target_stage.to_dict()
             out["calibration_target"] = self.calibration_target
+        if self.manipulators:
+            out["manipulators"] = {n: m.to_dict() for n, m in self.manipulators.items()}
         return out
+
+    @property
+    def manipulator_names(self) -> tuple[str, ...]:
+        """``m1`` (the ``[manipulator]``) and the further devices' names."""
+        return ("m1", *self.manipulators)
 
 
 RigSpec = SimRigSpec | HardwareRigSpec

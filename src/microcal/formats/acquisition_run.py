@@ -47,9 +47,10 @@ __all__ = [
 #: The options of a new run that the command line leaves out.
 DEFAULTS: dict[str, Any] = {
     "rig": "sim", "design": "random", "poses": 170, "seed": 0, "settle": "vision", "frames": 5,
-    "store": "full",
+    "store": "full", "manipulator": "m1",
 }  # fmt: skip
-_RECORDED = {"settle": "settle", "frames": "frames_per_pose", "store": "store"}
+_RECORDED = {"settle": "settle", "frames": "frames_per_pose", "store": "store",
+             "manipulator": "manipulator"}  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -66,6 +67,7 @@ class AcquireRequest:
     frames: int | None = None
     store: str | None = None
     dry_run: bool = False
+    manipulator: str | None = None
 
     def filled(self, manifest: RunManifest | None = None) -> AcquireRequest:
         """Every option set: a new run's defaults, or what a resumed run recorded.
@@ -101,6 +103,8 @@ def _recorded(manifest: RunManifest, name: str) -> Any:
     if name in ("design", "poses", "seed"):
         key = "kind" if name == "design" else name
         return getattr(design, key) if design is not None else None
+    if name == "manipulator":
+        return manifest.manipulator or "m1"
     return getattr(manifest, _RECORDED[name])
 
 
@@ -190,7 +194,7 @@ def run_acquire(request: AcquireRequest) -> Iterator[str]:
         spec = load_rig(str(req.rig))
     config = AcquisitionConfig(settle=mode, fixed_s=fixed_s, frames_per_pose=cast(int, req.frames),
                                store_roi=req.store == "roi")  # fmt: skip
-    with open_rig(spec) as opened:
+    with open_rig(spec, str(req.manipulator)) as opened:
         m = opened.manipulator
         plan = None
         if manifest is None:
@@ -253,6 +257,7 @@ def _open_run(
         store=str(req.store),
         command="acquire",
         device=device,
+        manipulator=opened.selected,
     )
     writer = RunDirectory.create(out, manifest, plan.d_um)
     return writer, list(range(1, plan.poses + 1)), plan.d_um

@@ -12,7 +12,17 @@ from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from .calibration_file import Calibration, load_calibration, provenance, write_calibration
 from .cameras_file import read_cameras
 
-__all__ = ["add_manipulator", "camera_models"]
+__all__ = ["add_manipulator", "camera_models", "measured_device"]
+
+
+def measured_device(measurements: Path) -> str:
+    """The rig device whose run measured ``measurements`` (run.json beside it), else ``m1``."""
+    from .run_directory import RunDirectory
+
+    if not (measurements.parent / "run.json").is_file():
+        return "m1"
+    manifest = RunDirectory(measurements.parent).manifest
+    return (manifest.manipulator if manifest is not None else None) or "m1"
 
 
 def add_manipulator(
@@ -49,14 +59,14 @@ def add_manipulator(
     return calibration
 
 
-def check_fit_outputs(out: Path, mat: Path | None, manipulator: str = "m1") -> None:
+def check_fit_outputs(out: Path, mat: Path | None, manipulator: str | None = "m1") -> None:
     """Refuse, before the fit, a calibration.json or .mat output that is not ours to replace,
     or an empty manipulator name."""
     from .calibration_file import CALIBRATION_FORMAT
     from .json_file import check_json_output
     from .outputs import check_output, foreign_mat
 
-    if not manipulator.strip():
+    if manipulator is not None and not manipulator.strip():
         raise InputError("--manipulator: expected a name such as m1, got an empty one")
     check_json_output(out, CALIBRATION_FORMAT, "calibration.json")
     if mat is not None:

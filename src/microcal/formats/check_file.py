@@ -121,9 +121,10 @@ def check_calibration(
         check_json_output(update, CALIBRATION_FORMAT, "calibration-updated.json", "--update")
         if Path(update).resolve() == Path(calibration).resolve():
             raise InputError("--update: write the updated calibration to a new file")
-    history = read_history(calibration)
-    reference = _reference(history)
     cal = load_calibration(calibration)
+    name = cal.manipulator(manipulator).name  # each device of a calibration has its history
+    history = [h for h in read_history(calibration) if h.get("manipulator", name) == name]
+    reference = _reference(history)
     with open_station(rig, calibration, manipulator=manipulator, seed=seed,
                       settle_s=cfg.settle_s) as station:  # fmt: skip
         rig_ = station.rig
@@ -138,7 +139,7 @@ def check_calibration(
             data["update"] = _update(cal, m.name, result, calibration, update, rig_, measure, cfg)
     write_text_atomic(out_path, json.dumps(data, indent=1, allow_nan=False) + "\n")
     entry = {k: v for k, v in data.items() if k not in ("format", "provenance", "update")}
-    entry |= {"calibration_sha256": sha256_file(calibration),
+    entry |= {"manipulator": name, "calibration_sha256": sha256_file(calibration),
               "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
               "software": f"microcal {__version__}"}  # fmt: skip
     _append(history_path(calibration), entry)

@@ -15,8 +15,9 @@ from ..errors import InputError
 
 if TYPE_CHECKING:
     from ..procedures.demo import DemoResult
+    from ..procedures.station_demo import StationDemoResult
 
-__all__ = ["write_demo_outputs"]
+__all__ = ["write_demo_outputs", "write_station_outputs"]
 
 
 def write_demo_outputs(out: Path, result: DemoResult, wall_s: float) -> None:
@@ -47,7 +48,7 @@ def write_demo_outputs(out: Path, result: DemoResult, wall_s: float) -> None:
         raise InputError("demo: nothing was identified; no calibration to write")
     entry = result.manipulator
     write_calibration(
-        out / "calibration.json", Calibration({"m1": entry}, cameras["cameras"], prov)
+        out / "calibration.json", Calibration({entry.name: entry}, cameras["cameras"], prov)
     )
     results_path = out / "results.json"
     results_path.unlink(missing_ok=True)
@@ -73,3 +74,39 @@ def write_demo_outputs(out: Path, result: DemoResult, wall_s: float) -> None:
         "provenance": prov,
     })  # fmt: skip
     write_report(out)
+
+
+def write_station_outputs(out: Path, result: StationDemoResult, wall_s: float) -> None:
+    """Write a station demo's files: each device's as :func:`write_demo_outputs` does, in
+    ``out/NAME``, and in ``out`` the station's calibration.json (every device, the cameras),
+    cameras.json and results.json (``devices``: each device's results; ``meet``: the meet
+    tests by mode)."""
+    import json
+
+    from .atomic import write_text_atomic
+    from .calibration_file import Calibration, load_calibration, provenance, write_calibration
+    from .results_file import update_results
+
+    devices: dict[str, object] = {}
+    entries = {}
+    for name, device in result.devices.items():
+        write_demo_outputs(out / name, device, wall_s)
+        data = json.loads((out / name / "results.json").read_text(encoding="utf-8"))
+        devices[name] = {k: v for k, v in data.items() if k not in ("format", "provenance")}
+        entries[name] = load_calibration(out / name / "calibration.json").manipulators[name]
+    first = next(iter(result.devices))
+    cameras = load_calibration(out / first / "calibration.json").cameras
+    prov = provenance(command="demo", seed=next(iter(result.devices.values())).seed,
+                      preset="thesis-platform")  # fmt: skip
+    write_calibration(out / "calibration.json", Calibration(entries, cameras, prov))
+    write_text_atomic(
+        out / "cameras.json", (out / first / "cameras.json").read_text(encoding="utf-8")
+    )
+    results_path = out / "results.json"
+    results_path.unlink(missing_ok=True)
+    update_results(results_path, {
+        "devices": devices,
+        "meet": {mode: m.as_dict() for mode, m in result.meet.items()},
+        "timing": {"simulated_s": result.sim_time_s, "wall_s": wall_s},
+        "provenance": prov,
+    })  # fmt: skip

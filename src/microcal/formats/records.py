@@ -168,6 +168,7 @@ class RunManifest(FileSchema):
     provenance: dict[str, Any] = Field(default_factory=dict)
     commands_sha256: str | None = None
     device: str | None = None  # the manipulator's identity as it answered (serial, channels)
+    manipulator: str | None = None  # the rig's device the run moved (None: m1)
 
     def to_json(self) -> dict[str, Any]:
         """The object of run.json: ``format`` first, then the keys that were given."""

@@ -12,8 +12,10 @@ seed = 0
 drop_rate = 0.1
 ```
 
-Hardware rigs have ``driver = "hardware"``, a ``[manipulator]`` table and one
-``[cameras.NAME]`` table per camera (``docs/hardware.md``, ``examples/rigs/``):
+Hardware rigs have ``driver = "hardware"``, a ``[manipulator]`` table (the device named
+``m1``), one ``[manipulators.NAME]`` table per further device the cameras see (a second
+manipulator ``m2``, the sample's positioner ``p1``) and one ``[cameras.NAME]`` table per
+camera (``docs/hardware.md``, ``examples/rigs/``):
 
 ```toml
 driver = "hardware"
@@ -231,6 +233,7 @@ class _Hardware(_Strict):
     micromanager: _MicroManager | None = None
     target_stage: _Manipulator | None = None
     calibration_target: str | None = None
+    manipulators: dict[str, _Manipulator] | None = None
 
 
 _MANIPULATORS: dict[str, type[ManipulatorSpec]] = {
@@ -317,6 +320,9 @@ def _hardware(path: Path, data: dict[str, Any]) -> HardwareRigSpec:
     cameras = data.get("cameras")
     for name, camera in cameras.items() if isinstance(cameras, dict) else ():
         _check_keys(path, f"cameras.{name}.", camera, _Camera)
+    further = data.get("manipulators")
+    for name, table in further.items() if isinstance(further, dict) else ():
+        _check_keys(path, f"manipulators.{name}.", table, _Manipulator)
     try:
         rig = _Hardware.model_validate(data)
     except ValidationError as exc:
@@ -353,6 +359,11 @@ def _hardware(path: Path, data: dict[str, Any]) -> HardwareRigSpec:
         given["target_stage"] = _build(
             path, "target_stage", _MANIPULATORS[stage.kind], _given(stage)
         )
+    if rig.manipulators:
+        given["manipulators"] = {
+            name: _build(path, f"manipulators.{name}", _MANIPULATORS[m.kind], _given(m))
+            for name, m in rig.manipulators.items()
+        }
     try:
         return HardwareRigSpec(manipulator, cameras, micromanager=micromanager, **given)
     except InputError as exc:

@@ -13,7 +13,13 @@ from ..errors import InputError
 from .calibration_file import provenance
 from .run_directory import RUN_FILE_NAMES, RunDirectory, RunWriter
 
-__all__ = ["DEMO_FILES", "clear_demo_dir", "new_manifest", "start_demo_run"]
+__all__ = [
+    "DEMO_FILES",
+    "clear_demo_dir",
+    "new_manifest",
+    "start_demo_run",
+    "start_station_demo",
+]
 
 #: What a demo writes into its directory (and may replace on the next demo).
 DEMO_FILES = frozenset(RUN_FILE_NAMES)
@@ -30,6 +36,7 @@ def new_manifest(
     store: str,
     command: str,
     device: str = "",
+    manipulator: str = "m1",
     **provenance_extra: Any,
 ) -> dict[str, Any]:
     """The manifest of a new run: every option that shapes it, and where it came from.
@@ -47,17 +54,23 @@ def new_manifest(
         ``full`` frames or ``roi``.
     device : str
         The manipulator's identity (``Manipulator.identity``; left out when empty).
+    manipulator : str
+        The rig's device the run moves (left out when ``m1``, the only one of most rigs).
     """
-    return {
-        "rig": rig,
-        "target": target,
-        "cameras": list(cameras),
-        "design": design,
-        "settle": settle,
-        "frames_per_pose": frames_per_pose,
-        "store": store,
-        "provenance": provenance(command=command, **provenance_extra),
-    } | ({"device": device} if device else {})
+    return (
+        {
+            "rig": rig,
+            "target": target,
+            "cameras": list(cameras),
+            "design": design,
+            "settle": settle,
+            "frames_per_pose": frames_per_pose,
+            "store": store,
+            "provenance": provenance(command=command, **provenance_extra),
+        }
+        | ({"device": device} if device else {})
+        | ({"manipulator": manipulator} if manipulator != "m1" else {})
+    )
 
 
 def clear_demo_dir(out: Path) -> None:
@@ -93,18 +106,27 @@ def clear_demo_dir(out: Path) -> None:
 
 
 def start_demo_run(
-    out: Path, seed: int, poses: int, frames: int, preset: str = "thesis"
+    out: Path,
+    seed: int,
+    poses: int,
+    frames: int,
+    preset: str = "thesis",
+    device: str = "m1",
+    plat: Any = None,
 ) -> tuple[Any, RunWriter]:
     """The demo's platform and the writer of its run directory (run.json, commands.csv).
 
     The manifest records the design the demo draws (``random`` with the demo's design seed
-    over the thesis's workspace), so ``make_design`` reproduces its commands.
+    over the device's workspace, the thesis's for ``m1``), so ``make_design`` reproduces its
+    commands. ``plat``: the platform, when the caller built it (a station demo's devices
+    share one); built from ``preset`` and ``seed`` otherwise.
     """
-    from ..procedures.demo import demo_design, demo_design_seed
+    from ..procedures.demo import demo_design, demo_design_seed, device_workspace
     from ..sim import platform
-    from ..thesis.experiment import WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
 
-    plat = platform(preset, seed=seed)  # an unknown preset fails before the folder is touched
+    if plat is None:
+        plat = platform(preset, seed=seed)  # an unknown preset fails before the folder is touched
+    low, high = device_workspace(plat.manipulators[device].limits_um)
     clear_demo_dir(out)
     manifest = new_manifest(
         rig=SimRigSpec(preset=preset, seed=seed).to_dict(),
@@ -114,13 +136,58 @@ def start_demo_run(
             "kind": "random",
             "poses": poses,
             "seed": demo_design_seed(seed),
-            "low_um": WORKSPACE_MIN_UM.tolist(),
-            "high_um": WORKSPACE_MAX_UM.tolist(),
+            "low_um": low.tolist(),
+            "high_um": high.tolist(),
         },
         settle="vision",
         frames_per_pose=frames,
         store="roi",
         command="demo",
+        manipulator=device,
         seed=seed,
     )
-    return plat, RunDirectory.create(out, manifest, demo_design(seed, poses))
+    return plat, RunDirectory.create(out, manifest, demo_design(seed, poses, (low, high)))
+
+
+def start_station_demo(out: Path, seed: int, poses: int, frames: int) -> tuple[Any, dict[str, Any]]:
+    """The ``thesis-platform`` demo's platform and one run writer per device (``out/NAME``).
+
+    ``out`` must be new, empty, or hold only an earlier station demo (its devices' run
+    directories, calibration.json, cameras.json and results.json), which is replaced.
+    """
+    from ..sim import platform
+
+    plat = platform("thesis-platform", seed=seed)
+    names = list(plat.manipulators)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out}: is a file; choose a directory")
+    if out.is_dir():
+        own = set(names) | {"calibration.json", "cameras.json", "results.json"}
+        others = sorted(p.name for p in out.iterdir() if p.name not in own)
+        if others or not _station_demo_or_empty(out):
+            raise InputError(
+                f"--out {out}: holds files that an earlier station demo did not write "
+                f"({', '.join(others[:3]) or 'results.json'}); choose a new or empty directory"
+            )
+        for name in names:  # each device's directory must be an earlier demo's
+            if (out / name).exists():
+                clear_demo_dir(out / name)
+        for leftover in ("calibration.json", "cameras.json", "results.json"):
+            (out / leftover).unlink(missing_ok=True)
+    writers = {
+        name: start_demo_run(out / name, seed, poses, frames, "thesis-platform", name, plat)[1]
+        for name in names
+    }
+    return plat, writers
+
+
+def _station_demo_or_empty(out: Path) -> bool:
+    """True when ``out``'s results.json (if any) is a station demo's."""
+    results = out / "results.json"
+    if not results.exists():
+        return True
+    try:
+        data = json.loads(results.read_text(encoding="utf-8"))
+        return bool(data.get("provenance", {}).get("command") == "demo" and "devices" in data)
+    except (OSError, ValueError, AttributeError):
+        return False

@@ -47,7 +47,7 @@ def open_station(
     m, models = cal.manipulator(manipulator), camera_models(cal)
     opened = open_rig(rig_with_seed(load_rig(str(rig)), seed))
     try:
-        return Station(opened, m, models, **options)
+        return Station(opened.for_calibration(m.name), m, models, **options)
     except BaseException:
         opened.close()
         raise

@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from .._validation import FloatArray
 from ..control.conditions import open_loop_conditions
 from ..control.feedforward import extra_inputs_reader
-from ..errors import FormatError
+from ..errors import FormatError, InputError
 from ..kinematics.designs import make_design
 from ..kinematics.extra_inputs import APPROACH_INPUTS
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
@@ -32,7 +32,7 @@ from ..metrics.error_summary import summarize_errors
 from ..sim import SimPlatform, platform
 from ..sim.platforms import CALIBRATION_TARGET
 from ..sim.render import Placement
-from ..thesis.experiment import WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
+from ..thesis.experiment import TABLE_5_2_POSES_UM, WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
 from ..vision.detect import Detection, detect
 from ..vision.measurement import PoseMeasurement, measure_poses
 from ..vision.probe import VisionProbe
@@ -40,7 +40,12 @@ from ..vision.roi import frames_from_region
 from ..vision.stereo_calibration import StereoCalibration, calibrate_known_displacements
 from ..vision.targets import Target, parse_target
 from .acquisition import AcquisitionConfig, Store, acquire
-from .evaluation import run_decoupling, run_multi_directional, run_pose_accuracy
+from .evaluation import (
+    iso_cube_poses,
+    run_decoupling,
+    run_multi_directional,
+    run_pose_accuracy,
+)
 from .identification import Identification, calibrate_manipulator, default_train
 
 __all__ = [
@@ -112,13 +117,27 @@ def demo_design_seed(seed: int) -> int:
     return seed + 1
 
 
-def demo_design(seed: int, poses: int) -> FloatArray:
-    """The demo's joint commands: the ``random`` design over the thesis's workspace.
+def demo_design(
+    seed: int, poses: int, workspace_um: tuple[FloatArray, FloatArray] | None = None
+) -> FloatArray:
+    """The demo's joint commands: the ``random`` design over the thesis's workspace (or
+    ``workspace_um``, (low, high) µm).
 
     ``make_design("random", poses, WORKSPACE_MIN_UM, WORKSPACE_MAX_UM, demo_design_seed(seed))``,
     which is what the demo's run.json records; (poses, 3) µm.
     """
-    return make_design("random", poses, WORKSPACE_MIN_UM, WORKSPACE_MAX_UM, demo_design_seed(seed))
+    low, high = workspace_um or (WORKSPACE_MIN_UM, WORKSPACE_MAX_UM)
+    return make_design("random", poses, low, high, demo_design_seed(seed))
+
+
+#: How far inside its soft limits a simulated device's demo workspace is, µm (the thesis's
+#: workspace is the thesis preset's limits less this).
+WORKSPACE_MARGIN_UM = 500.0
+
+
+def device_workspace(limits_um: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The demo workspace of a simulated device: its soft limits (3, 2) less the margin."""
+    return limits_um[:, 0] + WORKSPACE_MARGIN_UM, limits_um[:, 1] - WORKSPACE_MARGIN_UM
 
 
 @dataclass
@@ -201,6 +220,8 @@ def run_demo(
     direction_terms: bool = True,
     approach_um: float = 0.0,
     family: str = "quadratic",
+    device: str = "m1",
+    cameras: StereoCalibration | None = None,
 ) -> DemoResult:
     """Run the calibration on the simulated thesis platform (see the module docstring).
 
@@ -218,7 +239,11 @@ def run_demo(
     9283's multi-directional test by ground truth (``vap_um`` per condition). ``family`` is
     the polynomial model's (:data:`~microcal.kinematics.families.FAMILIES` or ``auto``);
     with any but the thesis's ``quadratic``, a room temperature that varies during the run
-    joins the model as an extra input.
+    joins the model as an extra input. ``device`` is the platform's device to calibrate
+    (``m2`` or ``p1`` on ``thesis-platform``), over its own workspace; a device whose
+    workspace is not the thesis's is evaluated at ISO 9283's cube poses, without the
+    thesis's decoupling path. ``cameras``: a stereo calibration of this platform made
+    before (the devices of one platform share it, and so the frame {G}).
     """
 
     def tick(stage: str, done: int, total: int) -> None:
@@ -228,13 +253,21 @@ def run_demo(
     plat = plat or platform("thesis", seed=seed)
     grid = parse_target(CALIBRATION_TARGET)
     steps = np.array([[0.0, 0.0, z] for z in CALIBRATION_STEPS_UM])
-    cal = calibrate_on_platform(
+    cal = cameras or calibrate_on_platform(
         plat,
         grid,
         steps,
         frames_per_view,
         lambda done, total: tick("stereo calibration", done, total),
         camera_model,
+    )
+    if device not in plat.manipulators:
+        raise InputError(f"device: expected one of {list(plat.manipulators)}, got {device!r}")
+    m = plat.manipulators[device]
+    plat.scene.show(device, plat.clock.now_s())
+    workspace = device_workspace(m.limits_um)
+    thesis_sized = bool(
+        np.allclose(workspace[0], WORKSPACE_MIN_UM) and np.allclose(workspace[1], WORKSPACE_MAX_UM)
     )
     pts = np.random.default_rng(seed).uniform([0, 0, 0], [9000, 9000, 5000], (500, 3))
     truth_px = {
@@ -247,9 +280,9 @@ def run_demo(
         )
         for n, c in cal.cameras.items()
     }
-    d = demo_design(seed, poses)
+    d = demo_design(seed, poses, workspace)
     board = plat.scene.board
-    sensors = {"temperature": lambda: plat.manipulator.temperature_at(plat.clock.now_s())}
+    sensors = {"temperature": lambda: m.temperature_at(plat.clock.now_s())}
     kept: dict[int, tuple[dict[str, list[NDArray[np.generic]]], dict[str, Any]]] = {}
     truth = np.full((poses, 3), np.nan)
 
@@ -257,12 +290,12 @@ def run_demo(
         pose: int, frames: dict[str, list[NDArray[np.generic]]], record: dict[str, Any]
     ) -> None:
         kept[pose] = (frames, dict(record))
-        truth[pose - 1] = plat.truth_position_um()
+        truth[pose - 1] = m.true_position_um()
         if store is not None:
             store(pose, frames, record)
 
     acquire(
-        plat.manipulator,
+        m,
         plat.cameras,
         plat.clock,
         d,
@@ -322,7 +355,7 @@ def run_demo(
     if family != "quadratic" and np.all(np.isfinite(temps)) and np.ptp(temps) > 0:
         extra["temperature"] = temps
     result.manipulator, result.models = calibrate_manipulator(
-        "m1",
+        device,
         d_ok,
         p,
         "polynomial",
@@ -335,7 +368,7 @@ def run_demo(
     result.oracle = {"mean": oracle.mean, "std": oracle.std, "max": oracle.max}
     if evaluate:
         conditions = open_loop_conditions(
-            plat.manipulator,
+            m,
             result.manipulator,
             extra=extra_inputs_reader(result.manipulator.model, sensors),
             clock=plat.clock,
@@ -343,26 +376,22 @@ def run_demo(
         probe = VisionProbe(plat.cameras, cal.models(), board, frames=frames_per_pose)
         kwargs: dict[str, Any] = {
             "settle_s": settle_s,
-            "truth": plat.truth_position_um,
+            "truth": m.true_position_um,
             "progress": progress,
+            "poses_um": TABLE_5_2_POSES_UM if thesis_sized else iso_cube_poses(*workspace),
         }
         result.evaluation["pose_accuracy"] = run_pose_accuracy(
-            plat.manipulator, plat.clock, probe, conditions, cycles=cycles, **kwargs
+            m, plat.clock, probe, conditions, cycles=cycles, **kwargs
         )
-        vap = run_multi_directional(
-            plat.manipulator, plat.clock, None, conditions, cycles=cycles, **kwargs
-        )
+        vap = run_multi_directional(m, plat.clock, None, conditions, cycles=cycles, **kwargs)
         for source, by_condition in vap.items():
             for condition, figures in by_condition.items():
                 entry = result.evaluation["pose_accuracy"][source][condition]
                 entry |= {"vap_um": figures["vap_um"], "max_vap_um": figures["max_vap_um"]}
-        result.evaluation["decoupling"] = run_decoupling(
-            plat.manipulator,
-            plat.clock,
-            probe,
-            conditions,
-            samples_per_axis=decoupling_samples,
-            **kwargs,
-        )
+        del kwargs["poses_um"]
+        if thesis_sized:
+            result.evaluation["decoupling"] = run_decoupling(
+                m, plat.clock, probe, conditions, samples_per_axis=decoupling_samples, **kwargs
+            )
         result.sim_time_s = plat.clock.now_s()
     return result

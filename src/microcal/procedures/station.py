@@ -1,5 +1,9 @@
 """A calibrated station: one manipulator and its cameras, driven in {G} and measured.
 
+Each device of a rig with several (two manipulators and a positioner) is a station of its
+own on the same rig (``Station(rig.select("m2"), ...)``); ``move_relative_um`` brings one's
+tip to another's end-effector, or to an offset from it.
+
 :class:`Station` is what a user opens to use a calibration (``microcal.open_station`` reads
 the files and opens the rig): ``move_to_um(p)`` sends the tip to a position in {G}, open
 loop (the identified model's joints, approached from below when the model has direction
@@ -140,6 +144,7 @@ class Station:
         DetectionError
             The cameras do not find the end-effector's target.
         """
+        self.rig.look_at()
         p, cov = self.probe.measure_with_covariance(self._d, frames or self.frames)
         if not np.all(np.isfinite(p)):
             raise DetectionError(
@@ -188,6 +193,43 @@ class Station:
         r = self._closed.results[-1]
         return Arrival(target, d, r.measured_um, r.cov_um2, "closed", r.status, r.iterations,
                        r.frames)  # fmt: skip
+
+    def check_reach(self, p_um: ArrayLike) -> None:
+        """Raise :class:`LimitError` if the model's joints for ``p_um`` (3,) in {G} leave the
+        soft limits (nothing moves)."""
+        self.rig.manipulator.check_limits(self._open.joints_for(as_array(p_um, "p_um", (3,))))
+
+    def move_relative_um(
+        self,
+        other: Station,
+        offset_um: ArrayLike = (0.0, 0.0, 0.0),
+        mode: Literal["open", "closed"] = "open",
+        tolerance_um: float | None = None,
+    ) -> Arrival:
+        """Send this tip to ``offset_um`` from the other device's end-effector, as measured
+        now: two tools to one point (offset 0) or to a given offset from each other, or a tool
+        to a point on the sample the positioner carries (the point's offset from the
+        positioner's end-effector, plus any stand-off).
+
+        Parameters
+        ----------
+        other : Station
+            Another device of the same rig (its calibration in the same {G}).
+        offset_um : (3,) float
+            In {G}.
+
+        Raises
+        ------
+        InputError
+            ``other`` is this station.
+        DetectionError, LimitError
+            As :meth:`where_um` and :meth:`move_to_um`.
+        """
+        if other is self:
+            raise InputError("move_relative_um: other is this station; give another device's")
+        offset = as_array(offset_um, "offset_um", (3,))
+        p_other, _ = other.where_um()
+        return self.move_to_um(p_other + offset, mode, tolerance_um)
 
     def close(self) -> None:
         """Close the rig (again: nothing)."""

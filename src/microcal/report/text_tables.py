@@ -500,3 +500,37 @@ def check_lines(data: Mapping[str, Any]) -> list[str]:
         out.append(f"wrote {u['calibration']} (offset re-fitted); checked again: "
                    f"{u['verdict_after']}")  # fmt: skip
     return out
+
+
+def station_summary(result: Any) -> list[TextTable | str]:
+    """What ``microcal demo --preset thesis-platform`` prints: each device's figures in the
+    one {G}, and the meet test of the two manipulators (a ``StationDemoResult``)."""
+    devices = TextTable(
+        "Devices calibrated in one {G} (AP: ISO 9283 mean, µm)",
+        ["device", "validation µm", "AP uncal. truth", "AP optimal truth", "AP optimal vision"],
+        first_left=True,
+    )
+    for name, r in result.devices.items():
+        pa = r.evaluation.get("pose_accuracy", {})
+
+        def ap(source: str, condition: str, pa: dict[str, Any] = pa) -> str:
+            value = pa.get(source, {}).get(condition, {}).get("mean_ap_p_um")
+            return "-" if value is None else f"{value:.2f}"
+
+        val = r.models["polynomial"].validation.get("mean_um")
+        devices.rows.append([name, "-" if val is None else f"{val:.2f}",
+                             ap("truth", "uncalibrated"), ap("truth", "optimal"),
+                             ap("vision", "optimal")])  # fmt: skip
+    meet = TextTable(
+        "Meet test: m2's tip sent to m1's (|p2 - p1|, µm)",
+        ["loop", "targets", "vision mean", "vision max", "truth mean", "truth max"],
+        first_left=True,
+    )
+    for mode, m in result.meet.items():
+        d = m.as_dict()
+        cells = [
+            "-" if d.get(s, {}).get(k) is None else f"{d[s][k]:.2f}"
+            for s in ("vision", "truth") for k in ("mean_um", "max_um")
+        ]  # fmt: skip
+        meet.rows.append([mode, str(len(m.targets_um)), *cells])
+    return [devices, meet]

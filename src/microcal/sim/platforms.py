@@ -168,10 +168,18 @@ class PlatformConfig:
     manipulator: ManipulatorConfig = field(default_factory=ManipulatorConfig)
     front: CameraConfig | None = None
     """A third camera (preset ``thesis-3cam``); None: none."""
+    m2: ManipulatorConfig | None = None
+    """A second manipulator (preset ``thesis-platform``); None: none."""
+    p1: ManipulatorConfig | None = None
+    """The sample's positioner (preset ``thesis-platform``); None: none."""
 
 
 #: The simulator's presets (see the module docstring).
-PRESETS = ("thesis", "telecentric", "thesis-3cam", "population")
+PRESETS = ("thesis", "telecentric", "thesis-3cam", "population", "thesis-platform")
+
+#: The travel of the ``thesis-platform`` positioner, µm (x, y 0-6000, z 0-2000 with 0.5 mm
+#: to spare, as the manipulators').
+POSITIONER_LIMITS_UM = ((-500.0, 6500.0), (-500.0, 6500.0), (-500.0, 2500.0))
 
 #: Angle of the ``front`` camera's axis from the side camera's, degrees.
 FRONT_CAMERA_ANGLE_DEG = 35.0
@@ -204,6 +212,12 @@ def preset_config(preset: str) -> PlatformConfig:
         )
     elif preset == "thesis-3cam":
         config = dataclasses.replace(config, front=dataclasses.replace(config.side))
+    elif preset == "thesis-platform":
+        config = dataclasses.replace(
+            config,
+            m2=ManipulatorConfig(),
+            p1=ManipulatorConfig(limits_um=POSITIONER_LIMITS_UM, loop_settle_s=0.2),
+        )
     return config
 
 
@@ -219,7 +233,7 @@ def _set_dotted(obj: Any, dotted: str, value: Any, full: str = "") -> Any:
     if rest and current is None:
         raise InputError(
             f"override {full!r}: there is no {head!r} on this preset (a preset with it: "
-            "thesis-3cam)"
+            f"{'thesis-3cam' if head == 'front' else 'thesis-platform'})"
         )
     if rest:
         return dataclasses.replace(obj, **{head: _set_dotted(current, rest, value, full)})
@@ -261,10 +275,12 @@ def check_overrides(overrides: dict[str, Any], preset: str = "thesis") -> Platfo
 
 
 class Scene:
-    """What the cameras see: the board on the end-effector and an optional fixed target.
+    """What the cameras see: the board on an end-effector and an optional fixed target.
 
-    With a target stage, the calibration target on it is seen instead of the board while the
-    stage was moved more recently than the manipulator (see :mod:`microcal.sim.stage`).
+    With several devices (preset ``thesis-platform``), one board is seen at a time: that of
+    the device moved last, or of the device :meth:`show` named after that. With a target
+    stage, the calibration target on it is seen instead while the stage was moved more
+    recently than every device (see :mod:`microcal.sim.stage`).
     """
 
     def __init__(
@@ -274,23 +290,39 @@ class Scene:
         board_R: FloatArray,
         stage: SimStage | None = None,
         calibration_target: Target | None = None,
+        others: dict[str, SimManipulator] | None = None,
     ) -> None:
         self.manipulator = manipulator
+        self.devices = {manipulator.name: manipulator, **(others or {})}
         self.board = board
         self.board_R = board_R
         self.show_board = True
         self.fixed: Placement | None = None
         self.stage = stage
         self.calibration_target = calibration_target
+        self._shown: tuple[str, float] | None = None
+
+    def show(self, name: str, t_s: float) -> None:
+        """From ``t_s`` on, the board of device ``name`` is seen (until a device moves)."""
+        self._shown = (name, t_s)
+
+    def visible(self) -> SimManipulator:
+        """The device whose board is seen (the first when none has moved)."""
+        last = max(self.devices.values(), key=lambda m: m.last_move_s)
+        if self._shown is not None and self._shown[1] >= last.last_move_s:
+            return self.devices[self._shown[0]]
+        return last
 
     def board_placement(self, t_s: float) -> Placement:
-        """The board, its inner-corner centroid at the end-effector's true position."""
-        p = self.manipulator.true_position_um(t_s)
+        """The board, its inner-corner centroid at the seen end-effector's true position."""
+        p = self.visible().true_position_um(t_s)
         return Placement(self.board, self.board_R, p - self.board_R @ self.board.centre_um)
 
     def __call__(self, t_s: float) -> list[Placement]:
         stage, target = self.stage, self.calibration_target
-        moved_last = stage is not None and stage.last_move_s > self.manipulator.last_move_s
+        moved_last = stage is not None and stage.last_move_s > max(
+            m.last_move_s for m in self.devices.values()
+        )
         if moved_last and stage is not None and target is not None:
             return [Placement(target, np.eye(3), stage.joints_um(t_s))]
         out = [] if self.fixed is None else [self.fixed]
@@ -310,6 +342,11 @@ class SimPlatform:
     scene: Scene
     seed: int
     target_stage: SimStage | None = None
+
+    @property
+    def manipulators(self) -> dict[str, SimManipulator]:
+        """Every device the vision system sees, by name (``m1`` first)."""
+        return dict(self.scene.devices)
 
     @property
     def camera_models(self) -> dict[str, AnyCamera]:
@@ -368,7 +405,10 @@ def platform(
         manipulator.temperature_phase = draw.temperature_phase
     board = parse_target(config.board)
     stage = SimStage(clock, np.random.default_rng(root.spawn(1)[0]))
-    scene = Scene(manipulator, board, np.eye(3), stage, parse_target(config.calibration_target))
+    others = _further_devices(config, manipulator, clock, root)
+    scene = Scene(
+        manipulator, board, np.eye(3), stage, parse_target(config.calibration_target), others
+    )
     top, side = thesis_cameras()
     views: list[tuple[CameraModel, CameraConfig, np.random.SeedSequence]] = [
         (top, config.top, s_top), (side, config.side, s_side)
@@ -390,6 +430,31 @@ def platform(
             bit_depth=cfg.bit_depth, formation=formation, faults=cfg.faults,
         )  # fmt: skip
     return SimPlatform(config, clock, manipulator, cameras, scene, seed, stage)
+
+
+def _further_devices(
+    config: PlatformConfig, m1: SimManipulator, clock: Clock, root: np.random.SeedSequence
+) -> dict[str, SimManipulator]:
+    """The ``m2`` and ``p1`` a configuration has, each with its own random stream."""
+    from .station_devices import positioner_kinematics, second_manipulator_kinematics
+
+    out: dict[str, SimManipulator] = {}
+    for name, mc in (("m2", config.m2), ("p1", config.p1)):
+        seq = root.spawn(1)[0]  # spawned whether or not the device is there: seeds stay put
+        if mc is None:
+            continue
+        truth = second_manipulator_kinematics(m1.truth) if name == "m2" else (
+            positioner_kinematics())  # fmt: skip
+        device = SimManipulator(
+            truth, clock, np.random.default_rng(seq), name=name, limits_um=mc.limits_um,
+            speed_um_s=mc.speed_um_s, loop_settle_s=mc.loop_settle_s,
+            sensor_noise_um=mc.sensor_noise_um, temperature_c=mc.temperature_c,
+            temperature_drift_c_per_h=mc.temperature_drift_c_per_h, faults=mc.faults,
+        )  # fmt: skip
+        device.mount_offset_um = np.array(mc.mount_offset_um, dtype=np.float64)
+        device.joint_scale = np.array(mc.joint_scale, dtype=np.float64)
+        out[name] = device
+    return out
 
 
 #: The middle of the end-effector's travel in {G}, µm: where the cameras focus.
