@@ -75,28 +75,19 @@ def demo(
 
 def _station(out: Path, seed: int, poses: int, frames: int, quick: bool, camera_model: str,
              console: Console, wall0: float) -> None:  # fmt: skip
-    from ..formats.demo_outputs import write_station_outputs
-    from ..formats.run_manifest import start_station_demo
-    from ..procedures.station_demo import run_station_demo
+    from ..formats.demo_outputs import run_station_demo_files
     from ..report.text_tables import station_summary
 
-    plat, writers = start_station_demo(out, seed, poses, frames)
-    console.print(f"microcal demo on the simulated thesis-platform ({', '.join(writers)} in "
-                  f"one camera frame, then the meet test), writing {out}/")  # fmt: skip
+    console.print(f"microcal demo on the simulated thesis-platform (every device in one camera "
+                  f"frame, then the meet test), writing {out}/")  # fmt: skip
     with staged_progress(console) as progress:
-        result = run_station_demo(
-            plat, seed=seed, progress=progress, store_for=lambda n: writers[n].store,
-            poses=poses, frames_per_pose=frames, frames_per_view=4 if quick else 8,
-            cycles=1 if quick else 3, decoupling_samples=5 if quick else 17,
-            camera_model=camera_model, meet_cycles=1 if quick else 2,
+        result = run_station_demo_files(
+            out, seed, progress, wall0, poses=poses, frames_per_pose=frames,
+            frames_per_view=4 if quick else 8, cycles=1 if quick else 3,
+            decoupling_samples=5 if quick else 17, camera_model=camera_model,
+            meet_cycles=1 if quick else 2,
         )  # fmt: skip
-    write_station_outputs(out, result, wall_s=time.monotonic() - wall0)
-    print_parts(
-        console,
-        [
-            *station_summary(result),
-            f"wrote {out}/: {', '.join(f'{n}/' for n in writers)} (each a demo "
-            "run with its report.html), calibration.json (every device), "
-            f"cameras.json, results.json ({time.monotonic() - wall0:.0f} s)",
-        ],
-    )
+    names = ", ".join(f"{n}/" for n in result.devices)
+    print_parts(console, [*station_summary(result), f"wrote {out}/: {names} (each a demo run "
+                          "with its report.html), calibration.json (every device), cameras.json, "
+                          f"results.json ({time.monotonic() - wall0:.0f} s)"])  # fmt: skip

@@ -7,7 +7,7 @@ acquires (:class:`~microcal.formats.run_directory.RunWriter`); this writes what 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -17,7 +17,7 @@ if TYPE_CHECKING:
     from ..procedures.demo import DemoResult
     from ..procedures.station_demo import StationDemoResult
 
-__all__ = ["write_demo_outputs", "write_station_outputs"]
+__all__ = ["run_station_demo_files", "write_demo_outputs", "write_station_outputs"]
 
 
 def write_demo_outputs(out: Path, result: DemoResult, wall_s: float) -> None:
@@ -110,3 +110,29 @@ def write_station_outputs(out: Path, result: StationDemoResult, wall_s: float) -
         "timing": {"simulated_s": result.sim_time_s, "wall_s": wall_s},
         "provenance": prov,
     })  # fmt: skip
+
+
+def run_station_demo_files(
+    out: Path,
+    seed: int,
+    progress: Any,
+    wall0_s: float,
+    **options: Any,
+) -> StationDemoResult:
+    """``microcal demo --preset thesis-platform``: check ``out``, run the station demo with
+    each device's run written as it goes, then write the station's files.
+
+    ``options``: ``poses``, ``frames_per_pose`` and the rest of
+    :func:`~microcal.procedures.station_demo.run_station_demo`'s keywords; ``wall0_s`` is
+    when the command started (``time.monotonic``).
+    """
+    import time
+
+    from ..procedures.station_demo import run_station_demo
+    from .run_manifest import start_station_demo
+
+    plat, writers = start_station_demo(out, seed, options["poses"], options["frames_per_pose"])
+    result = run_station_demo(plat, seed=seed, progress=progress,
+                              store_for=lambda n: writers[n].store, **options)  # fmt: skip
+    write_station_outputs(out, result, wall_s=time.monotonic() - wall0_s)
+    return result
