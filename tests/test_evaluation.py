@@ -429,3 +429,43 @@ def test_check_and_its_update_through_the_command(demo, tmp_path):
     res = run_microcal("check", *QUICK, "--calibration", cal, "--out", theirs)
     assert res.returncode == 2
     assert theirs.read_text() == "{}"
+
+
+def test_a_periodic_check_inside_a_long_run(demo, tmp_path):
+    """acquire --check-calibration: every N poses the calibration's check poses are measured,
+    each check joins the calibration's history with the run it was made in, and the run goes
+    on as if nothing had moved (each joint's approach direction stays known)."""
+    from microcal.formats.check_file import read_history
+
+    cal = _calibration_file(demo, tmp_path)
+    moved = tmp_path / "moved.toml"
+    moved.write_text('driver = "sim"\nseed = 6\n[overrides.manipulator]\n'
+                     "mount_offset_um = [2.0, 0.0, 0.0]\n")  # fmt: skip
+    out = tmp_path / "run"
+    res = run_microcal("acquire", "--rig", moved, "--design", "random", "--poses", "12",
+                       "--frames", "1", "--settle", "fixed:1", "--out", out,
+                       "--check-calibration", cal, "--check-every", "6")  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.count("check after") == 2
+    assert "check after 6 poses: offset" in res.stdout
+    history = read_history(cal)
+    assert [h["after_poses"] for h in history] == [6, 12]
+    assert all(h["during"] == str(out) for h in history)
+    np.testing.assert_allclose(history[0]["offset_um"], [2.0, 0.0, 0.0],
+                               atol=4 * max(history[0]["offset_std_um"]))  # fmt: skip
+    journal = [json.loads(line) for line in (out / "journal.jsonl").read_text().splitlines()]
+    assert len(journal) == 12
+    assert all(r["status"] == "ok" for r in journal)
+    # pose 7 was approached from where the check left the manipulator, not from pose 6
+    left_at = np.array(history[0]["poses"][-1]["d_um"])
+    step = np.array(journal[6]["commanded_um"]) - left_at
+    for axis, delta in zip("xyz", step, strict=True):
+        if abs(delta) > 1e-3:
+            assert journal[6][f"approach_{axis}"] == np.sign(delta)
+    bad = run_microcal("acquire", "--rig", moved, "--poses", "12", "--out", tmp_path / "b",
+                       "--check-calibration", cal, "--check-every", "often")  # fmt: skip
+    assert bad.returncode == 2
+    assert "--check-every often: expected a number of poses (20) or of minutes (15min)" in (
+        bad.stderr
+    )
+    assert not (tmp_path / "b").exists()

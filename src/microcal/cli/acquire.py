@@ -19,6 +19,8 @@ _Settle = Annotated[str | None, Option(help="'vision' or 'fixed:SECONDS'. [defau
 _Frames = Annotated[int | None, Option(min=1, help="Frames per camera and pose. [default: 5]")]
 _Store = Annotated[str | None, Option(help="'full' frames or 'roi' (around the board). [full]")]
 _Manip = Annotated[str | None, Option(help="The rig's device to move (m1, m2, p1 ...). [m1]")]
+_CheckCal = Annotated[str | None, Option(help="Check this calibration during this run.")]
+_Every = Annotated[str | None, Option(help="Its check every N poses or Mmin minutes. [20]")]
 _DryRun = Annotated[bool, Option("--dry-run", help="Check rig and design; nothing moves.")]
 
 
@@ -27,6 +29,7 @@ def acquire(
     out: _Out, rig: _Rig = None, design: _Design = None, poses: _Poses = None,
     seed: _Seed = None, resume: _Resume = False, settle: _Settle = None, frames: _Frames = None,
     store: _Store = None, dry_run: _DryRun = False, manipulator: _Manip = None,
+    check_calibration: _CheckCal = None, check_every: _Every = None,
 ) -> None:  # fmt: skip
     """Drive the manipulator through a design and store images of every pose.
 
@@ -39,8 +42,7 @@ def acquire(
     """
     from ..formats.acquisition_run import AcquireRequest, run_acquire
 
-    request = AcquireRequest(
-        out, rig, design, poses, seed, resume, settle, frames, store, dry_run, manipulator
-    )
+    request = AcquireRequest(out, rig, design, poses, seed, resume, settle, frames, store,
+                             dry_run, manipulator, check_calibration, check_every)  # fmt: skip
     for line in run_acquire(request):
         print(line, flush=True)

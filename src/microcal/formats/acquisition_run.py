@@ -68,6 +68,8 @@ class AcquireRequest:
     store: str | None = None
     dry_run: bool = False
     manipulator: str | None = None
+    check_calibration: str | None = None
+    check_every: str | None = None
 
     def filled(self, manifest: RunManifest | None = None) -> AcquireRequest:
         """Every option set: a new run's defaults, or what a resumed run recorded.
@@ -164,6 +166,7 @@ def run_acquire(request: AcquireRequest) -> Iterator[str]:
     """
     from ..devices.rig import open_rig
     from ..procedures.dry_run import dry_run as check_rig
+    from .check_file import PeriodicCheck, parse_every
     from .options import parse_settle
     from .rig_file import load_rig, rig_from_record
 
@@ -188,6 +191,10 @@ def run_acquire(request: AcquireRequest) -> Iterator[str]:
     if req.store not in ("full", "roi"):
         raise InputError(f"--store: expected 'full' or 'roi', got {req.store!r}")
     mode, fixed_s = parse_settle(str(req.settle))
+    if req.check_every is not None and req.check_calibration is None:
+        raise InputError("--check-every: give the calibration to check (--check-calibration)")
+    if req.check_every is not None:
+        parse_every(req.check_every)
     if manifest is not None and request.rig is None:
         spec = rig_from_record(manifest.rig, str(out / MANIFEST))
     else:
@@ -207,10 +214,16 @@ def run_acquire(request: AcquireRequest) -> Iterator[str]:
         if plan is not None and req.dry_run:
             yield from check_rig(m, opened.cameras, opened.board, plan, opened.description)
             return
+        periodic = None
+        if req.check_calibration is not None:
+            periodic = PeriodicCheck(opened, req.check_calibration, req.check_every or "20", out,
+                                     say=print)  # fmt: skip
         with _run_directory(out, creating=plan is not None), run_lock(out, "acquire"):
             writer, pose_ids, d = _open_run(out, spec, opened, plan, req)
             hint = f"microcal acquire --out {out} --resume"
-            yield from acquire_remaining(opened, writer, pose_ids, d, config, hint, req.resume)
+            yield from acquire_remaining(
+                opened, writer, pose_ids, d, config, hint, req.resume, periodic
+            )
 
 
 @contextlib.contextmanager
@@ -271,11 +284,14 @@ def acquire_remaining(
     config: AcquisitionConfig,
     resume_hint: str,
     resume: bool,
+    periodic: Any = None,
 ) -> Iterator[str]:
     """Acquire the poses of a run not yet stored, stopping cleanly on Ctrl-C or SIGTERM.
 
     Yields the lines to show: the start, progress where the output is not a terminal (a bar
-    where it is), what was stored and every pose that failed.
+    where it is), what was stored and every pose that failed. ``periodic``: a
+    :class:`~microcal.formats.check_file.PeriodicCheck` run between poses (its lines are
+    printed as it makes them).
 
     Raises
     ------
@@ -285,6 +301,8 @@ def acquire_remaining(
     """
     import numpy as np
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from .check_file import history_path
 
     yield from writer.repairs
     todo = writer.remaining(pose_ids)
@@ -298,6 +316,8 @@ def acquire_remaining(
     bar = Progress(TextColumn("acquiring"), BarColumn(), count, TimeRemainingColumn(),
                    disable=not tty)  # fmt: skip
     task = bar.add_task("acquire", total=len(todo))
+    if periodic is not None:
+        periodic.say = bar.console.print if tty else lambda line: print(line, flush=True)
 
     def progress(done: int, total: int, record: dict[str, Any]) -> None:
         settles.append(float(record["settle_s"]))
@@ -314,7 +334,7 @@ def acquire_remaining(
             run_acquisition(opened.manipulator, opened.cameras, opened.clock, d, todo,
                             opened.board, writer.store, config=config,
                             should_stop=lambda: stop["requested"], sensors=opened.sensors,
-                            progress=progress)  # fmt: skip
+                            progress=progress, between=periodic)  # fmt: skip
     except RunStoppedError as exc:
         raise RunStoppedError(f"run stopped ({exc}); {len(writer.done)} of {len(pose_ids)} "
                               f"poses stored; resume with: {resume_hint}") from None  # fmt: skip
@@ -328,3 +348,7 @@ def acquire_remaining(
            f"({size_mb:.1f} MB); mean settle {mean_settle:.2f} s ({settle})")  # fmt: skip
     for pose, reason in failed:
         yield f"pose {pose} failed: {reason}"
+    if periodic is not None and periodic.results:
+        verdicts = ", ".join(r.verdict for r in periodic.results)
+        yield (f"{len(periodic.results)} checks of {periodic.path} during the run: {verdicts} "
+               f"(history: {history_path(periodic.path)})")  # fmt: skip

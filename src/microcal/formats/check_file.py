@@ -32,7 +32,14 @@ from .hashing import sha256_file
 from .json_file import check_json_output
 from .station_open import open_station
 
-__all__ = ["CHECK_FORMAT", "check_calibration", "history_path", "read_history"]
+__all__ = [
+    "CHECK_FORMAT",
+    "PeriodicCheck",
+    "check_calibration",
+    "history_path",
+    "parse_every",
+    "read_history",
+]
 
 CHECK_FORMAT = "microcal.check/1"
 
@@ -174,3 +181,105 @@ def _update(
     return {"calibration": str(new), "verdict_after": again.verdict,
             "offset_after_um": again.offset_um.tolist(),
             "offset_after_std_um": again.offset_std_um.tolist()}  # fmt: skip
+
+
+def parse_every(text: str) -> tuple[int | None, float | None]:
+    """``--check-every``: ``N`` poses, or ``Mmin`` minutes of the run's clock.
+
+    Returns (poses, seconds), one of them None.
+
+    Raises
+    ------
+    InputError
+        Anything else, with an example.
+    """
+    value = text.strip()
+    try:
+        if value.endswith("min"):
+            minutes = float(value[:-3])
+            if minutes > 0 and np.isfinite(minutes):
+                return None, minutes * 60.0
+        elif int(value) >= 1:
+            return int(value), None
+    except ValueError:
+        pass
+    raise InputError(f"--check-every {text}: expected a number of poses (20) or of minutes (15min)")
+
+
+class PeriodicCheck:
+    """A quick check of an earlier calibration inside a long run, every N poses or minutes.
+
+    Called by the acquisition after each stored pose (its ``between``): when due, the check
+    poses are measured as ``microcal check`` measures them, the result joins the
+    calibration's history (with the run and the poses stored so far), and a line says the
+    verdict. A check that cannot be made (a pose out of view) is reported and the run goes on.
+
+    Parameters
+    ----------
+    rig : Rig
+        The opened rig, its ``manipulator`` the device the calibration is of.
+    calibration : path
+        calibration.json with the cameras; its entry of the rig's device (or its only one).
+    every : str
+        ``N`` poses or ``Mmin`` minutes (:func:`parse_every`).
+    run_dir : path
+        The run the checks are made in (recorded with each).
+    say : callable (str) -> None
+        Where the verdict lines go.
+    """
+
+    def __init__(
+        self,
+        rig: Any,
+        calibration: str | os.PathLike[str],
+        every: str,
+        run_dir: str | os.PathLike[str],
+        say: Callable[[str], None],
+        config: CheckConfig | None = None,
+    ) -> None:
+        from ..vision.probe import VisionProbe
+        from .calibration_update import camera_models
+
+        self.poses, self.every_s = parse_every(every)
+        cal = load_calibration(calibration)
+        name = rig.selected if rig.selected in cal.manipulators else None
+        self.entry = cal.manipulator(name)
+        self.entry.check_device(rig.manipulator.identity)
+        self.config = config or CheckConfig()
+        self.rig, self.path, self.run_dir, self.say = rig, Path(calibration), str(run_dir), say
+        probe = VisionProbe(rig.cameras, camera_models(cal), rig.board, self.config.frames)
+        self.measure = probe.measure_with_covariance
+        self.last_s = rig.clock.now_s()
+        self.results: list[CheckResult] = []
+
+    def __call__(self, done: int) -> np.ndarray | None:
+        due = (self.poses is not None and done % self.poses == 0) or (
+            self.every_s is not None and self.rig.clock.now_s() - self.last_s >= self.every_s
+        )
+        if not due:
+            return None
+        from ..errors import DetectionError
+
+        history = [h for h in read_history(self.path)
+                   if h.get("manipulator", self.entry.name) == self.entry.name]  # fmt: skip
+        try:
+            result = run_check(self.rig.manipulator, self.rig.clock, self.measure, self.entry,
+                               config=self.config, reference=_reference(history))  # fmt: skip
+        except DetectionError as exc:
+            self.say(f"check after {done} poses not made: {exc}")
+            return np.asarray(self.rig.manipulator.position_um(), dtype=np.float64)
+        finally:
+            self.last_s = self.rig.clock.now_s()
+        self.results.append(result)
+        entry = result.as_dict()
+        entry |= {"flag": _far_from_history(result, history, 3.0), "during": self.run_dir,
+                  "after_poses": done, "manipulator": self.entry.name,
+                  "calibration_sha256": sha256_file(self.path),
+                  "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+                  "software": f"microcal {__version__}"}  # fmt: skip
+        _append(history_path(self.path), entry)
+        off = ", ".join(f"{v:+.2f}" for v in result.offset_um)
+        std = ", ".join(f"{v:.2f}" for v in result.offset_std_um)
+        self.say(f"check after {done} poses: {result.verdict}, offset ({off}) ± ({std}) µm"
+                 + (f"; {entry['flag']}" if entry["flag"] else ""))  # fmt: skip
+        return np.asarray(result.d_um[-1], dtype=np.float64)
