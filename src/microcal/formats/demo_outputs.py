@@ -79,8 +79,8 @@ def write_demo_outputs(out: Path, result: DemoResult, wall_s: float) -> None:
 def write_station_outputs(out: Path, result: StationDemoResult, wall_s: float) -> None:
     """Write a station demo's files: each device's as :func:`write_demo_outputs` does, in
     ``out/NAME``, and in ``out`` the station's calibration.json (every device, the cameras),
-    cameras.json and results.json (``devices``: each device's results; ``meet``: the meet
-    tests by mode)."""
+    cameras.json, results.json (``devices``: each device's results; ``meet``: the meet
+    tests by mode) and report.html (the devices side by side, linking their reports)."""
     import json
 
     from .atomic import write_text_atomic
@@ -110,6 +110,9 @@ def write_station_outputs(out: Path, result: StationDemoResult, wall_s: float) -
         "timing": {"simulated_s": result.sim_time_s, "wall_s": wall_s},
         "provenance": prov,
     })  # fmt: skip
+    from ..report import write_report
+
+    write_report(out)
 
 
 def run_station_demo_files(

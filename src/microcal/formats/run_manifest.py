@@ -153,7 +153,8 @@ def start_station_demo(out: Path, seed: int, poses: int, frames: int) -> tuple[A
     """The ``thesis-platform`` demo's platform and one run writer per device (``out/NAME``).
 
     ``out`` must be new, empty, or hold only an earlier station demo (its devices' run
-    directories, calibration.json, cameras.json and results.json), which is replaced.
+    directories, calibration.json, cameras.json, results.json and report.html), which is
+    replaced.
     """
     from ..sim import platform
 
@@ -162,7 +163,8 @@ def start_station_demo(out: Path, seed: int, poses: int, frames: int) -> tuple[A
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: is a file; choose a directory")
     if out.is_dir():
-        own = set(names) | {"calibration.json", "cameras.json", "results.json"}
+        files = ("calibration.json", "cameras.json", "results.json", "report.html")
+        own = set(names) | set(files)
         others = sorted(p.name for p in out.iterdir() if p.name not in own)
         if others or not _station_demo_or_empty(out):
             raise InputError(
@@ -172,7 +174,7 @@ def start_station_demo(out: Path, seed: int, poses: int, frames: int) -> tuple[A
         for name in names:  # each device's directory must be an earlier demo's
             if (out / name).exists():
                 clear_demo_dir(out / name)
-        for leftover in ("calibration.json", "cameras.json", "results.json"):
+        for leftover in files:
             (out / leftover).unlink(missing_ok=True)
     writers = {
         name: start_demo_run(out / name, seed, poses, frames, "thesis-platform", name, plat)[1]

@@ -39,6 +39,7 @@ def run_station_demo(
     *,
     seed: int = 0,
     meet_cycles: int = 2,
+    meet_modes: tuple[str, ...] = ("open", "closed"),
     progress: Callable[[str, int, int], None] | None = None,
     store_for: Callable[[str], Any] | None = None,
     **demo_options: Any,
@@ -51,6 +52,8 @@ def run_station_demo(
         A platform with two manipulators ``m1`` and ``m2`` (and any further devices).
     meet_cycles : int
         Visits of the five meet targets per mode.
+    meet_modes : tuple of {"open", "closed"}
+        The loops the meet test runs in.
     store_for : callable (device name) -> store, optional
         The store of each device's acquired poses (see ``run_demo``).
     demo_options
@@ -90,7 +93,7 @@ def run_station_demo(
         device_workspace(plat.manipulators["m1"].limits_um),
         device_workspace(plat.manipulators["m2"].limits_um),
     )  # fmt: skip
-    for mode in ("open", "closed"):
+    for mode in meet_modes:
         total = meet_cycles * len(targets)
 
         def meet_tick(done: int, _n: int, mode: str = mode, total: int = total) -> None:

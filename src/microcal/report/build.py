@@ -262,6 +262,35 @@ def _iso(data: RunData) -> list[dict[str, Any]]:
     return rows
 
 
+def _station(data: RunData, root: Path) -> dict[str, Any] | None:
+    """The devices of a station demo's results.json and its meet test (None for a run)."""
+    results = data.results or {}
+    devices, meet = results.get("devices"), results.get("meet")
+    if not isinstance(devices, dict):
+        return None
+    rows = []
+    for name, r in devices.items():
+        pa = r.get("pose_accuracy", {}) if isinstance(r, dict) else {}
+
+        def ap(source: str, condition: str, pa: dict[str, Any] = pa) -> Any:
+            return pa.get(source, {}).get(condition, {}).get("mean_ap_p_um")
+
+        poly = (r.get("models", {}) if isinstance(r, dict) else {}).get("polynomial", {})
+        link = f"{name}/report.html" if (root / name / "report.html").is_file() else ""
+        rows.append({"name": name, "validation": poly.get("validation", {}).get("mean_um"),
+                     "uncalibrated": ap("truth", "uncalibrated"),
+                     "optimal_truth": ap("truth", "optimal"),
+                     "optimal_vision": ap("vision", "optimal"), "link": link})  # fmt: skip
+    meets = []
+    for mode, m in (meet or {}).items() if isinstance(meet, dict) else ():
+        vision, truth = m.get("vision") or {}, m.get("truth") or {}
+        meets.append({"mode": mode, "targets": len(m.get("targets_um", [])),
+                      "vision_mean": vision.get("mean_um"), "vision_max": vision.get("max_um"),
+                      "truth_mean": truth.get("mean_um"),
+                      "truth_max": truth.get("max_um")})  # fmt: skip
+    return {"devices": rows, "meet": meets}
+
+
 def _checks(data: RunData) -> dict[str, Any] | None:
     if not data.checks:
         return None
@@ -313,6 +342,7 @@ def build_report(run_dir: str | os.PathLike[str]) -> str:
         "decoupling": _decoupling(data, thesis),
         "iso": _iso(data),
         "checks": _checks(data),
+        "station": _station(data, Path(run_dir)),
         "provenance": _provenance(data),
         "rig": _rig_text(data),
         "thesis": (
