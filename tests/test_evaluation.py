@@ -469,3 +469,38 @@ def test_a_periodic_check_inside_a_long_run(demo, tmp_path):
         bad.stderr
     )
     assert not (tmp_path / "b").exists()
+
+
+def test_goto_and_evaluate_pick_the_device_of_the_calibration_entry(demo, tmp_path):
+    """On a rig of several devices, --manipulator picks both the calibration's entry and the
+    rig's device: m2 goes where m2's calibration sends it, and m1 is not moved."""
+    from microcal.kinematics.manipulator_calibration import ManipulatorCalibration
+
+    plat = sim.platform("thesis-platform", seed=0)
+    m1 = ManipulatorCalibration("m1", demo.models["polynomial"].model)
+    m2 = ManipulatorCalibration("m2", plat.manipulators["m2"].truth.static)
+    cams = cameras_to_dict(demo.calibration, provenance())["cameras"]
+    cal = write_calibration(tmp_path / "station.json", Calibration({"m1": m1, "m2": m2}, cams))
+    rig = tmp_path / "platform.toml"
+    rig.write_text('driver = "sim"\npreset = "thesis-platform"\n', encoding="utf-8")
+    res = run_microcal("goto", "--rig", rig, "--calibration", cal, "--manipulator", "m2",
+                       "5000", "5000", "2000")  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    arrived = [float(v) for v in res.stdout.split("arrived at (")[1].split(")")[0].split(",")]
+    np.testing.assert_allclose(arrived, [5000, 5000, 2000], atol=4.0)
+    res = run_microcal("goto", "--rig", rig, "--calibration", cal, "5000", "5000", "2000")
+    assert res.returncode == 2
+    assert "this calibration has ['m1', 'm2']; name one" in res.stderr
+    res = run_microcal("goto", "--rig", rig, "--calibration", cal, "--manipulator", "p1",
+                       "5000", "5000", "2000")  # fmt: skip
+    assert res.returncode == 2
+    assert "'p1' is not calibrated" in res.stderr
+    out = tmp_path / "m2.json"
+    res = run_microcal("evaluate", "--rig", rig, "--calibration", cal, "--manipulator", "m2",
+                       "--test", "pose-accuracy", "--poses", "iso-cube", "--cycles", "1",
+                       "--frames", "2", "--out", out)  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    truth = json.loads(out.read_text())["pose_accuracy"]["truth"]
+    # m2's true static map compensates m2: hysteresis and creep are left
+    assert truth["optimal"]["mean_ap_p_um"] < 2.0
+    assert truth["uncalibrated"]["mean_ap_p_um"] > 5.0

@@ -267,3 +267,28 @@ def test_the_station_demo_writes_every_device_in_one_frame(tmp_path: Path):
     with pytest.raises(InputError, match="holds files that an earlier station demo did not write"):
         run_station_demo_files(other, 0, None, 0.0, poses=30, frames_per_pose=1)
     assert sorted(p.name for p in other.iterdir()) == ["notes.txt"]
+
+
+def test_fit_names_the_entry_after_the_runs_device(tmp_path: Path):
+    from microcal.formats.calibration_update import measured_device
+    from microcal.formats.run_manifest import new_manifest
+
+    run = tmp_path / "run"
+    run.mkdir()
+    assert measured_device(run / "measurements.csv") == "m1"  # no run.json: a plain CSV
+    manifest = new_manifest(rig=SimRigSpec("thesis-platform").to_dict(), target="chessboard:4x3:400",
+                            cameras=["top", "side"], design={"kind": "file", "poses": 1},
+                            settle="vision", frames_per_pose=1, store="full", command="acquire",
+                            device="simulated p1", manipulator="p1")  # fmt: skip
+    (run / "run.json").write_text(json.dumps({"format": "microcal.run/1", **manifest}))
+    assert measured_device(run / "measurements.csv") == "p1"
+    assert "manipulator" not in new_manifest(
+        rig={},
+        target="t",
+        cameras=[],
+        design={},
+        settle="vision",
+        frames_per_pose=1,
+        store="full",
+        command="acquire",
+    )  # a run of m1 (the only device of most rigs) records no name: its run.json is unchanged
