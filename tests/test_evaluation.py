@@ -477,8 +477,9 @@ def test_goto_and_evaluate_pick_the_device_of_the_calibration_entry(demo, tmp_pa
     from microcal.kinematics.manipulator_calibration import ManipulatorCalibration
 
     plat = sim.platform("thesis-platform", seed=0)
-    m1 = ManipulatorCalibration("m1", demo.models["polynomial"].model)
-    m2 = ManipulatorCalibration("m2", plat.manipulators["m2"].truth.static)
+    fitted = demo.models["polynomial"]
+    m1 = ManipulatorCalibration("m1", fitted.model, fitted.validation)
+    m2 = ManipulatorCalibration("m2", plat.manipulators["m2"].truth.static, fitted.validation)
     cams = cameras_to_dict(demo.calibration, provenance())["cameras"]
     cal = write_calibration(tmp_path / "station.json", Calibration({"m1": m1, "m2": m2}, cams))
     rig = tmp_path / "platform.toml"

@@ -40,9 +40,8 @@ def demo(
     tests; writes the run directory, cameras.json, calibration.json, results.json and
     report.html, and compares the figures with the thesis's.
 
-    With --preset thesis-platform every device (m1, m2, the positioner p1) is calibrated in
-    the one camera frame, each into its own directory under --out, followed by the meet test
-    of the two manipulators' tips.
+    --preset thesis-platform: each device (m1, m2, positioner p1) in the one camera frame,
+    each in its own directory under --out, then the meet test of the two tips.
 
     Example: microcal demo --seed 3 --out demo-3 (or --preset telecentric)
     """
@@ -52,13 +51,11 @@ def demo(
     from ..procedures.demo import demo_family, run_demo
     from ..report.text_tables import demo_closing, demo_intro, demo_summary
 
-    wall0 = time.monotonic()
-    console = Console()
+    wall0, console = time.monotonic(), Console()
     n_poses, frames = (QUICK_POSES, QUICK_FRAMES) if quick else (poses, 5)
     check_camera_model(camera_model)
     if preset == "thesis-platform":
-        _station(out, seed, n_poses, frames, quick, camera_model, console, wall0)
-        return
+        return _station(out, seed, n_poses, frames, quick, camera_model, console, wall0)
     plat, writer = start_demo_run(out, seed, n_poses, frames, preset)
     console.print(demo_intro(out, n_poses))
     with staged_progress(console) as progress:

@@ -56,22 +56,19 @@ def fit(
     check_fit_outputs(out, mat, manipulator)
     path = source / "measurements.csv" if source.is_dir() else source
     meas = read_measurements(path, min_poses=MIN_DESIGN_POSES)
-    manipulator = manipulator or measured_device(path)
     names = [*(extra or []), *(["temperature"] if temperature else [])]
     inputs = meas.extra_inputs(names, path)
     entry, fits = calibrate_manipulator(
-        manipulator, meas.d_um, meas.p_um, model.value, train=train, select=select.value,
-        penter=penter, premove=premove, folds=folds, seed=seed, extra_inputs=inputs,
-        exclude_outliers=exclude_outliers,
+        manipulator or measured_device(path), meas.d_um, meas.p_um, model.value, train=train,
+        select=select.value, penter=penter, premove=premove, folds=folds, seed=seed,
+        extra_inputs=inputs, exclude_outliers=exclude_outliers,
     )  # fmt: skip
     result = fits[model.value]
     calibration = add_manipulator(out, entry, cameras, {"measurements": path}, model.value)
     if mat is not None:
         export_mat(mat, calibration)
     skipped = f" ({meas.n_failed} failed poses skipped)" if meas.n_failed else ""
-    header = (
-        f"{model.value} model of {manipulator!r} from {len(meas.pose)} poses of {path}{skipped}"
-    )
+    header = f"{model.value} model of {entry.name!r} from {len(meas.pose)} poses of {path}{skipped}"
     wrote = f"wrote {out}" + (f" and {mat}" if mat else "")
     lines = fit_lines(result.model, result.validation, header, wrote)
     print_parts(Console(), [*lines, *outlier_lines(result, meas.pose)])

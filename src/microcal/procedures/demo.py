@@ -222,6 +222,7 @@ def run_demo(
     family: str = "quadratic",
     device: str = "m1",
     cameras: StereoCalibration | None = None,
+    fixed_settle_s: float | None = None,
 ) -> DemoResult:
     """Run the calibration on the simulated thesis platform (see the module docstring).
 
@@ -244,6 +245,7 @@ def run_demo(
     workspace is not the thesis's is evaluated at ISO 9283's cube poses, without the
     thesis's decoupling path. ``cameras``: a stereo calibration of this platform made
     before (the devices of one platform share it, and so the frame {G}).
+    ``fixed_settle_s``: settle each acquired pose by this fixed wait instead of by vision.
     """
 
     def tick(stage: str, done: int, total: int) -> None:
@@ -308,9 +310,15 @@ def run_demo(
             creep_learn_poses=creep_learn_poses,
             approach_um=approach_um,
             approach_seed=demo_design_seed(seed),
+            settle="vision" if fixed_settle_s is None else "fixed",
+            fixed_s=fixed_settle_s or 0.0,
         ),
         sensors=sensors,
-        progress=lambda done, total, _record: tick("acquisition (vision settle)", done, total),
+        progress=lambda done, total, _record: tick(
+            "acquisition (vision settle)" if fixed_settle_s is None else "acquisition",
+            done,
+            total,
+        ),
     )
 
     def load(pose: int, name: str) -> list[NDArray[np.generic]]:
