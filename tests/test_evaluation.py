@@ -473,7 +473,8 @@ def test_a_periodic_check_inside_a_long_run(demo, tmp_path):
 
 def test_goto_and_evaluate_pick_the_device_of_the_calibration_entry(demo, tmp_path):
     """On a rig of several devices, --manipulator picks both the calibration's entry and the
-    rig's device: m2 goes where m2's calibration sends it, and m1 is not moved."""
+    rig's device: m2 goes where m2's calibration sends it (m1's entry would not take it
+    there, nor would the rig's m1)."""
     from microcal.kinematics.manipulator_calibration import ManipulatorCalibration
 
     plat = sim.platform("thesis-platform", seed=0)

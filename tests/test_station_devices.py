@@ -293,3 +293,42 @@ def test_fit_names_the_entry_after_the_runs_device(tmp_path: Path):
         store="full",
         command="acquire",
     )  # a run of m1 (the only device of most rigs) records no name: its run.json is unchanged
+
+
+def test_a_station_demo_directory_is_checked_whole_before_anything_goes(tmp_path: Path):
+    from microcal.formats.run_manifest import start_station_demo
+
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    for name in ("calibration.json", "report.html"):  # the user's own, no station results
+        (mine / name).write_text("keep", encoding="utf-8")
+    with pytest.raises(InputError, match="holds files that an earlier station demo did not"):
+        start_station_demo(mine, 0, 24, 1)
+    assert sorted(p.name for p in mine.iterdir()) == ["calibration.json", "report.html"]
+    out = tmp_path / "station"
+    start_station_demo(out, 0, 24, 1)  # an earlier (begun) station demo
+    (out / "m2" / "notes.txt").write_text("mine", encoding="utf-8")
+    with pytest.raises(InputError, match="holds files that an earlier demo did not write"):
+        start_station_demo(out, 1, 24, 1)
+    assert (out / "m1" / "run.json").is_file()  # nothing was cleared before the refusal
+    assert (out / "m2" / "notes.txt").read_text(encoding="utf-8") == "mine"
+
+
+def test_the_selected_device_is_seen_first_and_has_its_own_room_sensor():
+    spec = SimRigSpec("thesis-platform", overrides={"m2.temperature_c": 25.0})
+    with open_rig(spec, "p1") as rig:
+        assert rig.cameras["top"].scene.visible().name == "p1"  # a dry run checks p1's board
+        assert rig.temperature is not None
+        assert rig.temperature() == pytest.approx(22.0)
+        m2 = rig.select("m2")
+        assert m2.temperature is not None
+        assert m2.temperature() == pytest.approx(25.0)
+
+
+def test_each_device_has_its_own_check_history():
+    from microcal.formats.check_file import of_device
+
+    history = [{"offset_um": [0, 0, 0]}, {"manipulator": "m2"}, {"manipulator": "m1"}]
+    assert of_device(history, "m1", single=True) == [history[0], history[2]]
+    assert of_device(history, "m1", single=False) == [history[2]]  # unnamed: not m1's
+    assert of_device(history, "m2", single=False) == [history[1]]

@@ -68,6 +68,9 @@ class Rig:
         None when every target is always in view.
     selected : str
         The name of ``manipulator``.
+    temperatures : dict of str to callable
+        Each device's ambient temperature sensor, where devices have their own (the
+        simulator's); :meth:`select` makes it ``temperature``.
     """
 
     manipulator: Manipulator
@@ -84,6 +87,7 @@ class Rig:
     truths: dict[str, Callable[[], FloatArray]] = field(default_factory=dict)
     show: Callable[[str], None] | None = None
     selected: str = "m1"
+    temperatures: dict[str, Callable[[], float]] = field(default_factory=dict)
     _closed: bool = field(default=False, init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -108,8 +112,9 @@ class Rig:
                 f"{', '.join(self.manipulators)})"
             )
         return dataclasses.replace(
-            self, manipulator=self.manipulators[name], truth=self.truths.get(name), selected=name
-        )
+            self, manipulator=self.manipulators[name], truth=self.truths.get(name), selected=name,
+            temperature=self.temperatures.get(name, self.temperature),
+        )  # fmt: skip
 
     def for_calibration(self, name: str) -> Rig:
         """The rig with the device a calibration entry ``name`` is for: the one of that name,
@@ -212,8 +217,9 @@ def open_rig(spec: RigSpec, manipulator: str | None = None) -> Rig:
                 f"--manipulator {manipulator}: this rig has no such device (it has "
                 f"{', '.join(spec.manipulator_names)})"
             )
-        rig = _sim(spec) if isinstance(spec, SimRigSpec) else _hardware(spec)
-        return rig.select(manipulator)
+        rig = (_sim(spec) if isinstance(spec, SimRigSpec) else _hardware(spec)).select(manipulator)
+        rig.look_at()  # what the cameras see first is the device the caller works with
+        return rig
     raise DeviceError(
         f"rig: expected a SimRigSpec or HardwareRigSpec (formats.rig_file.load_rig), "
         f"got {type(spec).__name__}"
@@ -235,18 +241,22 @@ def platform_rig(plat: Any, description: str = "simulated") -> Rig:
     def truth_of(m: Any) -> Callable[[], FloatArray]:
         return lambda: m.true_position_um()
 
+    def temperature_of(m: Any) -> Callable[[], float]:
+        return lambda: m.temperature_at(plat.clock.now_s())
+
     return Rig(
         plat.manipulator,
         dict(plat.cameras),
         plat.clock,
         plat.scene.board,
-        temperature=lambda: plat.manipulator.temperature_at(plat.clock.now_s()),
+        temperature=temperature_of(plat.manipulator),
         truth=plat.truth_position_um,
         description={"platform": description},
         target_stage=plat.target_stage,
         calibration_target=parse_target(plat.config.calibration_target),
         manipulators=dict(devices),
         truths={name: truth_of(m) for name, m in devices.items()},
+        temperatures={name: temperature_of(m) for name, m in devices.items()},
         show=None if len(devices) == 1 else lambda n: plat.scene.show(n, plat.clock.now_s()),
     )
 

@@ -420,10 +420,11 @@ class HardwareRigSpec:
         object.__setattr__(self, "cameras", dict(self.cameras))
         object.__setattr__(self, "manipulators", dict(self.manipulators))
         for name in self.manipulators:
-            if name == "m1" or not name.replace("_", "").replace("-", "").isalnum():
+            taken = name in ("m1", "manipulator", "target_stage") or name in self.cameras
+            if taken or not name.replace("_", "").replace("-", "").isalnum():
                 raise InputError(
                     f"manipulators.{name}: expected a name such as m2 or p1 (letters, digits, "
-                    "- and _; m1 is [manipulator])"
+                    "- and _; not m1, which is [manipulator], nor a camera's name)"
                 )
         if len(self.cameras) < 2:
             raise InputError(

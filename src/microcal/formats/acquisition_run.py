@@ -318,6 +318,7 @@ def acquire_remaining(
     task = bar.add_task("acquire", total=len(todo))
     if periodic is not None:
         periodic.say = bar.console.print if tty else lambda line: print(line, flush=True)
+        periodic.stored_before = len(writer.done)
 
     def progress(done: int, total: int, record: dict[str, Any]) -> None:
         settles.append(float(record["settle_s"]))

@@ -25,7 +25,13 @@ import numpy as np
 
 from .._version import __version__
 from ..errors import FormatError, InputError
-from ..procedures.check import CheckConfig, CheckResult, offset_updated, run_check
+from ..procedures.check import (
+    CheckConfig,
+    CheckResult,
+    offset_updated,
+    planned_check,
+    run_check,
+)
 from .atomic import write_text_atomic
 from .calibration_file import Calibration, load_calibration, provenance, write_calibration
 from .hashing import sha256_file
@@ -37,6 +43,7 @@ __all__ = [
     "PeriodicCheck",
     "check_calibration",
     "history_path",
+    "of_device",
     "parse_every",
     "read_history",
 ]
@@ -69,6 +76,12 @@ def read_history(calibration: str | os.PathLike[str]) -> list[dict[str, Any]]:
         if isinstance(entry, dict) and entry.get("calibration_sha256") == digest:
             out.append(entry)
     return out
+
+
+def of_device(history: list[dict[str, Any]], name: str, single: bool) -> list[dict[str, Any]]:
+    """The history entries of device ``name``; entries that name none (made before devices
+    were recorded) count only for a calibration of a single device."""
+    return [h for h in history if h.get("manipulator", name if single else None) == name]
 
 
 def _reference(history: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray] | None:
@@ -130,7 +143,7 @@ def check_calibration(
             raise InputError("--update: write the updated calibration to a new file")
     cal = load_calibration(calibration)
     name = cal.manipulator(manipulator).name  # each device of a calibration has its history
-    history = [h for h in read_history(calibration) if h.get("manipulator", name) == name]
+    history = of_device(read_history(calibration), name, len(cal.manipulators) == 1)
     reference = _reference(history)
     with open_station(rig, calibration, manipulator=manipulator, seed=seed,
                       settle_s=cfg.settle_s) as station:  # fmt: skip
@@ -245,6 +258,11 @@ class PeriodicCheck:
         name = rig.selected if rig.selected in cal.manipulators else None
         self.entry = cal.manipulator(name)
         self.entry.check_device(rig.manipulator.identity)
+        d_all, approach = planned_check(self.entry, rig.manipulator)  # limits, before the run
+        self.last_leg = (d_all[-1] - approach if approach else d_all[-2], d_all[-1])
+        self.single = len(cal.manipulators) == 1
+        #: Poses the run had stored before this session (a resumed run counts on from them).
+        self.stored_before = 0
         self.config = config or CheckConfig()
         self.rig, self.path, self.run_dir, self.say = rig, Path(calibration), str(run_dir), say
         probe = VisionProbe(rig.cameras, camera_models(cal), rig.board, self.config.frames)
@@ -252,7 +270,8 @@ class PeriodicCheck:
         self.last_s = rig.clock.now_s()
         self.results: list[CheckResult] = []
 
-    def __call__(self, done: int) -> np.ndarray | None:
+    def __call__(self, done_now: int) -> tuple[np.ndarray, np.ndarray] | None:
+        done = self.stored_before + done_now
         due = (self.poses is not None and done % self.poses == 0) or (
             self.every_s is not None and self.rig.clock.now_s() - self.last_s >= self.every_s
         )
@@ -260,14 +279,14 @@ class PeriodicCheck:
             return None
         from ..errors import DetectionError
 
-        history = [h for h in read_history(self.path)
-                   if h.get("manipulator", self.entry.name) == self.entry.name]  # fmt: skip
+        history = of_device(read_history(self.path), self.entry.name, self.single)
         try:
             result = run_check(self.rig.manipulator, self.rig.clock, self.measure, self.entry,
                                config=self.config, reference=_reference(history))  # fmt: skip
         except DetectionError as exc:
             self.say(f"check after {done} poses not made: {exc}")
-            return np.asarray(self.rig.manipulator.position_um(), dtype=np.float64)
+            here = np.asarray(self.rig.manipulator.position_um(), dtype=np.float64)
+            return here, here  # the directions of the joints that moved are not known
         finally:
             self.last_s = self.rig.clock.now_s()
         self.results.append(result)
@@ -282,4 +301,4 @@ class PeriodicCheck:
         std = ", ".join(f"{v:.2f}" for v in result.offset_std_um)
         self.say(f"check after {done} poses: {result.verdict}, offset ({off}) ± ({std}) µm"
                  + (f"; {entry['flag']}" if entry["flag"] else ""))  # fmt: skip
-        return np.asarray(result.d_um[-1], dtype=np.float64)
+        return self.last_leg

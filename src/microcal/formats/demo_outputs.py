@@ -134,7 +134,11 @@ def run_station_demo_files(
     from ..procedures.station_demo import run_station_demo
     from .run_manifest import start_station_demo
 
-    plat, writers = start_station_demo(out, seed, options["poses"], options["frames_per_pose"])
+    fixed = options.get("fixed_settle_s")
+    settle = "vision" if fixed is None else f"fixed:{fixed:g}"
+    plat, writers = start_station_demo(
+        out, seed, options["poses"], options["frames_per_pose"], settle
+    )
     result = run_station_demo(plat, seed=seed, progress=progress,
                               store_for=lambda n: writers[n].store, **options)  # fmt: skip
     write_station_outputs(out, result, wall_s=time.monotonic() - wall0_s)

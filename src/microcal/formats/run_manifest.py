@@ -15,6 +15,7 @@ from .run_directory import RUN_FILE_NAMES, RunDirectory, RunWriter
 
 __all__ = [
     "DEMO_FILES",
+    "check_demo_dir",
     "clear_demo_dir",
     "new_manifest",
     "start_demo_run",
@@ -75,13 +76,29 @@ def new_manifest(
 
 def clear_demo_dir(out: Path) -> None:
     """Make ``out`` ready for a demo: new, empty, or holding only an earlier demo's files."""
+    for name in check_demo_dir(out):
+        path = out / name
+        if path.is_dir():
+            shutil.rmtree(path)
+        else:
+            path.unlink()
+
+
+def check_demo_dir(out: Path) -> set[str]:
+    """What an earlier demo left in ``out`` (to be replaced); refuses anything else.
+
+    Raises
+    ------
+    InputError
+        ``out`` is a file, not writable, or holds files an earlier demo did not write.
+    """
     from .outputs import check_writable
 
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: is a file; choose a directory")
     check_writable(out, f"--out {out}")
     if not out.exists() or not any(out.iterdir()):
-        return
+        return set()
     entries = {p.name for p in out.iterdir()}
     try:
         manifest = json.loads((out / "run.json").read_text(encoding="utf-8"))
@@ -97,12 +114,7 @@ def clear_demo_dir(out: Path) -> None:
             f"--out {out}: holds files that an earlier demo did not write; "
             f"choose a new or empty directory"
         )
-    for name in entries:
-        path = out / name
-        if path.is_dir():
-            shutil.rmtree(path)
-        else:
-            path.unlink()
+    return entries
 
 
 def start_demo_run(
@@ -113,6 +125,7 @@ def start_demo_run(
     preset: str = "thesis",
     device: str = "m1",
     plat: Any = None,
+    settle: str = "vision",
 ) -> tuple[Any, RunWriter]:
     """The demo's platform and the writer of its run directory (run.json, commands.csv).
 
@@ -139,7 +152,7 @@ def start_demo_run(
             "low_um": low.tolist(),
             "high_um": high.tolist(),
         },
-        settle="vision",
+        settle=settle,
         frames_per_pose=frames,
         store="roi",
         command="demo",
@@ -149,12 +162,15 @@ def start_demo_run(
     return plat, RunDirectory.create(out, manifest, demo_design(seed, poses, (low, high)))
 
 
-def start_station_demo(out: Path, seed: int, poses: int, frames: int) -> tuple[Any, dict[str, Any]]:
+def start_station_demo(
+    out: Path, seed: int, poses: int, frames: int, settle: str = "vision"
+) -> tuple[Any, dict[str, Any]]:
     """The ``thesis-platform`` demo's platform and one run writer per device (``out/NAME``).
 
     ``out`` must be new, empty, or hold only an earlier station demo (its devices' run
     directories, calibration.json, cameras.json, results.json and report.html), which is
-    replaced.
+    replaced; everything is checked before anything is removed. ``settle`` is what each
+    device's run.json records (``vision``, or ``fixed:SECONDS``).
     """
     from ..sim import platform
 
@@ -162,34 +178,38 @@ def start_station_demo(out: Path, seed: int, poses: int, frames: int) -> tuple[A
     names = list(plat.manipulators)
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: is a file; choose a directory")
+    files = ("calibration.json", "cameras.json", "results.json", "report.html")
     if out.is_dir():
-        files = ("calibration.json", "cameras.json", "results.json", "report.html")
-        own = set(names) | set(files)
-        others = sorted(p.name for p in out.iterdir() if p.name not in own)
-        if others or not _station_demo_or_empty(out):
+        present = {p.name for p in out.iterdir()}
+        others = sorted(present - set(names) - set(files))
+        ours = not (present & set(files)) or _station_demo_results(out)
+        if others or not ours:
+            shown = ", ".join(others[:3] or sorted(present & set(files))[:3])
             raise InputError(
                 f"--out {out}: holds files that an earlier station demo did not write "
-                f"({', '.join(others[:3]) or 'results.json'}); choose a new or empty directory"
+                f"({shown}); choose a new or empty directory"
             )
-        for name in names:  # each device's directory must be an earlier demo's
+        for name in names:  # every device's directory is checked before any is cleared
+            if (out / name).exists():
+                check_demo_dir(out / name)
+        for name in names:
             if (out / name).exists():
                 clear_demo_dir(out / name)
         for leftover in files:
             (out / leftover).unlink(missing_ok=True)
     writers = {
-        name: start_demo_run(out / name, seed, poses, frames, "thesis-platform", name, plat)[1]
+        name: start_demo_run(
+            out / name, seed, poses, frames, "thesis-platform", name, plat, settle
+        )[1]
         for name in names
     }
     return plat, writers
 
 
-def _station_demo_or_empty(out: Path) -> bool:
-    """True when ``out``'s results.json (if any) is a station demo's."""
-    results = out / "results.json"
-    if not results.exists():
-        return True
+def _station_demo_results(out: Path) -> bool:
+    """True when ``out`` holds a station demo's results.json."""
     try:
-        data = json.loads(results.read_text(encoding="utf-8"))
+        data = json.loads((out / "results.json").read_text(encoding="utf-8"))
         return bool(data.get("provenance", {}).get("command") == "demo" and "devices" in data)
     except (OSError, ValueError, AttributeError):
         return False

@@ -301,7 +301,7 @@ def acquire(
     sensors: Mapping[str, Callable[[], float]] | None = None,
     should_stop: Callable[[], bool] = lambda: False,
     progress: Callable[[int, int, dict[str, Any]], None] | None = None,
-    between: Callable[[int], FloatArray | None] | None = None,
+    between: Callable[[int], tuple[FloatArray, FloatArray] | None] | None = None,
 ) -> int:
     """Visit the poses, settle, grab and store each; returns the number of poses stored.
 
@@ -316,10 +316,11 @@ def acquire(
     sensors : mapping of name -> callable () -> float, optional
         The rig's sensors of extra inputs (:mod:`microcal.kinematics.extra_inputs`, e.g.
         ``{"temperature": read}``); each pose's journal line records each under its column.
-    between : callable (poses stored) -> (3,) float or None, optional
+    between : callable (poses stored) -> ((3,) float, (3,) float) or None, optional
         Called after each stored pose, e.g. a periodic check of an earlier calibration; when
-        it moved the manipulator it returns the joints it left it at (so that each joint's
-        approach direction stays known), None when it did not.
+        it moved the manipulator it returns its last move's start and end joints (so that
+        each joint's approach direction stays known), None when it did not. A device error
+        in it stops the run as one in a move does.
 
     Raises
     ------
@@ -423,10 +424,15 @@ def acquire(
         store(pose, frames, record)
         previous_d = d
         done += 1
-        left_at = None if between is None else between(done)
-        if left_at is not None:
-            signs = _moved(left_at - previous_d, signs)
-            previous_d = np.asarray(left_at, dtype=np.float64)
+        try:
+            last_leg = None if between is None else between(done)
+        except DeviceError as exc:
+            with contextlib.suppress(DeviceError):
+                manipulator.stop()
+            raise RunStoppedError(f"after pose {pose}: {exc}") from None
+        if last_leg is not None:
+            signs = _moved(last_leg[1] - last_leg[0], _moved(last_leg[1] - previous_d, signs))
+            previous_d = np.asarray(last_leg[1], dtype=np.float64)
         failed_in_a_row = failed_in_a_row + 1 if record["status"] == "failed" else 0
         if progress:
             progress(k + 1, len(poses), record)

@@ -238,6 +238,34 @@ def compare(
                        predicted, r, cov, reference is not None)  # fmt: skip
 
 
+def planned_check(
+    calibration: ManipulatorCalibration,
+    manipulator: Manipulator,
+    poses_um: FloatArray | None = None,
+) -> tuple[FloatArray, float]:
+    """The check poses (n, 3) µm and the approach below each (µm on every joint, 0: none),
+    each checked against the manipulator's soft limits.
+
+    The poses are :func:`check_poses_um` in the joints' range of the calibration data (the
+    soft limits when it records none), or ``poses_um``.
+
+    Raises
+    ------
+    LimitError
+        A pose, or the start of its approach, outside the soft limits.
+    """
+    rng = calibration.joint_range_um
+    box = manipulator.limits_um if rng is None else rng
+    d_all = (
+        check_poses_um(*box.T) if poses_um is None else as_array(poses_um, "poses_um", (None, 3))
+    )
+    approach = APPROACH_UM if has_approach_terms(calibration.model) else 0.0
+    for d in d_all:
+        manipulator.check_limits(d)
+        manipulator.check_limits(d - approach)
+    return d_all, approach
+
+
 def run_check(
     manipulator: Manipulator,
     clock: Clock,
@@ -265,15 +293,7 @@ def run_check(
     cfg = config or CheckConfig()
     calibration.check_device(manipulator.identity)
     model = calibration.model
-    rng = calibration.joint_range_um
-    box = manipulator.limits_um if rng is None else rng
-    d_all = (
-        check_poses_um(*box.T) if poses_um is None else as_array(poses_um, "poses_um", (None, 3))
-    )
-    approach = APPROACH_UM if has_approach_terms(model) else 0.0
-    for d in d_all:
-        manipulator.check_limits(d)
-        manipulator.check_limits(d - approach)
+    d_all, approach = planned_check(calibration, manipulator, poses_um)
     measured, covs = [], []
     start_s = clock.now_s()
     for i, d in enumerate(d_all):

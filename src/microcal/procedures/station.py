@@ -123,6 +123,7 @@ class Station:
         if frames < 1:
             raise InputError(f"frames: expected 1 or more, got {frames}")
         self.rig = rig
+        rig.look_at()
         self.calibration = calibration
         self.frames = int(frames)
         self.settle_s = float(settle_s)
