@@ -635,6 +635,28 @@ def acquire_cases() -> list[Case]:
         Case(a + "store-unknown", lambda w: _acquire(w, "--store", "bogus"), "--store"),
         Case(a + "store-empty", lambda w: _acquire(w, "--store", ""), "--store"),
         Case(a + "unknown-option", lambda w: _acquire(w, "--pose", "12"), "--pose"),
+        # several devices
+        Case(a + "manipulator-unknown", lambda w: _acquire(w, "--manipulator", "m7"), "--manipulator"),
+        Case(a + "manipulator-unknown-on-a-platform",
+             lambda w: _acquire(w, "--manipulator", "m3", "--rig",
+                                str(w.write("platform.toml", 'driver = "sim"\npreset = "thesis-platform"\n'))),
+             "--manipulator"),
+        Case(a + "further-manipulator-named-m1",
+             lambda w: _rig(w, HARDWARE_RIG + '\n[manipulators.m1]\nkind = "smaract-mcs2"\n'
+                            'address = "127.0.0.4"\nchannels = { x = 0, y = 1, z = 2 }\n' + limits),
+             "manipulators.m1"),
+        Case(a + "further-manipulator-unknown-key",
+             lambda w: _rig(w, HARDWARE_RIG + '\n[manipulators.m2]\nkind = "smaract-mcs2"\n'
+                            'adress = "127.0.0.4"\n'),
+             "manipulators.m2.adress"),
+        Case(a + "check-every-not-a-count", lambda w: _acquire(w, "--check-calibration",
+             str(w.good / "calibration.json"), "--check-every", "often"), "--check-every"),
+        Case(a + "check-every-zero", lambda w: _acquire(w, "--check-calibration",
+             str(w.good / "calibration.json"), "--check-every", "0"), "--check-every"),
+        Case(a + "check-every-without-a-calibration", lambda w: _acquire(w, "--check-every", "20"),
+             "--check-every"),
+        Case(a + "check-calibration-missing", lambda w: _acquire(w, "--check-calibration",
+             str(w / "nocal.json")), "nocal.json"),
         # --design
         Case(a + "design-unknown", lambda w: _acquire(w, "--design", "rnadom"), "--design"),
         Case(a + "design-missing-file", lambda w: _design_file(w, w / "nodesign.csv"), "nodesign.csv"),
