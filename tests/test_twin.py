@@ -112,7 +112,7 @@ def test_the_mcs2_driver_moves_the_twins_manipulator(rig, served):
     assert not m.is_moving()
     np.testing.assert_allclose(m.position_um(), target, atol=1.0)  # the position readout
     truth = json.loads(ask(served.frames_port, "TRUTH"))
-    assert set(truth) == {"t_s", "position_um", "target_stage_um"}
+    assert set(truth) == {"t_s", "position_um", "target_stage_um", "devices"}
     # the end-effector in {G}: the true kinematics of the joints, creep fading
     np.testing.assert_allclose(truth["position_um"], served.platform.truth_position_um(), atol=0.5)
 
@@ -202,6 +202,38 @@ def test_faults_reach_the_drivers_as_a_controllers_and_a_cameras_would(served, t
             assert faulty.cameras["side"].grab().ndim == 2
             with pytest.raises(MoveError, match=r"controller error -1015 \(Movement failed"):
                 faulty.manipulator.move_to_um([100.0, 100.0, 100.0])
+
+
+def test_a_twin_of_the_whole_station_serves_every_device_on_its_own_channels(served, tmp_path):
+    """thesis-platform: m2 and p1 on channels 6-8 and 9-11 of the one controller, each a
+    device of its own identity; the board the cameras see is the device moved last."""
+    pytest.importorskip("pymmcore_plus")
+    from microcal.devices.rig import open_rig
+
+    with Twin(preset="thesis-platform", seed=2, time_scale=SCALE, mcs2_port=0,
+              frames_port=0) as twin:  # fmt: skip
+        path = tmp_path / "station.toml"
+        path.write_text(twin.rig_toml())
+        spec = load_rig(str(path))
+        assert spec.manipulator_names == ("m1", "m2", "p1")
+        with open_rig(spec, "p1") as opened:
+            p1 = opened.manipulator
+            assert p1.identity == "SmarAct MCS2 MCS2-TWIN-2 channels 9,10,11"
+            assert opened.manipulators["m2"].identity.endswith("channels 6,7,8")
+            settle(p1, [1000.0, 2000.0, 500.0])
+            truth = json.loads(ask(twin.frames_port, "TRUTH"))
+            np.testing.assert_allclose(truth["devices"]["p1"],
+                                       twin.platform.manipulators["p1"].true_position_um(),
+                                       atol=0.5)  # fmt: skip
+            # only p1 moved: the others are where they began
+            np.testing.assert_allclose(
+                twin.platform.manipulators["m2"].joints_um(twin.clock.now_s()), 0.0, atol=1e-9
+            )
+            seen = centre_px(opened.cameras["top"].grab(), opened.board)
+            expected = twin.platform.camera_models["top"].project(
+                np.array([truth["devices"]["p1"]])
+            )[0]
+            np.testing.assert_allclose(seen, expected, atol=2.0)
 
 
 def _free_port() -> int:

@@ -16,7 +16,8 @@ The MCS2 peer (``mcs2_port``, 55551 by default)
 The controller's ASCII interface as :mod:`microcal.devices.smaract_mcs2` uses it: lines end
 in ``\\r\\n``, commands may be chained with ``;`` on one line (their answers come back on one
 line, joined by ``;``), positions and speeds are in picometres. Channels 0, 1, 2 are the
-manipulator's x, y, z; channels 3, 4, 5 the target stage's.
+manipulator's x, y, z; channels 3, 4, 5 the target stage's; on the ``thesis-platform``
+preset, 6, 7, 8 the second manipulator's (``m2``) and 9, 10, 11 the positioner's (``p1``).
 
 ==========================  ===============================================================
 ``:DEV:SNUM?``              ``"MCS2-TWIN-<seed>"``
@@ -52,8 +53,9 @@ per connection:
                             the frame in row-major order, ``uint8`` or little-endian
                             ``uint16``; or ``ERR <kind> <message>`` when there is no frame
 ``EXPOSURE <camera> <ms>``  ``OK``, or ``ERR input <message>``
-``TRUTH``                   one JSON line ``{"t_s", "position_um", "target_stage_um"}``: the
-                            end-effector's true position and the stage's true joints, µm
+``TRUTH``                   one JSON line ``{"t_s", "position_um", "target_stage_um",
+                            "devices"}``: the end-effector's true position, the stage's
+                            true joints and every device's true position by name, µm
                             (ground truth: for tests and comparisons, never a calibration)
 ==========================  ===============================================================
 
@@ -197,6 +199,7 @@ class _MCS2Peer:
         self.devices: list[SimDevice] = [plat.manipulator]
         if plat.target_stage is not None:
             self.devices.append(plat.target_stage)
+        self.devices += [m for name, m in plat.manipulators.items() if name != "m1"]
         now = plat.clock.now_s()
         #: Per device, the joint targets last commanded, (3,) µm.
         self.targets = [d.joints_um(now).copy() for d in self.devices]
@@ -380,6 +383,9 @@ class _FramePeer:
             "t_s": t,
             "position_um": self.plat.manipulator.true_position_um(t).tolist(),
             "target_stage_um": None if stage is None else stage.joints_um(t).tolist(),
+            "devices": {
+                n: m.true_position_um(t).tolist() for n, m in self.plat.manipulators.items()
+            },
         }
 
     def _camera(self, name: str) -> SimCamera | None:
@@ -726,10 +732,11 @@ def twin_rig_toml(
     """The hardware rig file that drives a twin of ``plat`` through the real drivers.
 
     The manipulator and the target stage are SmarAct MCS2 channels 0-2 and 3-5 at
-    ``host:mcs2_port`` with the simulated devices' limits; the cameras are Micro-Manager
-    devices of :mod:`microcal.devices.twin_camera` fed by the frame server at
-    ``host:frames_port``, with the simulated cameras' pixel sizes. The comments say how to
-    start the twin (``preset``, ``time_scale``) and check the rig (``rig_path``).
+    ``host:mcs2_port``, further devices (``[manipulators.NAME]``) the channels after, each
+    with its simulated device's limits; the cameras are Micro-Manager devices of
+    :mod:`microcal.devices.twin_camera` fed by the frame server at ``host:frames_port``, with
+    the simulated cameras' pixel sizes. The comments say how to start the twin (``preset``,
+    ``time_scale``) and check the rig (``rig_path``).
 
     Returns
     -------
@@ -784,6 +791,20 @@ def twin_rig_toml(
             f"port = {mcs2_port}",
             "channels = { x = 3, y = 4, z = 5 }",
             f"limits_um = {_toml_limits(plat.target_stage.limits_um)}",
+        ]
+    further = [(n, m) for n, m in plat.manipulators.items() if n != "m1"]
+    first = 6 if plat.target_stage is not None else 3
+    for k, (name, device) in enumerate(further):
+        c = first + 3 * k
+        lines += [
+            "",
+            f"[manipulators.{name}]",
+            f"# the twin's further device {name}: channels {c}-{c + 2}",
+            'kind = "smaract-mcs2"',
+            f"address = {address}",
+            f"port = {mcs2_port}",
+            f"channels = {{ x = {c}, y = {c + 1}, z = {c + 2} }}",
+            f"limits_um = {_toml_limits(device.limits_um)}",
         ]
     lines += [
         "",
