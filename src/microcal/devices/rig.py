@@ -207,6 +207,8 @@ def open_rig(spec: RigSpec, manipulator: str | None = None) -> Rig:
 
     Raises
     ------
+    InputError
+        ``manipulator`` names no device of the rig (nothing is opened).
     DeviceError
         A device that cannot be reached or set up; the message names it. Whatever was
         opened before it is closed again.
