@@ -86,5 +86,5 @@ def _station(out: Path, seed: int, poses: int, frames: int, quick: bool, camera_
         )  # fmt: skip
     names = ", ".join(f"{n}/" for n in result.devices)
     print_parts(console, [*station_summary(result), f"wrote {out}/: {names} (each a demo run "
-                          "with its report.html), calibration.json (every device), cameras.json, "
-                          f"results.json ({time.monotonic() - wall0:.0f} s)"])  # fmt: skip
+                          "with its report), calibration.json (every device), cameras.json, results"
+                          f".json, report.html ({time.monotonic() - wall0:.0f} s)"])  # fmt: skip
