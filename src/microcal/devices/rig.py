@@ -107,10 +107,7 @@ class Rig:
         if name is None or name == self.selected:
             return self
         if name not in self.manipulators:
-            raise InputError(
-                f"--manipulator {name}: this rig has no such device (it has "
-                f"{', '.join(self.manipulators)})"
-            )
+            raise unknown_device(name, tuple(self.manipulators))
         return dataclasses.replace(
             self, manipulator=self.manipulators[name], truth=self.truths.get(name), selected=name,
             temperature=self.temperatures.get(name, self.temperature),
@@ -180,6 +177,13 @@ class Rig:
             self.close()
 
 
+def unknown_device(name: str, names: tuple[str, ...]) -> InputError:
+    """The error of ``--manipulator NAME`` on a rig whose devices are ``names``."""
+    return InputError(
+        f"--manipulator {name}: this rig has no such device (it has {', '.join(names)})"
+    )
+
+
 def _close_all(devices: list[tuple[str, Device]], resources: list[Callable[[], None]]) -> list[str]:
     """Close the devices in order, then release the resources last first; what failed."""
     failed: list[str] = []
@@ -215,10 +219,7 @@ def open_rig(spec: RigSpec, manipulator: str | None = None) -> Rig:
     """
     if isinstance(spec, SimRigSpec | HardwareRigSpec):
         if manipulator is not None and manipulator not in spec.manipulator_names:
-            raise InputError(
-                f"--manipulator {manipulator}: this rig has no such device (it has "
-                f"{', '.join(spec.manipulator_names)})"
-            )
+            raise unknown_device(manipulator, spec.manipulator_names)
         rig = (_sim(spec) if isinstance(spec, SimRigSpec) else _hardware(spec)).select(manipulator)
         rig.look_at()  # what the cameras see first is the device the caller works with
         return rig

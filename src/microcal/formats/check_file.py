@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from .._version import __version__
-from ..errors import FormatError, InputError
+from ..errors import DetectionError, FormatError, InputError
 from ..procedures.check import (
     CheckConfig,
     CheckResult,
@@ -277,8 +277,6 @@ class PeriodicCheck:
         )
         if not due:
             return None
-        from ..errors import DetectionError
-
         history = of_device(read_history(self.path), self.entry.name, self.single)
         try:
             result = run_check(self.rig.manipulator, self.rig.clock, self.measure, self.entry,

@@ -189,12 +189,8 @@ def start_station_demo(
                 f"--out {out}: holds files that an earlier station demo did not write "
                 f"({shown}); choose a new or empty directory"
             )
-        for name in names:  # every device's directory is checked before any is cleared
-            if (out / name).exists():
-                check_demo_dir(out / name)
-        for name in names:
-            if (out / name).exists():
-                clear_demo_dir(out / name)
+        for name in names:  # all are checked before start_demo_run clears any of them
+            check_demo_dir(out / name)
         for leftover in files:
             (out / leftover).unlink(missing_ok=True)
     writers = {

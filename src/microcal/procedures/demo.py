@@ -386,17 +386,18 @@ def run_demo(
             "settle_s": settle_s,
             "truth": m.true_position_um,
             "progress": progress,
-            "poses_um": TABLE_5_2_POSES_UM if thesis_sized else iso_cube_poses(*workspace),
         }
+        poses_um = TABLE_5_2_POSES_UM if thesis_sized else iso_cube_poses(*workspace)
         result.evaluation["pose_accuracy"] = run_pose_accuracy(
-            m, plat.clock, probe, conditions, cycles=cycles, **kwargs
+            m, plat.clock, probe, conditions, poses_um=poses_um, cycles=cycles, **kwargs
         )
-        vap = run_multi_directional(m, plat.clock, None, conditions, cycles=cycles, **kwargs)
+        vap = run_multi_directional(
+            m, plat.clock, None, conditions, poses_um=poses_um, cycles=cycles, **kwargs
+        )
         for source, by_condition in vap.items():
             for condition, figures in by_condition.items():
                 entry = result.evaluation["pose_accuracy"][source][condition]
                 entry |= {"vap_um": figures["vap_um"], "max_vap_um": figures["max_vap_um"]}
-        del kwargs["poses_um"]
         if thesis_sized:
             result.evaluation["decoupling"] = run_decoupling(
                 m, plat.clock, probe, conditions, samples_per_axis=decoupling_samples, **kwargs
