@@ -131,8 +131,23 @@ class FeedForward:
         sensed = [s for s in self.model.extra_inputs if s not in self._approach_symbols]
         if not sensed or self.extra is None:
             return self.model.p_base_um
-        u = np.concatenate([np.zeros(len(self.model.joints)), np.asarray(self.extra(), float)])
+        u = np.concatenate([self._held_joints(), np.asarray(self.extra(), float)])
         out: FloatArray = self.model.predict_um(u)[0]
+        return out
+
+    def _held_joints(self) -> FloatArray:
+        return np.array([self.model.held_um.get(j, 0.0) for j in self.model.joints])
+
+    def aim_um(self, p_um: ArrayLike) -> FloatArray:
+        """Where the model puts the end-effector for the joints it commands for ``p_um``, (3,)
+        µm in {G}: ``p_um`` itself, or for a device with held joints (an X-Y positioner) the
+        nearest point of the surface it reaches."""
+        p = as_array(p_um, "p_um", (3,))
+        if not self.model.held_um:
+            return p
+        d = self.joints_for(p)
+        extra = [] if self.extra is None else np.asarray(self.extra(), float).ravel()
+        out: FloatArray = self.model.predict_um(np.concatenate([d, extra]))[0]
         return out
 
     def move_to_position_um(self, p_um: ArrayLike) -> FloatArray:
@@ -147,8 +162,8 @@ class FeedForward:
         """
         d = self.joints_for(p_um)
         if self.approach_um:
-            start = d - self.approach_um
             low = self.manipulator.limits_um[:, 0]
+            start = np.where(low < self.manipulator.limits_um[:, 1], d - self.approach_um, d)
             if np.any(start < low):
                 raise LimitError(
                     f"{self.manipulator.name}: joints {np.round(d, 3).tolist()} µm are less than "

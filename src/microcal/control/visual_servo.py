@@ -35,7 +35,15 @@ import numpy as np
 from .._validation import FloatArray, check_limits, check_number
 from ..errors import DetectionError, InputError
 
-__all__ = ["ServoConfig", "ServoResult", "ServoStep", "probability_within", "servo"]
+__all__ = [
+    "ServoConfig",
+    "ServoResult",
+    "ServoStep",
+    "joint_step",
+    "probability_within",
+    "reachable_error",
+    "servo",
+]
 
 #: Normal draws (fixed) for the probability of the tolerance ball.
 _DRAWS = np.random.default_rng(20260).standard_normal((4000, 3))
@@ -128,6 +136,27 @@ def _frames_for(last_error_um: float, last_cov: FloatArray, last_frames: int,
     return int(np.clip(n, config.frames_min, config.frames_max))
 
 
+
+def joint_step(J: FloatArray, e_um: FloatArray) -> FloatArray:
+    """The joint step that moves the tip by ``e_um`` through the Jacobian J (3, 3), (3,) µm:
+    solved exactly, or over the joints that move (non-zero columns) by least squares."""
+    moving = np.any(J != 0.0, axis=0)
+    if moving.all():
+        return np.asarray(np.linalg.solve(J, e_um), dtype=np.float64)
+    out = np.zeros(3)
+    out[moving] = np.linalg.lstsq(J[:, moving], e_um, rcond=None)[0]
+    return out
+
+
+def reachable_error(J: FloatArray, e_um: FloatArray) -> FloatArray:
+    """The part of an error (3,) µm the joints can remove: all of it when every joint moves,
+    else its projection on the plane the moving joints span (held joints: zero columns)."""
+    moving = np.any(J != 0.0, axis=0)
+    if moving.all():
+        return e_um
+    out: FloatArray = J @ joint_step(J, e_um)
+    return out
+
 def servo(
     target_um: FloatArray,
     d0_um: FloatArray,
@@ -153,7 +182,9 @@ def servo(
         The end-effector in {G} from that many frames per camera; raises
         :class:`DetectionError` when it cannot.
     jacobian : callable ((3,) joints) -> (3, 3)
-        ``d position / d joints`` of the identified model.
+        ``d position / d joints`` of the identified model. A held joint (a two-axis
+        positioner's z) has a zero column: the device reaches only a surface, so the error
+        the loop removes, and judges against the tolerance, is its part along that surface.
     limits_um : (3, 2) float
         Soft limits; a correction outside raises LimitError and nothing moves.
 
@@ -174,7 +205,7 @@ def servo(
         p, cov = measure(frames)
         if not np.all(np.isfinite(p)):
             raise DetectionError(f"closed loop: iteration {k}: the end-effector was not found")
-        e = target - p
+        e = reachable_error(jacobian(d), target - p)
         within = probability_within(e, cov, config.tolerance_um)
         step = ServoStep(k, frames, d.copy(), p, cov, e, within)
         if within >= config.confidence:
@@ -182,7 +213,7 @@ def servo(
         elif k == config.max_iterations:
             status = "iterations"
         else:
-            delta = np.asarray(np.linalg.solve(jacobian(d), e), dtype=np.float64)
+            delta = joint_step(jacobian(d), e)
             if np.all(np.abs(delta) < config.resolution_um):
                 status = "resolution"
             else:

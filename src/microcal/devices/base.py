@@ -131,6 +131,10 @@ class Device(abc.ABC):
 class Manipulator(Device):
     """A Cartesian micromanipulator with one linear joint per axis, positions in µm.
 
+    An axis whose soft limits are one value (low == high) is **held**: the device cannot move
+    it (a two-axis X-Y positioner presented with the three joints x, y, z, see
+    :class:`~microcal.devices.held_axes.HeldAxes`), and every command must give it that value.
+
     Subclasses implement :meth:`_move`, :meth:`_position_um`, :meth:`_is_moving`,
     :meth:`_stop` and :meth:`_close`. The public methods check first that the device is open
     (and :meth:`move_to_um` that the command is within the soft limits), so no backend can be
@@ -143,8 +147,11 @@ class Manipulator(Device):
         super().__init__(name)
         self.axes = tuple(axes)
         lim = as_array(limits_um, "limits_um", (len(self.axes), 2))
-        if np.any(lim[:, 0] >= lim[:, 1]):
-            raise InputError(f"limits_um: expected low < high for every axis, got {lim.tolist()}")
+        if np.any(lim[:, 0] > lim[:, 1]) or np.all(lim[:, 0] == lim[:, 1]):
+            raise InputError(
+                f"limits_um: expected low < high for every axis (low == high for an axis the "
+                f"device holds still), got {lim.tolist()}"
+            )
         self.limits_um: FloatArray = lim
 
     @property

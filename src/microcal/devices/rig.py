@@ -19,6 +19,7 @@ from .._validation import FloatArray
 from ..errors import DeviceError, InputError
 from ..vision.targets import Target, parse_target
 from .base import Camera, Clock, Device, Manipulator, RealClock
+from .held_axes import with_three_joints
 from .rig_spec import (
     AravisCameraSpec,
     HardwareRigSpec,
@@ -336,7 +337,7 @@ def _open_manipulator(
             mcs2.close()
             raise
         description[role] = f"SmarAct MCS2 {mcs2.serial} at {m.address}"
-        return mcs2
+        return with_three_joints(mcs2)
     from .micromanager import MMManipulator
 
     stage = MMManipulator(

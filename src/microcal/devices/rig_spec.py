@@ -141,7 +141,8 @@ class MCS2Spec:
     address : str
         The controller's IP address or host name.
     channels : mapping of axis to int
-        Controller channel of each axis; the order is the joint order.
+        Controller channel of each axis, axes among x, y, z in that order; ``{x, y}`` alone
+        is an X-Y positioner (its z joint held at 0, see ``devices.held_axes``).
     limits_um : mapping of axis to (low, high)
         Soft limits per axis, µm.
     port : int
@@ -168,6 +169,11 @@ class MCS2Spec:
         if not self.channels:
             raise InputError("channels: expected a channel per axis, e.g. {x = 0, y = 1, z = 2}")
         channels = {str(a): _integer(f"channels.{a}", c, 0) for a, c in self.channels.items()}
+        if list(channels) != [a for a in ("x", "y", "z") if a in channels]:
+            raise InputError(
+                f"channels: expected axes among x, y, z in that order (x and y alone for an "
+                f"X-Y positioner), got {list(channels)}"
+            )
         object.__setattr__(self, "channels", channels)
         object.__setattr__(self, "limits_um", _limits(self.limits_um, self.axes))
         object.__setattr__(self, "port", _integer("port", self.port, 1, 65535))

@@ -10,10 +10,17 @@
 
 A target whose joints would leave the soft limits is refused with :class:`LimitError`; a
 solution is never clipped.
+
+A model with **held joints** (a two-axis X-Y positioner: its third joint is held at one value,
+see :class:`~microcal.kinematics.models.KinematicModel`) reaches only a surface of {G}: the
+compensator solves for the moving joints in the least-squares sense (Gauss-Newton), so a
+target off that surface gets the surface's nearest point, and ``residual_um`` is the
+distance left; the held joints are set to their values.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,7 +49,7 @@ class Compensation:
 
     d_um: FloatArray  # (N, j) joint commands
     converged: np.ndarray  # (N,) bool
-    residual_um: FloatArray  # (N,) |model(d) - p|
+    residual_um: FloatArray  # (N,) |model(d) - p| (with held joints: distance off the surface)
     iterations: int  # Newton iterations taken by the batch
     n_fallback: int  # targets solved by the Levenberg-Marquardt fallback
 
@@ -53,7 +60,8 @@ def _linear_part(model: KinematicModel, extra: FloatArray) -> tuple[FloatArray, 
     j = len(model.joints)
     if j != 3:
         raise InputError(f"compensator: expected a model with 3 joints, got {list(model.joints)}")
-    cond = np.linalg.cond(R)
+    moving = [model.joints.index(name) for name in model.moving_joints]
+    cond = np.linalg.cond(R[:, moving])
     if not np.isfinite(cond) or cond > MAX_CONDITION:
         raise DegenerateDataError(
             f"compensator: the model's linear part R is singular or ill-conditioned "
@@ -63,7 +71,8 @@ def _linear_part(model: KinematicModel, extra: FloatArray) -> tuple[FloatArray, 
     n = extra.shape[0]
     # Terms without joints: the constant and the powers of extra inputs.
     offset = np.zeros((n, 3))
-    u0 = np.hstack([np.zeros((n, j)), extra])
+    held = np.array([model.held_um.get(name, 0.0) for name in model.joints])
+    u0 = np.hstack([np.broadcast_to(held, (n, j)), extra])
     mask = np.array([not set(t.inputs) & set(model.joints) for t in model.terms])
     if mask.any():
         from .terms import design_matrix
@@ -115,13 +124,23 @@ def _solve3(J: FloatArray, r: FloatArray) -> FloatArray:
     return x
 
 
+def _least_squares(J: FloatArray, r: FloatArray) -> FloatArray:
+    """Solve ``J x = r`` in the least-squares sense for N systems of 3 equations in k < 3
+    unknowns at once (normal equations; J (N, 3, k) is well conditioned, its columns near
+    unit vectors)."""
+    A = np.einsum("nij,nik->njk", J, J)
+    b = np.einsum("nij,ni->nj", J, r)
+    return np.asarray(np.linalg.solve(A, b[:, :, None])[:, :, 0], dtype=np.float64)
+
+
 class Compensator:
     """A model prepared for repeated inversion: compiled, and its linear part checked, once.
 
     Parameters
     ----------
     model : KinematicModel
-        Joints dx, dy, dz; any terms.
+        Joints dx, dy, dz; any terms. Held joints (``model.held_um``) are set to their
+        values and the others solved for in the least-squares sense.
     limits_um : (3, 2) float, optional
         Soft limits (low, high) per joint; solutions outside raise LimitError.
 
@@ -147,6 +166,19 @@ class Compensator:
             mids = [(w.low + w.high) / 2 for w in waves if w.input == joint]
             middle[j] = mids[0] if mids else 0.0
         self._wave_middle = middle
+        self._moving = np.array([j in model.moving_joints for j in model.joints])
+        self._held = np.array([model.held_um.get(j, 0.0) for j in model.joints])
+        for j in np.flatnonzero(~self._moving):
+            middle[j] = self._held[j]
+
+    def _step(self, J: FloatArray, r: FloatArray) -> FloatArray:
+        """The joint step (N, 3) that solves ``J step = r``: exactly for three moving joints,
+        by least squares over the moving ones (the held ones do not move) otherwise."""
+        if self._moving.all():
+            return _solve3(J, r)
+        step = np.zeros((r.shape[0], 3))
+        step[:, self._moving] = _least_squares(J[:, :, self._moving], r)
+        return step
 
     def _start(self, p: FloatArray, e: FloatArray) -> FloatArray:
         if self._waves:
@@ -155,12 +187,18 @@ class Compensator:
             u0 = np.hstack([np.broadcast_to(self._wave_middle, (p.shape[0], 3)), e])
             J0 = self.model.jacobian(u0)
             r0 = p - self.model.predict_um(u0)
-            return np.asarray(u0[:, :3] + _solve3(J0, r0), dtype=np.float64)
+            return np.asarray(u0[:, :3] + self._step(J0, r0), dtype=np.float64)
         if self._constant_only:
             offset = self._p_base
         else:
             _, offset = _linear_part(self.model, e)
-        return np.asarray(np.linalg.solve(self._R, (p - offset).T).T, dtype=np.float64)
+        if self._moving.all():
+            return np.asarray(np.linalg.solve(self._R, (p - offset).T).T, dtype=np.float64)
+        d = np.broadcast_to(self._held, (p.shape[0], 3)).copy()
+        R = self._R[:, self._moving]
+        rhs = (p - offset).T - self._R[:, ~self._moving] @ self._held[~self._moving, None]
+        d[:, self._moving] = np.linalg.lstsq(R, rhs, rcond=None)[0].T
+        return d
 
     def linear(self, p_um: ArrayLike, *, extra: ArrayLike | None = None) -> FloatArray:
         """Joints from the linear part alone, ``R^-1 (p - P_B)`` (Eq 4.16); (N, 3)."""
@@ -194,6 +232,8 @@ class Compensator:
         def jacobian(dd: FloatArray, ee: FloatArray) -> FloatArray:
             return compiled.jacobian(dd if ee.shape[1] == 0 else np.hstack([dd, ee]))
 
+        if not self._moving.all():
+            return self._solve_surface(p, e, d, residual, jacobian, tol_um, max_iter)
         r = residual(d, e, p)
         norm = np.sqrt(np.einsum("ij,ij->i", r, r))
         active = norm > tol_um
@@ -240,6 +280,45 @@ class Compensator:
         if self.limits_um is not None:
             check_limits(d[converged], self.limits_um, row="target", targets_um=p[converged])
         return Compensation(d, converged, norm, iterations, n_fallback)
+
+    def _solve_surface(
+        self,
+        p: FloatArray,
+        e: FloatArray,
+        d: FloatArray,
+        residual: Callable[[FloatArray, FloatArray, FloatArray], FloatArray],
+        jacobian: Callable[[FloatArray, FloatArray], FloatArray],
+        tol_um: float,
+        max_iter: int,
+    ) -> Compensation:
+        """Gauss-Newton over the moving joints: the surface's point nearest each target.
+
+        A target has converged when its last step moved no joint by more than ``tol_um``;
+        its residual is then its distance from the surface the model reaches.
+        """
+        r = residual(d, e, p)
+        norm = np.sqrt(np.einsum("ij,ij->i", r, r))
+        active = np.ones(p.shape[0], dtype=bool)
+        iterations = 0
+        while active.any() and iterations < max_iter:
+            iterations += 1
+            idx = np.flatnonzero(active)
+            step = -self._step(jacobian(d[idx], e[idx]), r[idx])
+            for _ in range(6):  # backtracking: halve the step where the residual grows
+                trial = d[idx] + step
+                r_trial = residual(trial, e[idx], p[idx])
+                n_trial = np.sqrt(np.einsum("ij,ij->i", r_trial, r_trial))
+                better = np.isfinite(n_trial) & (n_trial <= norm[idx] * (1 + 1e-12) + 1e-12)
+                take = idx[better]
+                d[take], r[take], norm[take] = trial[better], r_trial[better], n_trial[better]
+                active[take] = np.abs(step[better]).max(axis=1) > tol_um
+                if better.all():
+                    break
+                idx, step = idx[~better], step[~better] / 2.0
+        converged = ~active
+        if self.limits_um is not None:
+            check_limits(d[converged], self.limits_um, row="target", targets_um=p[converged])
+        return Compensation(d, converged, norm, iterations, 0)
 
 
 def matrix_compensator(

@@ -46,7 +46,8 @@ def make_design(
     n : int
         Number of poses (a grid has the nearest number its shape allows).
     low_um, high_um : (k,) float
-        The travel to cover, µm.
+        The travel to cover, µm; an axis with low == high is held there (a two-axis
+        positioner's z) and the design spans the others.
     seed : int or numpy.random.Generator
         A seed, or a generator to draw from (it advances).
 
@@ -56,13 +57,15 @@ def make_design(
     """
     low = as_array(low_um, "low_um", (None,))
     high = as_array(high_um, "high_um", (low.size,))
-    if np.any(high <= low):
+    if np.any(high < low) or np.all(high == low):
         raise InputError(
-            f"design: expected low < high on every axis, got {low.tolist()} and {high.tolist()}"
+            f"design: expected low < high on every axis (low == high on a held one), got "
+            f"{low.tolist()} and {high.tolist()}"
         )
     if n < 2:
         raise InputError(f"poses: expected at least 2, got {n}")
-    k = low.size
+    moving = high > low
+    k = int(moving.sum())
     if kind == "random":
         unit = np.random.default_rng(seed).uniform(size=(n, k))
     elif kind == "sobol":
@@ -83,7 +86,8 @@ def make_design(
         unit = unit[np.random.default_rng(seed).permutation(len(unit))]
     else:
         raise InputError(f"design: expected one of {list(DESIGNS)} or a CSV file, got {kind!r}")
-    out: FloatArray = low + unit * (high - low)
+    out = np.broadcast_to(low, (unit.shape[0], low.size)).copy()
+    out[:, moving] += unit * (high - low)[moving]
     return out
 
 
@@ -109,17 +113,19 @@ def check_design(
     d = as_array(d_um, "commands", (None, len(axes)))
     lim = as_array(limits_um, "limits_um", (len(axes), 2))
     check_limits(d, lim, axes=axes)
-    span = np.ptp(d, axis=0) / (lim[:, 1] - lim[:, 0])
-    for k in np.flatnonzero(span < MIN_SPAN).tolist():
+    moving = lim[:, 1] > lim[:, 0]  # a held axis (low == high) has only its one value
+    span = np.ptp(d, axis=0) / np.where(moving, lim[:, 1] - lim[:, 0], 1.0)
+    for k in np.flatnonzero(moving & (span < MIN_SPAN)).tolist():
         raise DegenerateDataError(
             f"the design moves axis {axes[k]} over {100 * span[k]:.0f} % of its travel; at least "
             f"{100 * MIN_SPAN:.0f} % is needed to identify it"
         )
     if len(d) >= 3:
-        corr: FloatArray = np.atleast_2d(np.corrcoef(d.T))
-        for a in range(len(axes)):
-            for b in range(a + 1, len(axes)):
-                if abs(corr[a, b]) > MAX_CORRELATION:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            corr: FloatArray = np.atleast_2d(np.corrcoef(d.T))
+        for a in np.flatnonzero(moving).tolist():
+            for b in np.flatnonzero(moving).tolist():
+                if b > a and abs(corr[a, b]) > MAX_CORRELATION:
                     raise DegenerateDataError(
                         f"the design moves axes {axes[a]} and {axes[b]} together (correlation "
                         f"{corr[a, b]:.2f}); they cannot be told apart: use a random or "

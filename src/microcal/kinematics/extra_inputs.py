@@ -184,7 +184,8 @@ def identifiability_problem(name: str, values: FloatArray, d_um: FloatArray) -> 
     name : str
         Registry name.
     values : (N,) float
-    d_um : (N, 3) float
+    d_um : (N, k) float
+        The joints that move.
     """
     v = np.asarray(values, dtype=np.float64)
     n = v.size
@@ -199,7 +200,8 @@ def identifiability_problem(name: str, values: FloatArray, d_um: FloatArray) -> 
     d = np.asarray(d_um, dtype=np.float64)
     span = np.ptp(d, axis=0)
     z = (d - d.min(axis=0)) / np.where(span > 0, span, 1.0)
-    cols = [np.ones(n), *z.T, *(z[:, i] * z[:, j] for i in range(3) for j in range(i, 3))]
+    k = z.shape[1]
+    cols = [np.ones(n), *z.T, *(z[:, i] * z[:, j] for i in range(k) for j in range(i, k))]
     X = np.column_stack(cols)
     centred = v - v.mean()
     total = float(centred @ centred)

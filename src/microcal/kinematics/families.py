@@ -28,6 +28,8 @@ tell them apart).
 
 from __future__ import annotations
 
+import dataclasses
+
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -119,7 +121,8 @@ def family_terms(
     extra : dict of symbol -> degree
         The extra inputs' highest powers (as :func:`polynomial_terms` takes them).
     joint_range_um : (3, 2) float
-        The joints' [low, high] over which the waves are laid.
+        The joints' [low, high] over which the waves are laid (a joint whose range is one
+        value is held still and gets none).
     """
     if family.name != "quadratic":
         # a square of a sensed input (T^2) extrapolates wildly beyond the small range a run
@@ -129,7 +132,9 @@ def family_terms(
     constant = terms.pop()  # the constant goes last
     if family.harmonics:
         r = np.asarray(joint_range_um, dtype=np.float64)
-        terms += wave_terms(JOINTS, r[:, 0].tolist(), r[:, 1].tolist(), family.harmonics)
+        moving = r[:, 1] > r[:, 0]
+        terms += wave_terms([j for j, keep in zip(JOINTS, moving, strict=True) if keep],
+                            r[moving, 0].tolist(), r[moving, 1].tolist(), family.harmonics)  # fmt: skip
     if family.name != "quadratic":
         terms += [Term(((s, 1), (j, 1))) for s, j in _approach_pairs(inputs)]
     return (*terms, constant)
@@ -143,10 +148,18 @@ def fit_family(
     extra: dict[str, int],
     joint_range_um: FloatArray,
 ) -> KinematicModel:
-    """Fit a family's terms, selected stepwise, to (N, k) inputs and (N, 3) positions."""
-    terms = family_terms(family, inputs, extra, joint_range_um)
+    """Fit a family's terms, selected stepwise, to (N, k) inputs and (N, 3) positions.
+
+    A joint whose range is one value is held still (a two-axis positioner's missing axis,
+    see :class:`~microcal.kinematics.models.KinematicModel`): no term uses it.
+    """
+    r = np.asarray(joint_range_um, dtype=np.float64)
+    held = {j: float(r[k, 0]) for k, j in enumerate(JOINTS) if r[k, 1] == r[k, 0]}
+    terms = tuple(
+        t for t in family_terms(family, inputs, extra, joint_range_um) if not set(t.inputs) & set(held)
+    )
     if family.penalised:
-        return _fit_penalised(u, p_um, family, terms, inputs)
+        return _fit_penalised(u, p_um, family, terms, inputs, held)
     model = fit_model(
         u,
         p_um,
@@ -156,21 +169,18 @@ def fit_family(
         select="stepwise",
         penter=family.penter,
         premove=2 * family.penter,
+        held_um=held,
     )
-    return KinematicModel(
-        model.kind,
-        model.inputs,
-        model.joints,
-        model.terms,
-        model.coefficients,
-        model.selected,
-        model.covariance,
-        model.selection | {"family": family.name},
-    )
+    return dataclasses.replace(model, selection=model.selection | {"family": family.name})
 
 
 def _fit_penalised(
-    u: FloatArray, p_um: FloatArray, family: Family, terms: Sequence[Term], inputs: Sequence[str]
+    u: FloatArray,
+    p_um: FloatArray,
+    family: Family,
+    terms: Sequence[Term],
+    inputs: Sequence[str],
+    held_um: dict[str, float],
 ) -> KinematicModel:
     U = np.asarray(u, dtype=np.float64)
     P = np.asarray(p_um, dtype=np.float64)
@@ -187,7 +197,7 @@ def _fit_penalised(
         edfs.append(fit.edf)
     record |= {"lambda": lams, "edf": edfs}
     return KinematicModel("polynomial", tuple(inputs), JOINTS, tuple(terms), coef,
-                          np.ones((3, m), dtype=bool), cov, record)  # fmt: skip
+                          np.ones((3, m), dtype=bool), cov, record, held_um)  # fmt: skip
 
 
 @dataclass(frozen=True)

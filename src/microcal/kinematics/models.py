@@ -10,7 +10,7 @@ constant term.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any, Literal
 
@@ -30,7 +30,14 @@ from .terms import (
     polynomial_terms,
 )
 
-__all__ = ["AXES", "KinematicModel", "fit_matrix_model", "fit_model", "fit_polynomial_model"]
+__all__ = [
+    "AXES",
+    "KinematicModel",
+    "fit_matrix_model",
+    "fit_model",
+    "fit_polynomial_model",
+    "held_joints",
+]
 
 #: Output axes of every model, in {G}.
 AXES: tuple[str, ...] = ("x", "y", "z")
@@ -154,6 +161,11 @@ class KinematicModel:
         columns for unselected terms.
     selection : dict
         How the terms were chosen: ``{"method": "all" | "stepwise", "penter": ..., ...}``.
+    held_um : dict of str -> float
+        Joints the device holds still, each at its one value, µm: the axis a two-axis X-Y
+        positioner lacks, kept as a joint so that commands keep the three columns
+        ``dx, dy, dz``. No term uses a held joint; a compensator solves for the others and
+        sets it to its value. Empty for a manipulator whose every joint moves.
     """
 
     kind: ModelKind
@@ -164,6 +176,7 @@ class KinematicModel:
     selected: np.ndarray
     covariance: FloatArray
     selection: dict[str, Any]
+    held_um: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         m = len(self.terms)
@@ -185,12 +198,28 @@ class KinematicModel:
                 raise InputError(
                     f"term {t.name} uses {unknown}, not among the inputs {list(self.inputs)}"
                 )
+            held = [n for n in t.inputs if n in self.held_um]
+            if held:
+                raise InputError(f"term {t.name} uses the held joint(s) {held}")
+        for name, value in self.held_um.items():
+            if name not in self.joints or not np.isfinite(value):
+                raise InputError(
+                    f"held_um: expected joints among {list(self.joints)} with finite values, "
+                    f"got {name!r}: {value!r}"
+                )
+        if len(self.held_um) == len(self.joints):
+            raise InputError(f"held_um: every joint {list(self.joints)} is held; none moves")
 
     # --- evaluation ----------------------------------------------------------------------
     @property
     def n_parameters(self) -> int:
         """Number of selected coefficients over the three axes."""
         return int(self.selected.sum())
+
+    @property
+    def moving_joints(self) -> tuple[str, ...]:
+        """The joints a compensator solves for: all but the held ones."""
+        return tuple(j for j in self.joints if j not in self.held_um)
 
     @property
     def extra_inputs(self) -> tuple[str, ...]:
@@ -292,6 +321,7 @@ class KinematicModel:
             "coefficients": self.coefficients.tolist(),
             "covariance": self.covariance.tolist(),
             "selection": dict(self.selection),
+            **({"held_joints_um": dict(self.held_um)} if self.held_um else {}),
         }
 
     @classmethod
@@ -322,13 +352,40 @@ class KinematicModel:
                 selected=sel,
                 covariance=cov,
                 selection=dict(data.get("selection", {})),
+                held_um={str(k): float(v) for k, v in data.get("held_joints_um", {}).items()},
             )
         except KeyError as exc:
             raise FormatError(f"model: missing key {exc.args[0]!r}") from None
-        except (InputError, TypeError, ValueError) as exc:
+        except (AttributeError, InputError, TypeError, ValueError) as exc:
             if isinstance(exc, FormatError):
                 raise
             raise FormatError(f"model: {exc}") from None
+
+
+def held_joints(d_um: ArrayLike) -> dict[str, float]:
+    """The joints that joint commands never move, with their one value (µm).
+
+    A design moves every joint a device has over a real part of its travel
+    (:func:`~microcal.kinematics.designs.check_design`), so a joint whose every command is
+    the same is one the device holds still: a two-axis positioner's missing axis.
+
+    Parameters
+    ----------
+    d_um : (N, 3) float
+        Joint commands dx, dy, dz.
+
+    Raises
+    ------
+    DegenerateDataError
+        No joint moves.
+    """
+    d = as_array(d_um, "d_um", (None, len(JOINTS)))
+    held = {j: float(d[0, k]) for k, j in enumerate(JOINTS) if d.shape[0] and np.ptp(d[:, k]) == 0}
+    if len(held) == len(JOINTS):
+        raise DegenerateDataError(
+            "joints: every command is the same pose; a calibration needs poses over the travel"
+        )
+    return held
 
 
 def _inputs_and_targets(
@@ -347,9 +404,9 @@ def _inputs_and_targets(
     return U, P
 
 
-def _check_inputs_move(U: FloatArray, inputs: Sequence[str]) -> None:
+def _check_inputs_move(U: FloatArray, inputs: Sequence[str], names: Sequence[str]) -> None:
     for j, name in enumerate(inputs):
-        if np.ptp(U[:, j]) == 0:
+        if name in names and np.ptp(U[:, j]) == 0:
             raise DegenerateDataError(
                 f"input {name!r} has the same value in every sample: its effect cannot be "
                 f"identified (move that axis over its range)"
@@ -367,6 +424,7 @@ def fit_model(
     select: Literal["all", "stepwise"] = "all",
     penter: float = 0.05,
     premove: float = 0.10,
+    held_um: dict[str, float] | None = None,
 ) -> KinematicModel:
     """Fit a model with the given terms to measured positions.
 
@@ -380,6 +438,9 @@ def fit_model(
         Candidate terms; the constant is always fitted (as the intercept in stepwise).
     select : {"all", "stepwise"}
         Fit every term, or select per axis by :func:`stepwise_fit`.
+    held_um : dict of str -> float, optional
+        Joints the device holds still (a two-axis positioner's missing axis) and their
+        value: the terms that use them are left out.
 
     Raises
     ------
@@ -387,9 +448,10 @@ def fit_model(
         Too few samples for the terms, an input that never changes, or a rank-deficient design.
     """
     inputs = tuple(inputs)
+    held = dict(held_um or {})
     U, P = _inputs_and_targets(u, p_um, inputs)
-    _check_inputs_move(U, inputs)
-    terms = tuple(terms)
+    terms = tuple(t for t in terms if not set(t.inputs) & set(held))
+    _check_inputs_move(U, inputs, [n for n in inputs if n not in held])
     if Term() not in terms:
         terms = (*terms, Term())
     names = [t.name for t in terms]
@@ -430,10 +492,12 @@ def fit_model(
     selection: dict[str, Any] = {"method": select, "n_samples": n}
     if select == "stepwise":
         selection |= {"penter": penter, "premove": premove, "history": steps}
-    return KinematicModel(kind, inputs, tuple(joints), terms, coef, selected, cov, selection)
+    return KinematicModel(kind, inputs, tuple(joints), terms, coef, selected, cov, selection, held)
 
 
-def fit_matrix_model(d_um: ArrayLike, p_um: ArrayLike) -> KinematicModel:
+def fit_matrix_model(
+    d_um: ArrayLike, p_um: ArrayLike, held_um: dict[str, float] | None = None
+) -> KinematicModel:
     """The matrix model of Eq 4.5, ``p = R d + P_B``, by least squares (Eq 4.14).
 
     Parameters
@@ -442,8 +506,10 @@ def fit_matrix_model(d_um: ArrayLike, p_um: ArrayLike) -> KinematicModel:
         Joint commands dx, dy, dz, µm.
     p_um : (N, 3) float
         Measured positions in {G}, µm.
+    held_um : dict of str -> float, optional
+        Joints held still and their value (see :func:`fit_model`).
     """
-    return fit_model(d_um, p_um, matrix_terms(), kind="matrix")
+    return fit_model(d_um, p_um, matrix_terms(), kind="matrix", held_um=held_um)
 
 
 def fit_polynomial_model(
@@ -455,6 +521,7 @@ def fit_polynomial_model(
     premove: float = 0.10,
     degree: int = 2,
     extra: dict[str, int] | None = None,
+    held_um: dict[str, float] | None = None,
 ) -> KinematicModel:
     """The polynomial model of Eq 4.6-4.10, terms selected stepwise by default.
 
@@ -465,6 +532,8 @@ def fit_polynomial_model(
     p_um : (N, 3) float
     extra : dict, optional
         Further inputs and their highest power, e.g. ``{"T": 2}`` for T and T² (Eq 4.10).
+    held_um : dict of str -> float, optional
+        Joints held still and their value (see :func:`fit_model`).
     """
     extra = dict(extra or {})
     inputs = JOINTS + tuple(extra)
@@ -478,4 +547,5 @@ def fit_polynomial_model(
         select=select,
         penter=penter,
         premove=premove,
+        held_um=held_um,
     )

@@ -130,13 +130,15 @@ def approach_start_um(
 
     Each joint sits ``approach_um`` past the pose on a side drawn from ``(approach_seed,
     pose)``; a side that would leave the soft limits ``limits_um`` (3, 2) is the other one.
+    A held joint (limits of one value) stays where it is.
     """
     rng = np.random.default_rng([config.approach_seed, pose])
     side = rng.choice([-1.0, 1.0], 3)
     start = d_um + side * config.approach_um
     outside = (start < limits_um[:, 0]) | (start > limits_um[:, 1])
     out: FloatArray = np.where(outside, d_um - side * config.approach_um, start)
-    return out
+    held = limits_um[:, 0] == limits_um[:, 1]
+    return np.where(held, d_um, out) if held.any() else out
 
 
 def _retry(what: Callable[[], Any], retries: int) -> Any:

@@ -136,8 +136,10 @@ WORKSPACE_MARGIN_UM = 500.0
 
 
 def device_workspace(limits_um: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """The demo workspace of a simulated device: its soft limits (3, 2) less the margin."""
-    return limits_um[:, 0] + WORKSPACE_MARGIN_UM, limits_um[:, 1] - WORKSPACE_MARGIN_UM
+    """The demo workspace of a simulated device: its soft limits (3, 2) less the margin (a
+    held joint, limits of one value, keeps that value)."""
+    margin = np.where(limits_um[:, 1] > limits_um[:, 0], WORKSPACE_MARGIN_UM, 0.0)
+    return limits_um[:, 0] + margin, limits_um[:, 1] - margin
 
 
 @dataclass

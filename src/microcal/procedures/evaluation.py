@@ -38,6 +38,7 @@ __all__ = [
     "APPROACH_SIDES",
     "DETOUR_UM",
     "TESTS",
+    "aimed_poses_um",
     "approach_detours_um",
     "decoupling_path",
     "iso_cube_poses",
@@ -57,10 +58,11 @@ def iso_cube_poses(low_um: ArrayLike, high_um: ArrayLike) -> FloatArray:
     """
     low = np.asarray(low_um, dtype=np.float64)
     high = np.asarray(high_um, dtype=np.float64)
-    side = float(np.min(high - low))
-    c0 = (low + high) / 2 - side / 2
+    moving = high > low  # a held axis (low == high): the cube is a square in the others
+    side = float(np.min((high - low)[moving]))
+    c0 = (low + high) / 2 - np.where(moving, side / 2, 0.0)
     x0, y0, z0 = c0
-    x1, y1, z1 = c0 + side
+    x1, y1, z1 = c0 + np.where(moving, side, 0.0)
     corners = np.array([[x0, y0, z0], [x1, y0, z0], [x1, y1, z1], [x0, y1, z1]])
     centre = corners.mean(axis=0)
     pts = [centre] + [c + 0.1 * (centre - c) * 2 for c in corners]
@@ -193,6 +195,7 @@ def run_pose_accuracy(
         visit = functools.partial(_visit, command, manipulator=manipulator, clock=clock,
                                   settle_s=settle_s, probe=probe, truth=truth)  # fmt: skip
         home = visit(np.zeros(3))
+        desired = aimed_poses_um(conditions[name], poses_um)
         arrivals: dict[str, list[list[FloatArray]]] = {k: [[] for _ in poses_um] for k in home}
         total = cycles * len(poses_um)
         for c in range(cycles):
@@ -203,7 +206,7 @@ def run_pose_accuracy(
                     progress(f"pose accuracy, {name}", c * len(poses_um) + i + 1, total)
         for source, per_pose in arrivals.items():
             stats = []
-            for pose, arr in zip(poses_um, per_pose, strict=True):
+            for pose, arr in zip(desired, per_pose, strict=True):
                 a = np.array(arr)
                 a = a[np.all(np.isfinite(a), axis=1)]
                 if len(a):
@@ -215,6 +218,19 @@ def run_pose_accuracy(
                 "poses": [s.as_dict() for s in stats],
             }
     return out
+
+
+def aimed_poses_um(ff: FeedForward | None, poses_um: FloatArray) -> FloatArray:
+    """The displacements from home a condition aims at for ``poses_um``, (N, 3) µm.
+
+    The poses themselves, except for a compensated device with held joints (an X-Y
+    positioner): it reaches only a surface, so each pose is moved to the nearest point of
+    that surface by its model (its command pose in the sense of ISO 9283: one it can attain).
+    """
+    if ff is None or not ff.model.held_um:
+        return np.asarray(poses_um, dtype=np.float64)
+    home = ff.home_um()
+    return np.array([ff.aim_um(home + p) - home for p in np.asarray(poses_um, float)])
 
 
 #: The detour before each approach of the multi-directional test, µm along each axis.
@@ -230,9 +246,11 @@ APPROACH_SIDES = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], [1.0, -1.0, 1.0]
 def approach_detours_um(pose_um: FloatArray, low_um: FloatArray, high_um: FloatArray) -> FloatArray:
     """The three points a pose is approached from in the multi-directional test, (3, 3) µm:
     :data:`DETOUR_UM` to each side of :data:`APPROACH_SIDES`, displacements from home; a
-    side that would leave ``[low_um, high_um]`` is the other one."""
-    out = pose_um[None, :] + DETOUR_UM * APPROACH_SIDES
-    flipped = pose_um[None, :] - DETOUR_UM * APPROACH_SIDES
+    side that would leave ``[low_um, high_um]`` is the other one. An axis whose travel is one
+    value (held) takes no detour."""
+    sides = np.where(np.asarray(high_um) > np.asarray(low_um), APPROACH_SIDES, 0.0)
+    out = pose_um[None, :] + DETOUR_UM * sides
+    flipped = pose_um[None, :] - DETOUR_UM * sides
     outside = (out < low_um) | (out > high_um)
     out = np.where(outside, flipped, out)
     if np.any((out < low_um) | (out > high_um)):
@@ -272,7 +290,9 @@ def run_multi_directional(
         "poses": [{"desired_um", "vap_um"}]}}}``.
     """
     if travel_um is None:
-        travel_um = (manipulator.limits_um[:, 0] + 50.0, manipulator.limits_um[:, 1] - 50.0)
+        lim = manipulator.limits_um
+        margin = np.where(lim[:, 1] > lim[:, 0], 50.0, 0.0)
+        travel_um = (lim[:, 0] + margin, lim[:, 1] - margin)
     low, high = travel_um
     detours = [approach_detours_um(p, np.asarray(low), np.asarray(high)) for p in poses_um]
     out = _sources(probe, truth)

@@ -25,7 +25,14 @@ from ..kinematics import (
     fit_polynomial_model,
     validate_split,
 )
-from ..kinematics.extra_inputs import extra_input, identifiability_problem
+from ..kinematics.models import held_joints
+from ..kinematics.terms import JOINTS
+from ..kinematics.extra_inputs import (
+    APPROACH_INPUTS,
+    extra_input,
+    identifiability_problem,
+    is_approach,
+)
 from ..kinematics.families import FAMILIES, choose_family, fit_family
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..thesis.experiment import SPLIT
@@ -128,11 +135,15 @@ def identify(
     """
     u = np.asarray(d_um, dtype=np.float64)
     positions = np.asarray(p_um, dtype=np.float64)
+    held = held_joints(u[:, :3])
+    moving = [k for k, j in enumerate(JOINTS) if j not in held]
     extra: dict[str, int] = {}
     for name, values in (extra_inputs or {}).items():
+        if is_approach(name) and JOINTS[APPROACH_INPUTS.index(name)] in held:
+            continue  # the direction of a joint that never moves
         entry = extra_input(name)
         column = as_array(values, entry.column, (u.shape[0],))
-        problem = identifiability_problem(name, column, u[:, :3])
+        problem = identifiability_problem(name, column, u[:, moving])
         if problem:
             raise DegenerateDataError(f"extra input: {problem}")
         u = np.column_stack([u, column])
@@ -155,13 +166,14 @@ def identify(
 
     def fit(u_fit: FloatArray, p_fit: FloatArray) -> KinematicModel:
         if model == "matrix":
-            return fit_matrix_model(u_fit, p_fit)
+            return fit_matrix_model(u_fit, p_fit, held)
         if model != "polynomial":
             raise InputError(f"model: expected 'matrix' or 'polynomial', got {model!r}")
         if family == "quadratic" or (select == "all" and chosen is None):
             return fit_polynomial_model(
-                u_fit, p_fit, select=select, penter=penter, premove=premove, extra=extra
-            )
+                u_fit, p_fit, select=select, penter=penter, premove=premove, extra=extra,
+                held_um=held,
+            )  # fmt: skip
         fam = chosen.family if chosen is not None else FAMILIES[family]
         fitted = fit_family(u_fit, p_fit, fam, inputs, extra, joint_range)
         if chosen is None:

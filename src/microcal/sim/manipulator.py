@@ -59,7 +59,8 @@ class SimManipulator(Manipulator):
     rng : numpy.random.Generator
         For sensor noise and faults.
     limits_um : (3, 2) float
-        Soft travel limits per joint.
+        Soft travel limits per joint; a joint whose limits are one value is held there (a
+        two-axis X-Y positioner's z) and reads it without noise.
     speed_um_s : float
         Joint speed while moving (default 2000 µm/s).
     loop_settle_s : float
@@ -149,7 +150,8 @@ class SimManipulator(Manipulator):
     def _position_um(self) -> FloatArray:
         self._fault("the position query")
         d = self.joints_um(self.clock.now_s())
-        out: FloatArray = d + self.rng.normal(0.0, self.sensor_noise_um, 3)
+        noise = self.rng.normal(0.0, self.sensor_noise_um, 3)
+        out: FloatArray = d + np.where(self.limits_um[:, 0] < self.limits_um[:, 1], noise, 0.0)
         return out
 
     def _is_moving(self) -> bool:

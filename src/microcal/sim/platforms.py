@@ -107,10 +107,12 @@ class ManipulatorConfig:
             lim is None
             or lim.shape != (3, 2)
             or not np.all(np.isfinite(lim))
-            or np.any(lim[:, 0] >= lim[:, 1])
+            or np.any(lim[:, 0] > lim[:, 1])
+            or np.all(lim[:, 0] == lim[:, 1])
         ):
             raise InputError(
-                f"limits_um: expected [low, high] µm for x, y and z, got {self.limits_um!r}"
+                f"limits_um: expected [low, high] µm for x, y and z (low == high for an axis "
+                f"the device lacks), got {self.limits_um!r}"
             )
         check_number("speed_um_s", self.speed_um_s, above=0)
         check_number("loop_settle_s", self.loop_settle_s, low=0)
@@ -177,9 +179,9 @@ class PlatformConfig:
 #: The simulator's presets (see the module docstring).
 PRESETS = ("thesis", "telecentric", "thesis-3cam", "population", "thesis-platform")
 
-#: The travel of the ``thesis-platform`` positioner, µm (x, y 0-6000, z 0-2000 with 0.5 mm
-#: to spare, as the manipulators').
-POSITIONER_LIMITS_UM = ((-500.0, 6500.0), (-500.0, 6500.0), (-500.0, 2500.0))
+#: The travel of the ``thesis-platform`` positioner, µm: x and y 0-6000 with 0.5 mm to spare,
+#: as the manipulators'; it has no z drive, so its z joint is held at 0.
+POSITIONER_LIMITS_UM = ((-500.0, 6500.0), (-500.0, 6500.0), (0.0, 0.0))
 
 #: Angle of the ``front`` camera's axis from the side camera's, degrees.
 FRONT_CAMERA_ANGLE_DEG = 35.0

@@ -10,12 +10,13 @@ under one vision system; the preset gives the simulator the same: manipulator ``
   0.15 degrees about z, other couplings and curvatures of the same sizes), with the
   hysteresis, creep and thermal drift of the first. Its travel overlaps m1's in all but a
   0.4 mm band, so the two tips can meet almost anywhere.
-- ``p1``: the positioner carrying the sample, a stick-slip X-Y stage with a focus drive
-  (three joints, so it is calibrated as the manipulators are; the thesis's positioner has
-  no z drive). Its board is the sample's marker; a point on the sample is a fixed offset
-  from it. Mounted turned by 0.3 degrees about z and tilted by 0.1 degrees about x
-  against the cameras' frame (30 µm and 10 µm over its 6 mm), with scale errors of
-  0.04-0.08 %, a bow of up to 3.6 µm in z over the travel and hysteresis of 0.2-0.3 µm.
+- ``p1``: the positioner carrying the sample, a stick-slip X-Y stage as the thesis's: two
+  axes, its z joint held at 0 (see :class:`~microcal.devices.held_axes.HeldAxes`), so it
+  moves the sample over a surface of {G}, not through a volume. Its board is the sample's
+  marker; a point on the sample is a fixed offset from it. Mounted turned by 0.3 degrees
+  about z and tilted by 0.1 degrees about x against the cameras' frame (30 µm and 10 µm
+  over its 6 mm), with scale errors of 0.04 %, a bow of up to 3.6 µm in z over the travel
+  and hysteresis of 0.2-0.25 µm.
 
 The simulator shows one board at a time (:class:`~microcal.sim.platforms.Scene`): that of
 the device that moved last, or the one asked for.
