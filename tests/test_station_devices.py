@@ -58,7 +58,7 @@ def test_the_cameras_see_the_device_moved_last_or_the_one_shown():
     np.testing.assert_allclose(_measure(plat), m2.true_position_um(), atol=3.0)
     plat.scene.show("m1", plat.clock.now_s())
     np.testing.assert_allclose(_measure(plat), m1.true_position_um(), atol=3.0)
-    _move(p1, [1000.0, 4000.0, 500.0], plat.clock)
+    _move(p1, [1000.0, 4000.0, 0.0], plat.clock)
     np.testing.assert_allclose(_measure(plat), p1.true_position_um(), atol=3.0)
 
 
@@ -70,7 +70,8 @@ def test_the_second_manipulator_and_the_positioner_are_other_devices():
     # m2's map is not m1's shifted: their differences vary over the travel by µm
     gap = m2.position_um(d) - m1.position_um(d)
     assert np.ptp(gap, axis=0).max() > 5.0
-    assert plat.manipulators["p1"].limits_um[2, 1] < plat.manipulators["m1"].limits_um[2, 1]
+    assert plat.manipulators["p1"].limits_um[2].tolist() == [0.0, 0.0]  # an X-Y stage: z held
+    assert p1.static.held_um == {"dz": 0.0}
     assert p1 is not m1
 
 
@@ -207,7 +208,7 @@ def test_two_tools_meet_and_a_wrong_calibration_shows_in_the_gap():
 def test_a_tool_goes_to_an_offset_from_a_point_on_the_sample():
     plat = platform("thesis-platform", seed=3)
     tool, stage = _true_stations(plat, ["m1", "p1"])
-    stage.move_to_um([4000.0, 4000.0, 2000.0])
+    stage.move_to_um([4000.0, 4000.0, 1200.0])  # the X-Y stage goes to its surface's nearest
     point = np.array([150.0, -80.0, 0.0])  # on the sample, from the positioner's board
     stand_off = np.array([0.0, 0.0, 200.0])
     arrival = tool.move_relative_um(stage, point + stand_off)

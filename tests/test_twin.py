@@ -205,8 +205,9 @@ def test_faults_reach_the_drivers_as_a_controllers_and_a_cameras_would(served, t
 
 
 def test_a_twin_of_the_whole_station_serves_every_device_on_its_own_channels(served, tmp_path):
-    """thesis-platform: m2 and p1 on channels 6-8 and 9-11 of the one controller, each a
-    device of its own identity; the board the cameras see is the device moved last."""
+    """thesis-platform: m2 on channels 6-8 and the X-Y positioner p1 on 9-10 of the one
+    controller, each a device of its own identity (p1 with its z held); the board the
+    cameras see is the device moved last."""
     pytest.importorskip("pymmcore_plus")
     from microcal.devices.rig import open_rig
 
@@ -218,9 +219,13 @@ def test_a_twin_of_the_whole_station_serves_every_device_on_its_own_channels(ser
         assert spec.manipulator_names == ("m1", "m2", "p1")
         with open_rig(spec, "p1") as opened:
             p1 = opened.manipulator
-            assert p1.identity == "SmarAct MCS2 MCS2-TWIN-2 channels 9,10,11"
+            assert p1.identity == "SmarAct MCS2 MCS2-TWIN-2 channels 9,10"
+            assert p1.axes == ("x", "y", "z")
+            assert p1.limits_um[2].tolist() == [0.0, 0.0]
+            with pytest.raises(LimitError, match="z"):
+                p1.move_to_um([1000.0, 2000.0, 500.0])
             assert opened.manipulators["m2"].identity.endswith("channels 6,7,8")
-            settle(p1, [1000.0, 2000.0, 500.0])
+            settle(p1, [1000.0, 2000.0, 0.0])
             truth = json.loads(ask(twin.frames_port, "TRUTH"))
             np.testing.assert_allclose(truth["devices"]["p1"],
                                        twin.platform.manipulators["p1"].true_position_um(),

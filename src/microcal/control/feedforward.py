@@ -146,7 +146,7 @@ class FeedForward:
         if not self.model.held_um:
             return p
         d = self.joints_for(p)
-        extra = [] if self.extra is None else np.asarray(self.extra(), float).ravel()
+        extra = np.zeros(0) if self.extra is None else np.asarray(self.extra(), float).ravel()
         out: FloatArray = self.model.predict_um(np.concatenate([d, extra]))[0]
         return out
 

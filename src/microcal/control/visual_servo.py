@@ -136,7 +136,6 @@ def _frames_for(last_error_um: float, last_cov: FloatArray, last_frames: int,
     return int(np.clip(n, config.frames_min, config.frames_max))
 
 
-
 def joint_step(J: FloatArray, e_um: FloatArray) -> FloatArray:
     """The joint step that moves the tip by ``e_um`` through the Jacobian J (3, 3), (3,) µm:
     solved exactly, or over the joints that move (non-zero columns) by least squares."""
@@ -156,6 +155,7 @@ def reachable_error(J: FloatArray, e_um: FloatArray) -> FloatArray:
         return e_um
     out: FloatArray = J @ joint_step(J, e_um)
     return out
+
 
 def servo(
     target_um: FloatArray,

@@ -37,12 +37,13 @@ class HeldAxes(Manipulator):
     """
 
     def __init__(self, device: Manipulator) -> None:
-        if not device.axes or any(a not in AXES for a in device.axes) or list(device.axes) != [
-            a for a in AXES if a in device.axes
-        ]:
+        if (
+            not device.axes
+            or any(a not in AXES for a in device.axes)
+            or list(device.axes) != [a for a in AXES if a in device.axes]
+        ):
             raise InputError(
-                f"{device.name}: expected axes among x, y, z in that order, got "
-                f"{list(device.axes)}"
+                f"{device.name}: expected axes among x, y, z in that order, got {list(device.axes)}"
             )
         self.device = device
         self._index = [AXES.index(a) for a in device.axes]

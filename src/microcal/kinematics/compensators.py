@@ -164,12 +164,10 @@ class Compensator:
         middle = np.zeros(3)
         for j, joint in enumerate(model.joints[:3]):
             mids = [(w.low + w.high) / 2 for w in waves if w.input == joint]
-            middle[j] = mids[0] if mids else 0.0
+            middle[j] = mids[0] if mids else model.held_um.get(joint, 0.0)
         self._wave_middle = middle
         self._moving = np.array([j in model.moving_joints for j in model.joints])
         self._held = np.array([model.held_um.get(j, 0.0) for j in model.joints])
-        for j in np.flatnonzero(~self._moving):
-            middle[j] = self._held[j]
 
     def _step(self, J: FloatArray, r: FloatArray) -> FloatArray:
         """The joint step (N, 3) that solves ``J step = r``: exactly for three moving joints,

@@ -29,7 +29,6 @@ tell them apart).
 from __future__ import annotations
 
 import dataclasses
-
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -133,8 +132,8 @@ def family_terms(
     if family.harmonics:
         r = np.asarray(joint_range_um, dtype=np.float64)
         moving = r[:, 1] > r[:, 0]
-        terms += wave_terms([j for j, keep in zip(JOINTS, moving, strict=True) if keep],
-                            r[moving, 0].tolist(), r[moving, 1].tolist(), family.harmonics)  # fmt: skip
+        joints = [j for j, keep in zip(JOINTS, moving, strict=True) if keep]
+        terms += wave_terms(joints, r[moving, 0].tolist(), r[moving, 1].tolist(), family.harmonics)
     if family.name != "quadratic":
         terms += [Term(((s, 1), (j, 1))) for s, j in _approach_pairs(inputs)]
     return (*terms, constant)
@@ -155,9 +154,8 @@ def fit_family(
     """
     r = np.asarray(joint_range_um, dtype=np.float64)
     held = {j: float(r[k, 0]) for k, j in enumerate(JOINTS) if r[k, 1] == r[k, 0]}
-    terms = tuple(
-        t for t in family_terms(family, inputs, extra, joint_range_um) if not set(t.inputs) & set(held)
-    )
+    candidates = family_terms(family, inputs, extra, joint_range_um)
+    terms = tuple(t for t in candidates if not set(t.inputs) & set(held))
     if family.penalised:
         return _fit_penalised(u, p_um, family, terms, inputs, held)
     model = fit_model(

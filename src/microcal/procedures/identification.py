@@ -25,8 +25,6 @@ from ..kinematics import (
     fit_polynomial_model,
     validate_split,
 )
-from ..kinematics.models import held_joints
-from ..kinematics.terms import JOINTS
 from ..kinematics.extra_inputs import (
     APPROACH_INPUTS,
     extra_input,
@@ -35,6 +33,8 @@ from ..kinematics.extra_inputs import (
 )
 from ..kinematics.families import FAMILIES, choose_family, fit_family
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
+from ..kinematics.models import held_joints
+from ..kinematics.terms import JOINTS
 from ..thesis.experiment import SPLIT
 
 __all__ = ["Identification", "calibrate_manipulator", "default_train", "identify"]

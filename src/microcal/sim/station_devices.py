@@ -35,8 +35,9 @@ from .kinematics import TrueKinematics
 __all__ = ["positioner_kinematics", "second_manipulator_kinematics"]
 
 
-def _static(linear: np.ndarray, quadratic: dict[tuple[int, str], float], base_um: list[float]) \
-        -> KinematicModel:  # fmt: skip
+def _static(linear: np.ndarray, quadratic: dict[tuple[int, str], float], base_um: list[float],
+            held_um: dict[str, float] | None = None) -> KinematicModel:  # fmt: skip
+    held = held_um or {}
     terms = polynomial_terms(JOINTS, 2)
     names = [t.name for t in terms]
     coef = np.zeros((3, len(terms)))
@@ -45,10 +46,12 @@ def _static(linear: np.ndarray, quadratic: dict[tuple[int, str], float], base_um
     for (axis, name), value in quadratic.items():
         coef[axis, names.index(name)] = value
     coef[:, names.index("1")] = base_um
+    keep = [not set(t.inputs) & set(held) for t in terms]  # a held joint has no terms
+    terms, coef = tuple(t for t, k in zip(terms, keep, strict=True) if k), coef[:, keep]
     return KinematicModel(
         kind="polynomial", inputs=JOINTS, joints=JOINTS, terms=terms, coefficients=coef,
         selected=coef != 0, covariance=np.zeros((3, len(terms), len(terms))),
-        selection={"method": "truth"},
+        selection={"method": "truth"}, held_um=held,
     )  # fmt: skip
 
 
@@ -72,11 +75,12 @@ def positioner_kinematics() -> TrueKinematics:
     a, b = np.radians(0.3), np.radians(0.1)  # mounted turned about z and tilted about x
     turn = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0, 0, 1.0]])
     tilt = np.array([[1.0, 0, 0], [0, np.cos(b), -np.sin(b)], [0, np.sin(b), np.cos(b)]])
-    linear = turn @ tilt @ np.diag([1.0004, 0.9996, 1.0008])
+    linear = turn @ tilt @ np.diag([1.0004, 0.9996, 1.0])  # its z column is not used
     static = _static(
         linear,
         {(2, "dx^2"): -4.0e-7, (2, "dy^2"): 3.0e-7, (2, "dx*dy"): 2.0e-7, (0, "dy^2"): 1.0e-7},
         [2000.0, 1800.0, 1200.0],
+        held_um={"dz": 0.0},
     )
     return TrueKinematics(
         static=static,

@@ -17,7 +17,8 @@ The controller's ASCII interface as :mod:`microcal.devices.smaract_mcs2` uses it
 in ``\\r\\n``, commands may be chained with ``;`` on one line (their answers come back on one
 line, joined by ``;``), positions and speeds are in picometres. Channels 0, 1, 2 are the
 manipulator's x, y, z; channels 3, 4, 5 the target stage's; on the ``thesis-platform``
-preset, 6, 7, 8 the second manipulator's (``m2``) and 9, 10, 11 the positioner's (``p1``).
+preset, 6, 7, 8 the second manipulator's (``m2``) and 9, 10 the X-Y positioner's (``p1``;
+channel 11 is its held z, which its rig file leaves out).
 
 ==========================  ===============================================================
 ``:DEV:SNUM?``              ``"MCS2-TWIN-<seed>"``
@@ -712,9 +713,22 @@ class Twin:
 
 
 def _toml_limits(limits_um: FloatArray) -> str:
+    """The soft limits of the axes that move (a held axis, low == high, is left out)."""
     pairs = ", ".join(
         f"{axis} = [{float(lo)!r}, {float(hi)!r}]"
         for axis, (lo, hi) in zip("xyz", limits_um, strict=True)
+        if hi > lo
+    )
+    return "{ " + pairs + " }"
+
+
+def _toml_channels(first: int, limits_um: FloatArray) -> str:
+    """Channels ``first``, ``first + 1``, ``first + 2`` for x, y, z; an X-Y positioner (z
+    held) names x and y alone, as its rig file on hardware would."""
+    pairs = ", ".join(
+        f"{axis} = {first + k}"
+        for k, (axis, (lo, hi)) in enumerate(zip("xyz", limits_um, strict=True))
+        if hi > lo
     )
     return "{ " + pairs + " }"
 
@@ -803,7 +817,7 @@ def twin_rig_toml(
             'kind = "smaract-mcs2"',
             f"address = {address}",
             f"port = {mcs2_port}",
-            f"channels = {{ x = {c}, y = {c + 1}, z = {c + 2} }}",
+            f"channels = {_toml_channels(c, device.limits_um)}",
             f"limits_um = {_toml_limits(device.limits_um)}",
         ]
     lines += [
