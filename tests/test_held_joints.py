@@ -183,3 +183,24 @@ def test_evaluation_poses_lie_in_the_plane_of_the_moving_axes():
     detours = approach_detours_um(poses[0], low, high)
     assert np.all(detours[:, 2] == 0.0)
     assert np.all(np.abs(detours[:, :2] - 3000.0) == 300.0)
+
+
+def test_check_poses_of_a_positioner_lie_in_its_plane_and_take_no_approach_on_z():
+    from microcal.kinematics.manipulator_calibration import ManipulatorCalibration
+    from microcal.procedures.check import check_poses_um, planned_check
+
+    poses = check_poses_um(np.array([0.0, 0.0, 0.0]), np.array([6000.0, 4000.0, 0.0]))
+    assert poses.shape == (10, 3)
+    assert np.all(poses[:, 2] == 0.0)
+    assert len(np.unique(poses, axis=0)) == 5  # the centre and the square's four corners
+    np.testing.assert_allclose(np.ptp(poses[:, :2], axis=0), [0.8 * 4000, 0.8 * 4000])
+    d, p, _ = _xy_data(170, 0.01, seed=4)
+    s = np.where(np.random.default_rng(1).random((170, 2)) < 0.5, 1.0, -1.0)
+    cal, _ = calibrate_manipulator("p1", d, p + 0.2 * s[:, [0, 1, 1]],
+                                   extra_inputs={"approach_x": s[:, 0], "approach_y": s[:, 1],
+                                                 "approach_z": np.ones(170)})  # fmt: skip
+    assert "sz" not in cal.model.inputs  # the held joint's direction is left out
+    stage = with_three_joints(_XYStage())
+    d_all, approach = planned_check(ManipulatorCalibration("p1", cal.model, extra=cal.extra), stage)
+    assert approach.tolist() == [20.0, 20.0, 0.0]
+    assert np.all(d_all[:, 2] == 0.0)

@@ -333,3 +333,17 @@ def test_each_device_has_its_own_check_history():
     assert of_device(history, "m1", single=True) == [history[0], history[2]]
     assert of_device(history, "m1", single=False) == [history[2]]  # unnamed: not m1's
     assert of_device(history, "m2", single=False) == [history[1]]
+
+
+def test_the_x_y_positioner_goes_to_the_nearest_point_of_its_surface_open_and_closed():
+    plat = platform("thesis-platform", seed=5)
+    (stage,) = _true_stations(plat, ["p1"])
+    device = plat.manipulators["p1"]
+    on_surface = device.truth.static.predict_um([3000.0, 2500.0, 0.0])[0]
+    for mode in ("open", "closed"):
+        # 3 µm above the surface it carries the sample over: it cannot go there, so it goes
+        # to the nearest point, and the closed loop corrects only along the surface
+        arrival = stage.move_to_um(on_surface + [0.0, 0.0, 3.0], mode)
+        assert arrival.d_um[2] == 0.0
+        assert np.linalg.norm(device.true_position_um() - on_surface) < 1.0, mode
+    assert arrival.status in ("tolerance", "resolution")

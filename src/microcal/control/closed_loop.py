@@ -76,7 +76,7 @@ class ClosedLoop(FeedForward):
         self._last_d = np.zeros(len(model.joints))
 
     def _move_joints(self, d_um: FloatArray) -> None:
-        start = d_um - self.approach_um
+        start = self.manipulator.below_um(d_um, self.approach_um)
         check_limits(np.vstack([start, d_um]), self.manipulator.limits_um, row="correction",
                      owner=self.manipulator.name)  # fmt: skip
         assert self.clock is not None

@@ -163,7 +163,7 @@ class FeedForward:
         d = self.joints_for(p_um)
         if self.approach_um:
             low = self.manipulator.limits_um[:, 0]
-            start = np.where(low < self.manipulator.limits_um[:, 1], d - self.approach_um, d)
+            start = self.manipulator.below_um(d, self.approach_um)
             if np.any(start < low):
                 raise LimitError(
                     f"{self.manipulator.name}: joints {np.round(d, 3).tolist()} µm are less than "

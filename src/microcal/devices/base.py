@@ -171,6 +171,14 @@ class Manipulator(Device):
         d = as_array(d_um, "d_um", (self.n_axes,))
         return check_limits(d, self.limits_um, axes=self.axes, owner=self.name)
 
+    def below_um(self, d_um: ArrayLike, distance_um: float) -> FloatArray:
+        """Where an approach from below to ``d_um`` starts: ``distance_um`` under it on every
+        joint, except a held one (it keeps its value), (n_axes,) µm; not checked."""
+        d = np.asarray(d_um, dtype=np.float64)
+        moving = self.limits_um[:, 0] < self.limits_um[:, 1]
+        out: FloatArray = np.where(moving, d - distance_um, d)
+        return out
+
     def move_to_um(self, d_um: ArrayLike) -> None:
         """Start an absolute move of every joint, (n_axes,) µm (returns at once).
 

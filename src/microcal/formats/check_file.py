@@ -259,7 +259,7 @@ class PeriodicCheck:
         self.entry = cal.manipulator(name)
         self.entry.check_device(rig.manipulator.identity)
         d_all, approach = planned_check(self.entry, rig.manipulator)  # limits, before the run
-        self.last_leg = (d_all[-1] - approach if approach else d_all[-2], d_all[-1])
+        self.last_leg = (d_all[-1] - approach if approach.any() else d_all[-2], d_all[-1])
         self.single = len(cal.manipulators) == 1
         #: Poses the run had stored before this session (a resumed run counts on from them).
         self.stored_before = 0

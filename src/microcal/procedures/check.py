@@ -59,12 +59,15 @@ def check_poses_um(low_um: FloatArray, high_um: FloatArray) -> FloatArray:
     ISO 9283's cube (the largest with edges along the axes, centred in the box): its centre
     P1, the eight points 10 % of the diagonal in from its corners (P2-P5 of the standard and
     their mirror images), and P1 again, so that a drift during the check shows as a misfit.
+    A held joint (low == high: an X-Y positioner's z) keeps its value; the cube is then a
+    square whose four corner poses are each visited twice.
     """
     low, high = np.asarray(low_um, dtype=np.float64), np.asarray(high_um, dtype=np.float64)
-    side = float(np.min(high - low))
+    moving = high > low
+    side = float(np.min((high - low)[moving]))
     centre = (low + high) / 2
     unit = np.array([[sx, sy, sz] for sz in (-1, 1) for sy in (-1, 1) for sx in (-1, 1)])
-    corners = centre + unit * side / 2
+    corners = centre + unit * np.where(moving, side / 2, 0.0)
     inner = corners + 0.2 * (centre - corners)
     return np.vstack([centre, inner, centre])
 
@@ -242,9 +245,9 @@ def planned_check(
     calibration: ManipulatorCalibration,
     manipulator: Manipulator,
     poses_um: FloatArray | None = None,
-) -> tuple[FloatArray, float]:
-    """The check poses (n, 3) µm and the approach below each (µm on every joint, 0: none),
-    each checked against the manipulator's soft limits.
+) -> tuple[FloatArray, FloatArray]:
+    """The check poses (n, 3) µm and the approach below each ((3,) µm per joint, zeros:
+    none; a held joint never takes one), each checked against the manipulator's soft limits.
 
     The poses are :func:`check_poses_um` in the joints' range of the calibration data (the
     soft limits when it records none), or ``poses_um``.
@@ -259,7 +262,8 @@ def planned_check(
     d_all = (
         check_poses_um(*box.T) if poses_um is None else as_array(poses_um, "poses_um", (None, 3))
     )
-    approach = APPROACH_UM if has_approach_terms(calibration.model) else 0.0
+    distance = APPROACH_UM if has_approach_terms(calibration.model) else 0.0
+    approach = manipulator.below_um(np.zeros(3), -distance)  # +distance on each moving joint
     for d in d_all:
         manipulator.check_limits(d)
         manipulator.check_limits(d - approach)
@@ -297,7 +301,7 @@ def run_check(
     measured, covs = [], []
     start_s = clock.now_s()
     for i, d in enumerate(d_all):
-        if approach:
+        if approach.any():
             manipulator.move_to_um(d - approach)
             manipulator.wait_until_stopped(clock)
         manipulator.move_to_um(d)
