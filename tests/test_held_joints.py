@@ -14,7 +14,7 @@ from microcal.devices.held_axes import HeldAxes, with_three_joints
 from microcal.devices.rig_spec import MCS2Spec
 from microcal.errors import DegenerateDataError, FormatError, InputError, LimitError
 from microcal.kinematics.designs import check_design, make_design
-from microcal.kinematics.models import KinematicModel, held_joints
+from microcal.kinematics.models import KinematicModel, held_from_limits
 from microcal.procedures.acquisition import AcquisitionConfig, approach_start_um
 from microcal.procedures.evaluation import approach_detours_um, iso_cube_poses
 from microcal.procedures.identification import calibrate_manipulator
@@ -108,8 +108,17 @@ def _xy_data(n: int, noise_um: float, seed: int) -> tuple[np.ndarray, np.ndarray
 
 def test_a_positioners_model_leaves_the_held_joint_out_and_solves_for_the_others():
     d, p, truth = _xy_data(170, 0.01, seed=1)
-    assert held_joints(d) == {"dz": 0.0}
-    cal, fits = calibrate_manipulator("p1", d, p, family="quadratic", seed=0)
+    held = held_from_limits(LIMITS_XY)
+    assert held == {"dz": 0.0}
+    # not said to be held, a joint that never moved is refused, as for any manipulator
+    with pytest.raises(DegenerateDataError, match="'dz' has the same value in every sample"):
+        calibrate_manipulator("p1", d, p)
+    with pytest.raises(DegenerateDataError, match="'dz' has the same value in every sample"):
+        calibrate_manipulator("p1", d, p, family="smooth")
+    # said to be held at a value its commands do not have: not this device's poses
+    with pytest.raises(DegenerateDataError, match=r"joint dz is held at 5 µm, but its commands"):
+        calibrate_manipulator("p1", d, p, held_um={"dz": 5.0})
+    cal, fits = calibrate_manipulator("p1", d, p, family="quadratic", seed=0, held_um=held)
     model = cal.model
     assert model.held_um == {"dz": 0.0}
     assert model.moving_joints == ("dx", "dy")
@@ -156,8 +165,9 @@ def test_a_model_cannot_use_a_held_joint_and_some_joint_must_move():
         KinematicModel.from_dict(truth.to_dict() | {"held_joints_um": {"dx": 0.0}})
     with pytest.raises(FormatError, match="model: "):
         KinematicModel.from_dict(truth.to_dict() | {"held_joints_um": [1, 2]})
-    with pytest.raises(DegenerateDataError, match="every command is the same pose"):
-        held_joints(np.ones((10, 3)))
+    with pytest.raises(InputError, match="every joint is held"):
+        calibrate_manipulator("p1", np.ones((10, 3)), np.ones((10, 3)),
+                              held_um={"dx": 1.0, "dy": 1.0, "dz": 1.0})  # fmt: skip
 
 
 def test_the_servo_corrects_along_the_surface_only():
@@ -196,7 +206,7 @@ def test_check_poses_of_a_positioner_lie_in_its_plane_and_take_no_approach_on_z(
     np.testing.assert_allclose(np.ptp(poses[:, :2], axis=0), [0.8 * 4000, 0.8 * 4000])
     d, p, _ = _xy_data(170, 0.01, seed=4)
     s = np.where(np.random.default_rng(1).random((170, 2)) < 0.5, 1.0, -1.0)
-    cal, _ = calibrate_manipulator("p1", d, p + 0.2 * s[:, [0, 1, 1]],
+    cal, _ = calibrate_manipulator("p1", d, p + 0.2 * s[:, [0, 1, 1]], held_um={"dz": 0.0},
                                    extra_inputs={"approach_x": s[:, 0], "approach_y": s[:, 1],
                                                  "approach_z": np.ones(170)})  # fmt: skip
     assert "sz" not in cal.model.inputs  # the held joint's direction is left out

@@ -195,7 +195,7 @@ def test_rig_file_mistakes_are_one_line_naming_the_key(tmp_path, edit, message):
 
 def test_specs_built_in_python_check_themselves():
     with pytest.raises(InputError, match=r"limits_um: expected a \[low, high\] for each of"):
-        MMStageSpec("XY", "Z", {"x": (0.0, 1.0), "y": (0.0, 1.0)})
+        MMStageSpec("XY", {"x": (0.0, 1.0), "y": (0.0, 1.0)}, focus="Z")
     with pytest.raises(InputError, match=r"timeout_s: expected a finite number > 0, got -1"):
         MCS2Spec("host", {"x": 0}, {"x": (0.0, 1.0)}, timeout_s=-1)
     with pytest.raises(InputError, match="micromanager: give exactly one of 'config'"):

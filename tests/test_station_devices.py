@@ -141,15 +141,42 @@ def test_acquire_moves_the_device_asked_for_and_resumes_only_on_it(tmp_path: Pat
     rig.write_text('driver = "sim"\npreset = "thesis-platform"\n', encoding="utf-8")
     out = tmp_path / "run"
     args = ["acquire", "--rig", str(rig), "--manipulator", "p1", "--design", "grid",
-            "--poses", "12", "--frames", "1", "--settle", "fixed:1", "--out", str(out)]  # fmt: skip
+            "--poses", "16", "--frames", "1", "--settle", "fixed:1", "--out", str(out)]  # fmt: skip
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
     manifest = json.loads((out / "run.json").read_text(encoding="utf-8"))
     assert manifest["manipulator"] == "p1"
     assert manifest["device"] == "simulated p1"
-    # the design spans the positioner's own limits (its z travel is 2000 µm, not 4800)
+    assert manifest["held_joints_um"] == {"dz": 0.0}  # an X-Y positioner
+    # the design spans the positioner's own x, y travel, its z held
     commands = np.loadtxt(out / "commands.csv", delimiter=",", skiprows=1)[:, 1:4]
-    assert commands[:, 2].max() <= 2500.0
+    assert np.all(commands[:, 2] == 0.0)
+    assert np.ptp(commands[:, :2], axis=0).min() == 7000.0
+    # measured with the true cameras and fitted: the model leaves the held joint out
+    from microcal.formats.cameras_file import write_cameras
+
+    models = platform("thesis-platform", seed=0).camera_models
+    write_cameras(tmp_path / "cameras.json", {"format": "microcal.cameras/1", "cameras": {
+        n: {"image_size_px": list(m.image_size_px), "K": m.K.tolist(), "dist": m.dist.tolist(),
+            "R": m.R.tolist(), "t_um": m.t_um.tolist()} for n, m in models.items()}})  # fmt: skip
+    measured = runner.invoke(
+        app, ["measure", str(out), "--cameras", str(tmp_path / "cameras.json")]
+    )
+    assert measured.exit_code == 0, measured.output
+    cal_path = tmp_path / "calibration.json"
+    fitted = runner.invoke(app, ["fit", str(out), "--model", "matrix", "--out", str(cal_path)])
+    assert fitted.exit_code == 0, fitted.output
+    entry = json.loads(cal_path.read_text(encoding="utf-8"))["manipulators"]["p1"]
+    assert entry["model"]["held_joints_um"] == {"dz": 0.0}
+    assert entry["model"]["terms"] == ["dx", "dy", "1"]
+    # the same measurements away from their run.json cannot say z is held: refused
+    (tmp_path / "alone").mkdir()
+    csv = tmp_path / "alone" / "measurements.csv"
+    csv.write_bytes((out / "measurements.csv").read_bytes())
+    alone = runner.invoke(app, ["fit", str(csv), "--model", "matrix",
+                                "--out", str(tmp_path / "other.json")])  # fmt: skip
+    assert alone.exit_code != 0
+    assert "'dz' has the same value in every sample" in alone.output
     resumed = runner.invoke(app, ["acquire", "--out", str(out), "--resume",
                                   "--manipulator", "m2"])  # fmt: skip
     assert resumed.exit_code != 0

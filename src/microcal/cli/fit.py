@@ -46,25 +46,26 @@ def fit(
 
     Example: microcal fit runs/a --model polynomial --train 110 --out calibration.json
     """
+    from ..formats import calibration_update as update
     from ..formats.calibration_file import export_mat
-    from ..formats.calibration_update import add_manipulator, check_fit_outputs, measured_device
     from ..formats.measurements import read_measurements
     from ..procedures.identification import calibrate_manipulator
     from ..procedures.planning import MIN_DESIGN_POSES
     from ..report.text_tables import fit_lines, outlier_lines
 
-    check_fit_outputs(out, mat, manipulator)
+    update.check_fit_outputs(out, mat, manipulator)
     path = source / "measurements.csv" if source.is_dir() else source
     meas = read_measurements(path, min_poses=MIN_DESIGN_POSES)
     names = [*(extra or []), *(["temperature"] if temperature else [])]
     inputs = meas.extra_inputs(names, path)
+    held = update.measured_held_joints(path)  # an X-Y positioner's dz
     entry, fits = calibrate_manipulator(
-        manipulator or measured_device(path), meas.d_um, meas.p_um, model.value, train=train,
+        manipulator or update.measured_device(path), meas.d_um, meas.p_um, model.value, train=train,
         select=select.value, penter=penter, premove=premove, folds=folds, seed=seed,
-        extra_inputs=inputs, exclude_outliers=exclude_outliers,
+        extra_inputs=inputs, exclude_outliers=exclude_outliers, held_um=held,
     )  # fmt: skip
     result = fits[model.value]
-    calibration = add_manipulator(out, entry, cameras, {"measurements": path}, model.value)
+    calibration = update.add_manipulator(out, entry, cameras, {"measurements": path}, model.value)
     if mat is not None:
         export_mat(mat, calibration)
     skipped = f" ({meas.n_failed} failed poses skipped)" if meas.n_failed else ""

@@ -118,16 +118,23 @@ def _device_error(message: str, exc: RuntimeError) -> DeviceError:
 
 
 class MMManipulator(Manipulator):
-    """An XY stage and a focus stage of a Micro-Manager core as one 3-axis manipulator."""
+    """An XY stage and a focus stage of a Micro-Manager core as one 3-axis manipulator, or
+    an XY stage alone as a 2-axis one (``focus`` None: joints x, y)."""
 
     def __init__(
-        self, core: Any, *, xy_stage: str, focus: str, limits_um: ArrayLike, name: str = "mm"
+        self,
+        core: Any,
+        *,
+        xy_stage: str,
+        focus: str | None,
+        limits_um: ArrayLike,
+        name: str = "mm",
     ) -> None:
-        super().__init__(name, ("x", "y", "z"), limits_um)
+        super().__init__(name, ("x", "y", "z") if focus is not None else ("x", "y"), limits_um)
         self.core, self.xy_stage, self.focus = core, xy_stage, focus
-        self._identity = f"Micro-Manager {xy_stage} + {focus}"
+        self._identity = f"Micro-Manager {xy_stage}" + ("" if focus is None else f" + {focus}")
         loaded = set(core.getLoadedDevices())
-        missing = [d for d in (xy_stage, focus) if d not in loaded]
+        missing = [d for d in (xy_stage, focus) if d is not None and d not in loaded]
         if missing:
             raise DeviceError(
                 f"{name}: device(s) {missing} not in the Micro-Manager configuration "
@@ -146,23 +153,28 @@ class MMManipulator(Manipulator):
             raise _device_error(f"{self.name}: {what}: {exc}", exc) from None
 
     def _move(self, d_um: FloatArray) -> None:
-        x, y, z = (float(v) for v in d_um)
-        self._call("XY move", self.core.setXYPosition, self.xy_stage, x, y)
-        self._call("Z move", self.core.setPosition, self.focus, z)
+        self._call("XY move", self.core.setXYPosition, self.xy_stage, float(d_um[0]),
+                   float(d_um[1]))  # fmt: skip
+        if self.focus is not None:
+            self._call("Z move", self.core.setPosition, self.focus, float(d_um[2]))
 
     def _position_um(self) -> FloatArray:
         xy = self._call("XY position", self.core.getXYPosition, self.xy_stage)
+        if self.focus is None:
+            return np.array([float(xy[0]), float(xy[1])])
         z = self._call("Z position", self.core.getPosition, self.focus)
         return np.array([float(xy[0]), float(xy[1]), float(z)])
 
     def _is_moving(self) -> bool:
-        busy_xy = self._call("XY state", self.core.deviceBusy, self.xy_stage)
-        busy_z = self._call("Z state", self.core.deviceBusy, self.focus)
-        return bool(busy_xy or busy_z)
+        busy = self._call("XY state", self.core.deviceBusy, self.xy_stage)
+        if self.focus is not None:
+            busy = self._call("Z state", self.core.deviceBusy, self.focus) or busy
+        return bool(busy)
 
     def _stop(self) -> None:
         self._call("XY stop", self.core.stop, self.xy_stage)
-        self._call("Z stop", self.core.stop, self.focus)
+        if self.focus is not None:
+            self._call("Z stop", self.core.stop, self.focus)
 
     def _close(self) -> None:
         self.core = None  # the core and its devices belong to whoever opened it (the rig)

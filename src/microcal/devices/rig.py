@@ -347,8 +347,8 @@ def _open_manipulator(
         limits_um=m.limits_array(),
         name="mm" if role == "manipulator" else role,
     )
-    description[role] = f"Micro-Manager {m.xy_stage} + {m.focus}"
-    return stage
+    description[role] = stage.identity
+    return with_three_joints(stage)
 
 
 def _open_camera(

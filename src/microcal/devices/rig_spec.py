@@ -209,28 +209,35 @@ class MCS2Spec:
 
 @dataclass(frozen=True)
 class MMStageSpec:
-    """An XY stage and a focus stage of the Micro-Manager core as joints x, y, z.
+    """An XY stage and a focus stage of the Micro-Manager core as joints x, y, z; or an XY
+    stage alone, an X-Y positioner (joints x, y; its z held at 0, see ``devices.held_axes``).
 
     Attributes
     ----------
-    xy_stage, focus : str
-        Device labels in the Micro-Manager configuration.
+    xy_stage : str
+        Device label in the Micro-Manager configuration.
     limits_um : mapping of axis to (low, high)
-        Soft limits of x, y and z, µm.
+        Soft limits of x, y and z (x and y without a focus stage), µm.
+    focus : str or None
+        Device label of the focus stage; None for an X-Y positioner.
     """
 
     kind: ClassVar[str] = "micromanager"
-    axes: ClassVar[tuple[str, ...]] = ("x", "y", "z")
 
     xy_stage: str
-    focus: str
     limits_um: Mapping[str, tuple[float, float]]
+    focus: str | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "limits_um", _limits(self.limits_um, self.axes))
 
+    @property
+    def axes(self) -> tuple[str, ...]:
+        """``x, y, z``, or ``x, y`` without a focus stage."""
+        return ("x", "y", "z") if self.focus is not None else ("x", "y")
+
     def limits_array(self) -> FloatArray:
-        """The soft limits of x, y, z, (3, 2) µm."""
+        """The soft limits in joint order, (n_axes, 2) µm."""
         return np.array([self.limits_um[a] for a in self.axes], dtype=np.float64)
 
     def to_dict(self) -> dict[str, Any]:
@@ -240,7 +247,7 @@ class MMStageSpec:
             "limits_um": _limits_record(self.limits_um),
             **LEGACY_MM_STAGE_RECORD,
             "xy_stage": self.xy_stage,
-            "focus": self.focus,
+            **({"focus": self.focus} if self.focus is not None else {}),
         }
 
 

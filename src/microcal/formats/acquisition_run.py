@@ -20,6 +20,7 @@ from numpy.typing import ArrayLike
 from .._validation import FloatArray, did_you_mean
 from ..errors import InputError
 from ..kinematics.designs import DESIGNS
+from ..kinematics.models import held_from_limits
 from ..procedures.acquisition import AcquisitionConfig, RunStoppedError
 from ..procedures.acquisition import acquire as run_acquisition
 from ..procedures.planning import (
@@ -271,6 +272,7 @@ def _open_run(
         command="acquire",
         device=device,
         manipulator=opened.selected,
+        held_joints_um=held_from_limits(opened.manipulator.limits_um),
     )
     writer = RunDirectory.create(out, manifest, plan.d_um)
     return writer, list(range(1, plan.poses + 1)), plan.d_um

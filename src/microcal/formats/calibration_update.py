@@ -25,6 +25,17 @@ def measured_device(measurements: Path) -> str:
     return (manifest.manipulator if manifest is not None else None) or "m1"
 
 
+def measured_held_joints(measurements: Path) -> dict[str, float]:
+    """The joints the measured device holds still (run.json beside ``measurements``: an X-Y
+    positioner's ``dz``), by value; none without a run.json."""
+    from .run_directory import RunDirectory
+
+    if not (measurements.parent / "run.json").is_file():
+        return {}
+    manifest = RunDirectory(measurements.parent).manifest
+    return dict(manifest.held_joints_um or {}) if manifest is not None else {}
+
+
 def add_manipulator(
     out: Path,
     entry: ManipulatorCalibration,

@@ -169,6 +169,8 @@ class RunManifest(FileSchema):
     commands_sha256: str | None = None
     device: str | None = None  # the manipulator's identity as it answered (serial, channels)
     manipulator: str | None = None  # the rig's device the run moved (None: m1)
+    #: Joints the device holds still and their value, µm (an X-Y positioner's ``dz``).
+    held_joints_um: dict[str, float] | None = None
 
     def to_json(self) -> dict[str, Any]:
         """The object of run.json: ``format`` first, then the keys that were given."""

@@ -38,6 +38,7 @@ def new_manifest(
     command: str,
     device: str = "",
     manipulator: str = "m1",
+    held_joints_um: dict[str, float] | None = None,
     **provenance_extra: Any,
 ) -> dict[str, Any]:
     """The manifest of a new run: every option that shapes it, and where it came from.
@@ -57,6 +58,9 @@ def new_manifest(
         The manipulator's identity (``Manipulator.identity``; left out when empty).
     manipulator : str
         The rig's device the run moves (left out when ``m1``, the only one of most rigs).
+    held_joints_um : dict of str -> float, optional
+        Joints the device holds still (an X-Y positioner's ``dz``) and their value; ``fit``
+        leaves them out of the model (left out when none).
     """
     return (
         {
@@ -71,6 +75,7 @@ def new_manifest(
         }
         | ({"device": device} if device else {})
         | ({"manipulator": manipulator} if manipulator != "m1" else {})
+        | ({"held_joints_um": dict(held_joints_um)} if held_joints_um else {})
     )
 
 
@@ -134,6 +139,7 @@ def start_demo_run(
     commands. ``plat``: the platform, when the caller built it (a station demo's devices
     share one); built from ``preset`` and ``seed`` otherwise.
     """
+    from ..kinematics.models import held_from_limits
     from ..procedures.demo import demo_design, demo_design_seed, device_workspace
     from ..sim import platform
 
@@ -157,6 +163,7 @@ def start_demo_run(
         store="roi",
         command="demo",
         manipulator=device,
+        held_joints_um=held_from_limits(plat.manipulators[device].limits_um),
         seed=seed,
     )
     return plat, RunDirectory.create(out, manifest, demo_design(seed, poses, (low, high)))

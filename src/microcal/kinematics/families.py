@@ -146,14 +146,15 @@ def fit_family(
     inputs: Sequence[str],
     extra: dict[str, int],
     joint_range_um: FloatArray,
+    held_um: dict[str, float] | None = None,
 ) -> KinematicModel:
     """Fit a family's terms, selected stepwise, to (N, k) inputs and (N, 3) positions.
 
-    A joint whose range is one value is held still (a two-axis positioner's missing axis,
-    see :class:`~microcal.kinematics.models.KinematicModel`): no term uses it.
+    ``held_um``: joints the device holds still and their value (a two-axis positioner's
+    missing axis, see :class:`~microcal.kinematics.models.KinematicModel`): no term uses
+    them.
     """
-    r = np.asarray(joint_range_um, dtype=np.float64)
-    held = {j: float(r[k, 0]) for k, j in enumerate(JOINTS) if r[k, 1] == r[k, 0]}
+    held = dict(held_um or {})
     candidates = family_terms(family, inputs, extra, joint_range_um)
     terms = tuple(t for t in candidates if not set(t.inputs) & set(held))
     if family.penalised:
@@ -224,6 +225,7 @@ def choose_family(
     joint_range_um: FloatArray,
     candidates: Sequence[str] = AUTO_CANDIDATES,
     seed: int = 0,
+    held_um: dict[str, float] | None = None,
 ) -> FamilyChoice:
     """Choose a family by k-fold held-out error of its whole fit (selection included).
 
@@ -254,7 +256,7 @@ def choose_family(
             for fold in folds:
                 train = np.setdiff1d(np.arange(n), fold)
                 model = fit_family(
-                    u[train], p_um[train], FAMILIES[name], inputs, extra, joint_range_um
+                    u[train], p_um[train], FAMILIES[name], inputs, extra, joint_range_um, held_um
                 )
                 errors[fold] = np.linalg.norm(model.predict_um(u[fold]) - p_um[fold], axis=1)
         except DegenerateDataError:

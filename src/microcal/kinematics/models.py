@@ -33,10 +33,11 @@ from .terms import (
 __all__ = [
     "AXES",
     "KinematicModel",
+    "check_inputs_move",
     "fit_matrix_model",
     "fit_model",
     "fit_polynomial_model",
-    "held_joints",
+    "held_from_limits",
 ]
 
 #: Output axes of every model, in {G}.
@@ -362,30 +363,11 @@ class KinematicModel:
             raise FormatError(f"model: {exc}") from None
 
 
-def held_joints(d_um: ArrayLike) -> dict[str, float]:
-    """The joints that joint commands never move, with their one value (µm).
-
-    A design moves every joint a device has over a real part of its travel
-    (:func:`~microcal.kinematics.designs.check_design`), so a joint whose every command is
-    the same is one the device holds still: a two-axis positioner's missing axis.
-
-    Parameters
-    ----------
-    d_um : (N, 3) float
-        Joint commands dx, dy, dz.
-
-    Raises
-    ------
-    DegenerateDataError
-        No joint moves.
-    """
-    d = as_array(d_um, "d_um", (None, len(JOINTS)))
-    held = {j: float(d[0, k]) for k, j in enumerate(JOINTS) if d.shape[0] and np.ptp(d[:, k]) == 0}
-    if len(held) == len(JOINTS):
-        raise DegenerateDataError(
-            "joints: every command is the same pose; a calibration needs poses over the travel"
-        )
-    return held
+def held_from_limits(limits_um: ArrayLike) -> dict[str, float]:
+    """The joints a device holds still, with their value (µm): those whose soft limits
+    (3, 2) are one value, as a two-axis X-Y positioner's z (``devices.held_axes``)."""
+    lim = as_array(limits_um, "limits_um", (len(JOINTS), 2))
+    return {j: float(lim[k, 0]) for k, j in enumerate(JOINTS) if lim[k, 0] == lim[k, 1]}
 
 
 def _inputs_and_targets(
@@ -404,12 +386,14 @@ def _inputs_and_targets(
     return U, P
 
 
-def _check_inputs_move(U: FloatArray, inputs: Sequence[str], names: Sequence[str]) -> None:
+def check_inputs_move(U: FloatArray, inputs: Sequence[str], names: Sequence[str]) -> None:
+    """Refuse inputs among ``names`` that have one value in every row of U (N, k)."""
     for j, name in enumerate(inputs):
-        if name in names and np.ptp(U[:, j]) == 0:
+        if name in names and U.shape[0] and np.ptp(U[:, j]) == 0:
             raise DegenerateDataError(
                 f"input {name!r} has the same value in every sample: its effect cannot be "
-                f"identified (move that axis over its range)"
+                f"identified (move that axis over its range; a device without that axis, an "
+                f"X-Y positioner, is fitted from its run directory, whose run.json says so)"
             )
 
 
@@ -451,7 +435,7 @@ def fit_model(
     held = dict(held_um or {})
     U, P = _inputs_and_targets(u, p_um, inputs)
     terms = tuple(t for t in terms if not set(t.inputs) & set(held))
-    _check_inputs_move(U, inputs, [n for n in inputs if n not in held])
+    check_inputs_move(U, inputs, [n for n in inputs if n not in held])
     if Term() not in terms:
         terms = (*terms, Term())
     names = [t.name for t in terms]

@@ -28,6 +28,7 @@ from ..errors import FormatError, InputError
 from ..kinematics.designs import make_design
 from ..kinematics.extra_inputs import APPROACH_INPUTS
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
+from ..kinematics.models import held_from_limits
 from ..metrics.error_summary import summarize_errors
 from ..sim import SimPlatform, platform
 from ..sim.platforms import CALIBRATION_TARGET
@@ -373,6 +374,7 @@ def run_demo(
         extra_inputs=extra or None,
         family=family,
         seed=seed,
+        held_um=held_from_limits(m.limits_um),
     )
     oracle = summarize_errors(np.linalg.norm(p[n_fit:] - result.truth_um[ok][n_fit:], axis=1))
     result.oracle = {"mean": oracle.mean, "std": oracle.std, "max": oracle.max}

@@ -33,7 +33,7 @@ from ..kinematics.extra_inputs import (
 )
 from ..kinematics.families import FAMILIES, choose_family, fit_family
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
-from ..kinematics.models import held_joints
+from ..kinematics.models import check_inputs_move
 from ..kinematics.terms import JOINTS
 from ..thesis.experiment import SPLIT
 
@@ -92,6 +92,23 @@ def find_outliers(
     return tuple((int(i), float(distance[i]), float(score[i])) for i in rows)
 
 
+def _checked_held(held_um: Mapping[str, float] | None, u: FloatArray) -> dict[str, float]:
+    held = {str(k): float(v) for k, v in (held_um or {}).items()}
+    for name, value in held.items():
+        if name not in JOINTS:
+            raise InputError(f"held joints: expected names among {list(JOINTS)}, got {name!r}")
+        k = JOINTS.index(name)
+        if u.shape[0] and not np.all(u[:, k] == value):
+            raise DegenerateDataError(
+                f"joint {name} is held at {value:g} µm, but its commands go from "
+                f"{u[:, k].min():g} to {u[:, k].max():g} µm; these poses are not of that device"
+            )
+    if len(held) == len(JOINTS):
+        raise InputError("held joints: every joint is held; none moves")
+    check_inputs_move(u[:, :3], JOINTS, [j for j in JOINTS if j not in held])
+    return held
+
+
 def identify(
     d_um: FloatArray,
     p_um: FloatArray,
@@ -105,6 +122,7 @@ def identify(
     seed: int = 0,
     extra_inputs: Mapping[str, FloatArray] | None = None,
     family: str = "quadratic",
+    held_um: Mapping[str, float] | None = None,
 ) -> Identification:
     """Fit and validate a kinematic model.
 
@@ -132,10 +150,14 @@ def identify(
         ``quadratic`` (the thesis's, default), a richer one, or ``auto``: the family whose
         fit predicts held-out fitting poses best (k-fold, before the validation poses are
         touched); the choice and every candidate's score join the model's ``selection``.
+    held_um : mapping of joint -> value, optional
+        Joints the device holds still (``dz`` of an X-Y positioner, as its run.json says):
+        every command must give each its value; the model leaves it out, and its approach
+        direction with it.
     """
     u = np.asarray(d_um, dtype=np.float64)
     positions = np.asarray(p_um, dtype=np.float64)
-    held = held_joints(u[:, :3])
+    held = _checked_held(held_um, u)
     moving = [k for k, j in enumerate(JOINTS) if j not in held]
     extra: dict[str, int] = {}
     for name, values in (extra_inputs or {}).items():
@@ -162,7 +184,9 @@ def identify(
     joint_range = np.column_stack([u[:, :3].min(axis=0), u[:, :3].max(axis=0)])
     chosen = None
     if model == "polynomial" and family == "auto":
-        chosen = choose_family(u[:n_fit], positions[:n_fit], inputs, extra, joint_range, seed=seed)
+        chosen = choose_family(
+            u[:n_fit], positions[:n_fit], inputs, extra, joint_range, seed=seed, held_um=held
+        )
 
     def fit(u_fit: FloatArray, p_fit: FloatArray) -> KinematicModel:
         if model == "matrix":
@@ -175,7 +199,7 @@ def identify(
                 held_um=held,
             )  # fmt: skip
         fam = chosen.family if chosen is not None else FAMILIES[family]
-        fitted = fit_family(u_fit, p_fit, fam, inputs, extra, joint_range)
+        fitted = fit_family(u_fit, p_fit, fam, inputs, extra, joint_range, held)
         if chosen is None:
             return fitted
         return dataclasses.replace(fitted, selection=fitted.selection | chosen.as_dict())
@@ -235,7 +259,7 @@ def calibrate_manipulator(
     }
     fits: dict[str, Identification] = {model: result}
     if model == "polynomial":
-        matrix = identify(d_um, p_um, "matrix", train=train)
+        matrix = identify(d_um, p_um, "matrix", train=train, held_um=options.get("held_um"))
         extra["matrix_model"] = matrix.model.to_dict()
         extra["matrix_validation"] = matrix.validation
         fits = {"matrix": matrix, "polynomial": result}
