@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from microcal import sim
+from microcal.errors import InputError
 from microcal.sim.render import Placement
 from microcal.vision.detect import detect
 from microcal.vision.targets import parse_target
@@ -24,7 +25,9 @@ def view(spec: str, R=None, t=(2000.0, 2000.0, 1500.0), frames=4, seed=0):
     return target, image, cam.last_truth.features_px[0]
 
 
-@pytest.mark.parametrize("spec", ["chessboard:9x7:500", "dotgrid:40x30:250", "charuco:6x5:1500"])
+@pytest.mark.parametrize(
+    "spec", ["chessboard:9x7:500", "dotgrid:40x30:250", "charuco:6x5:1500", "charuco:6x5:1500:id40"]
+)
 def test_each_kind_is_found_where_it_is(spec):
     target, image, truth = view(spec)
     det = detect(image, target)
@@ -144,3 +147,34 @@ def test_a_spec_smaller_than_the_board_is_never_found():
             assert not wrong.found, k
             reasons.append(wrong.reason)
     assert any("goes on past its" in r for r in reasons)
+
+
+def test_charuco_boards_with_their_own_markers_are_told_apart_in_one_image():
+    """Two devices' boards in view at once: each spec finds its own board, and only it."""
+    a, b = parse_target("charuco:5x4:400"), parse_target("charuco:5x4:400:id10")
+    assert b.spec == "charuco:5x4:400:280:id10"
+    assert parse_target(b.spec) == b
+    assert a.told_apart_from(b)
+    assert not a.told_apart_from(parse_target("charuco:5x4:400:id9"))  # marker 9 is in both
+    assert not parse_target("chessboard:4x3:400").told_apart_from(a)
+    dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_250)
+    canvas = np.full((600, 1300), 255, np.uint8)
+    for target, x in ((a, 50), (b, 700)):
+        board = cv2.aruco.CharucoBoard((5, 4), 400.0, 280.0, dictionary, target.marker_ids())
+        canvas[100:500, x : x + 500] = board.generateImage((500, 400), marginSize=40)
+    canvas = cv2.GaussianBlur(canvas, (5, 5), 1.0)
+    for target, (low, high) in ((a, (50, 550)), (b, (700, 1200))):
+        det = detect(canvas, target)
+        assert det.found
+        assert len(det.ids) == 12
+        assert np.all((det.q_px[:, 0] > low) & (det.q_px[:, 0] < high))
+
+
+@pytest.mark.parametrize(
+    ("spec", "message"),
+    [("chessboard:4x3:400:id3", "only a charuco board numbers its markers"),
+     ("charuco:5x4:400:id245", "its 10 markers from 245 pass the dictionary's 250")],
+)  # fmt: skip
+def test_marker_numbers_are_checked(spec, message):
+    with pytest.raises(InputError, match=message):
+        parse_target(spec)

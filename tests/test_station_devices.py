@@ -374,3 +374,47 @@ def test_the_x_y_positioner_goes_to_the_nearest_point_of_its_surface_open_and_cl
         assert arrival.d_um[2] == 0.0
         assert np.linalg.norm(device.true_position_um() - on_surface) < 1.0, mode
     assert arrival.status in ("tolerance", "resolution")
+
+
+def test_each_device_may_carry_its_own_board_and_two_in_view_must_be_told_apart(tmp_path: Path):
+    import dataclasses
+
+    from microcal.vision.targets import parse_target
+
+    path = tmp_path / "rig.toml"
+    path.write_text(HARDWARE.format(name="m2", extra='board = "charuco:5x4:400:id10"'),
+                    encoding="utf-8")  # fmt: skip
+    spec = load_rig(str(path))
+    assert spec.boards == {"m2": "charuco:5x4:400:id10"}
+    assert spec.board_of("m2") == "charuco:5x4:400:id10"
+    assert spec.board_of("m1") == spec.board
+    assert rig_from_record(spec.to_dict(), "run.json") == spec
+    path.write_text(HARDWARE.format(name="m2", extra='board = "charuco:5x4"'), encoding="utf-8")
+    with pytest.raises(FormatError, match=r"manipulators.m2.board: target 'charuco:5x4'"):
+        load_rig(str(path))
+    text = HARDWARE.format(name="m2", extra="").replace("[manipulator]\n",
+                                                        '[manipulator]\nboard = "x"\n')  # fmt: skip
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(
+        FormatError, match=r"manipulator.board: its target is the top-level 'board'"
+    ):
+        load_rig(str(path))
+    # a rig whose devices' targets are all in view (hardware): the same board twice is refused
+    plat = platform("thesis-platform", seed=2)
+    in_view = dataclasses.replace(platform_rig(plat), show=None)
+    first, second = (
+        Station(in_view.select(n), ManipulatorCalibration(n, plat.manipulators[n].truth.static),
+                plat.camera_models, frames=1)
+        for n in ("m1", "m2")
+    )  # fmt: skip
+    with pytest.raises(InputError, match=r"m1 and m2 carry targets the cameras cannot tell apart"):
+        meet_test(first, second, [[3000.0, 3000.0, 2000.0]])
+    with pytest.raises(InputError, match=r"board = \"charuco:5x4:400:id10\""):
+        first.move_relative_um(second)
+    # boards of their own: selecting a device makes its board the one measured
+    a, b = parse_target("charuco:5x4:400"), parse_target("charuco:5x4:400:id10")
+    own = dataclasses.replace(in_view, board=a, boards={"m1": a, "m2": b})
+    assert own.select("m2").board == b
+    assert own.select("m2").select("m1").board == a
+    first.rig, second.rig = own, own.select("m2")
+    first.check_told_apart(second)  # no error

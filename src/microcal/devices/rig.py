@@ -72,6 +72,10 @@ class Rig:
     temperatures : dict of str to callable
         Each device's ambient temperature sensor, where devices have their own (the
         simulator's); :meth:`select` makes it ``temperature``.
+    boards : dict of str to Target
+        Every device's target, by name, when devices carry targets of their own (a rig
+        file's ``[manipulators.NAME]`` ``board``); :meth:`select` makes it ``board``. Empty
+        when every device carries ``board``.
     """
 
     manipulator: Manipulator
@@ -89,6 +93,7 @@ class Rig:
     show: Callable[[str], None] | None = None
     selected: str = "m1"
     temperatures: dict[str, Callable[[], float]] = field(default_factory=dict)
+    boards: dict[str, Target] = field(default_factory=dict)
     _closed: bool = field(default=False, init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -112,6 +117,7 @@ class Rig:
         return dataclasses.replace(
             self, manipulator=self.manipulators[name], truth=self.truths.get(name), selected=name,
             temperature=self.temperatures.get(name, self.temperature),
+            board=self.boards.get(name, self.board),
         )  # fmt: skip
 
     def for_calibration(self, name: str) -> Rig:
@@ -302,6 +308,7 @@ def _open_hardware(
     for name, cam_spec in spec.cameras.items():
         cameras[name] = _open_camera(name, cam_spec, core, description)
         opened.append((name, cameras[name]))
+    boards = {n: parse_target(spec.board_of(n)) for n in devices} if spec.boards else {}
     return Rig(
         manipulator,
         cameras,
@@ -312,6 +319,7 @@ def _open_hardware(
         target_stage=stage,
         calibration_target=None if stage is None else parse_target(str(spec.calibration_target)),
         manipulators=devices,
+        boards=boards,
     )
 
 

@@ -417,6 +417,10 @@ class HardwareRigSpec:
     manipulators : mapping of str to MCS2Spec or MMStageSpec
         Further devices in the cameras' view (a second manipulator, the sample's
         positioner), by the names calibrations use; ``manipulator`` is ``m1``.
+    boards : mapping of str to str
+        The further devices that carry a target of their own (``[manipulators.NAME]``'s
+        ``board``), by name; the others carry ``board``. Targets that can be told apart in
+        one image (ChArUco boards with their own markers) let several devices be in view.
     """
 
     driver: ClassVar[str] = "hardware"
@@ -428,10 +432,20 @@ class HardwareRigSpec:
     target_stage: ManipulatorSpec | None = None
     calibration_target: str | None = None
     manipulators: Mapping[str, ManipulatorSpec] = field(default_factory=dict)
+    boards: Mapping[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        from ..vision.targets import parse_target
+
         object.__setattr__(self, "cameras", dict(self.cameras))
         object.__setattr__(self, "manipulators", dict(self.manipulators))
+        object.__setattr__(self, "boards", dict(self.boards))
+        for name, spec in self.boards.items():
+            if name not in self.manipulators:
+                raise InputError(
+                    f"boards.{name}: no such further device (the board of m1 is 'board')"
+                )
+            parse_target(spec)
         for name in self.manipulators:
             taken = name in ("m1", "manipulator", "target_stage") or name in self.cameras
             if taken or not name.replace("_", "").replace("-", "").isalnum():
@@ -477,13 +491,20 @@ class HardwareRigSpec:
             out["target_stage"] = self.target_stage.to_dict()
             out["calibration_target"] = self.calibration_target
         if self.manipulators:
-            out["manipulators"] = {n: m.to_dict() for n, m in self.manipulators.items()}
+            out["manipulators"] = {
+                n: m.to_dict() | ({"board": self.boards[n]} if n in self.boards else {})
+                for n, m in self.manipulators.items()
+            }
         return out
 
     @property
     def manipulator_names(self) -> tuple[str, ...]:
         """``m1`` (the ``[manipulator]``) and the further devices' names."""
         return ("m1", *self.manipulators)
+
+    def board_of(self, name: str) -> str:
+        """The target device ``name`` carries: its own, or the rig's ``board``."""
+        return self.boards.get(name, self.board)
 
 
 RigSpec = SimRigSpec | HardwareRigSpec

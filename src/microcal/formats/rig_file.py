@@ -192,6 +192,8 @@ class _Manipulator(_Strict):
     # micromanager
     xy_stage: str | None = None
     focus: str | None = None
+    # a further device's own target ([manipulators.NAME] only)
+    board: str | None = None
 
     @field_validator("kind")
     @classmethod
@@ -312,6 +314,15 @@ def _sim(path: Path, data: dict[str, Any]) -> SimRigSpec:
         raise FormatError(f"{path}: {exc}") from None
 
 
+def _check_target(path: Path, key: str, spec: str) -> None:
+    from ..vision.targets import parse_target
+
+    try:
+        parse_target(spec)
+    except InputError as exc:
+        raise FormatError(f"{path}: {key}: {exc}") from None
+
+
 def _hardware(path: Path, data: dict[str, Any]) -> HardwareRigSpec:
     _check_keys(path, "", data, _Hardware)
     _check_keys(path, "manipulator.", data.get("manipulator"), _Manipulator)
@@ -327,6 +338,11 @@ def _hardware(path: Path, data: dict[str, Any]) -> HardwareRigSpec:
         rig = _Hardware.model_validate(data)
     except ValidationError as exc:
         raise FormatError(f"{path}: {validation_message(exc)}") from None
+    own = (("manipulator", rig.manipulator, "board"),
+           ("target_stage", rig.target_stage, "calibration_target"))  # fmt: skip
+    for where, table, key in own:
+        if table is not None and table.board is not None:
+            raise FormatError(f"{path}: {where}.board: its target is the top-level {key!r}")
     m = rig.manipulator
     manipulator = _build(path, "manipulator", _MANIPULATORS[m.kind], _given(m))
     cameras = {
@@ -347,23 +363,22 @@ def _hardware(path: Path, data: dict[str, Any]) -> HardwareRigSpec:
     given: dict[str, Any] = {}
     for key in ("board", "calibration_target"):
         if getattr(rig, key) is not None:
-            from ..vision.targets import parse_target
-
             given[key] = getattr(rig, key)
-            try:
-                parse_target(given[key])
-            except InputError as exc:
-                raise FormatError(f"{path}: {key}: {exc}") from None
+            _check_target(path, key, given[key])
     if rig.target_stage is not None:
         stage = rig.target_stage
         given["target_stage"] = _build(
             path, "target_stage", _MANIPULATORS[stage.kind], _given(stage)
         )
     if rig.manipulators:
-        given["manipulators"] = {
-            name: _build(path, f"manipulators.{name}", _MANIPULATORS[m.kind], _given(m))
-            for name, m in rig.manipulators.items()
-        }
+        given["manipulators"], given["boards"] = {}, {}
+        for name, m in rig.manipulators.items():
+            keys = _given(m)
+            if "board" in keys:
+                given["boards"][name] = keys.pop("board")
+                _check_target(path, f"manipulators.{name}.board", given["boards"][name])
+            where = f"manipulators.{name}"
+            given["manipulators"][name] = _build(path, where, _MANIPULATORS[m.kind], keys)
     try:
         return HardwareRigSpec(manipulator, cameras, micromanager=micromanager, **given)
     except InputError as exc:

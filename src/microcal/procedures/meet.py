@@ -128,12 +128,13 @@ def meet_test(
     Raises
     ------
     InputError
-        The same station twice.
+        The same station twice, or two targets the cameras cannot tell apart.
     LimitError
         A target outside a device's soft limits (checked for all before anything moves).
     """
     if first is second:
         raise InputError("meet: first and second are the same station; give two devices")
+    first.check_told_apart(second)
     targets = as_rows(targets_um, "targets_um", 3)
     offset = as_array(offset_um, "offset_um", (3,))
     truths = (first.rig.truth, second.rig.truth)

@@ -200,6 +200,25 @@ class Station:
         soft limits (nothing moves)."""
         self.rig.manipulator.check_limits(self._open.joints_for(as_array(p_um, "p_um", (3,))))
 
+    def check_told_apart(self, other: Station) -> None:
+        """Refuse to work with another device's target in view unless the cameras can tell
+        the two targets apart: ChArUco boards with their own markers, or a rig that shows
+        one target at a time (the simulator).
+
+        Raises
+        ------
+        InputError
+            Naming both devices, their targets and the fix.
+        """
+        a, b = self.rig.board, other.rig.board
+        if self.rig.show is None and not a.told_apart_from(b):
+            raise InputError(
+                f"{self.rig.selected} and {other.rig.selected} carry targets the cameras cannot "
+                f"tell apart in one image ({a.spec} and {b.spec}); give each device a ChArUco "
+                f"board with markers of its own in the rig file ([manipulators.NAME] board = "
+                f'"charuco:5x4:400:id10")'
+            )
+
     def move_relative_um(
         self,
         other: Station,
@@ -222,12 +241,14 @@ class Station:
         Raises
         ------
         InputError
-            ``other`` is this station.
+            ``other`` is this station, or its target cannot be told from this one's
+            (:meth:`check_told_apart`).
         DetectionError, LimitError
             As :meth:`where_um` and :meth:`move_to_um`.
         """
         if other is self:
             raise InputError("move_relative_um: other is this station; give another device's")
+        self.check_told_apart(other)
         offset = as_array(offset_um, "offset_um", (3,))
         p_other, _ = other.where_um()
         return self.move_to_um(p_other + offset, mode, tolerance_um)

@@ -440,8 +440,9 @@ def _detect_dotgrid(gray: NDArray[np.float32], target: Target) -> Detection:
 def _detect_charuco(gray: NDArray[np.float32], target: Target) -> Detection:
     dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_250)
     board = cv2.aruco.CharucoBoard(
-        (target.cols, target.rows), target.pitch_um, target.feature_um, dictionary
-    )
+        (target.cols, target.rows), target.pitch_um, target.feature_um, dictionary,
+        target.marker_ids(),
+    )  # fmt: skip
     detector = cv2.aruco.CharucoDetector(board)
     corners, ids, _, _ = detector.detectBoard(_to_uint8(gray))
     if ids is None or len(ids) < 4:

@@ -6,8 +6,11 @@ Target specs are strings:
   (OpenCV's pattern size); the thesis's end-effector board is ``chessboard:4x3:400``.
 - ``dotgrid:COLSxROWS:PITCH_UM[:DIAMETER_UM]``: a symmetric grid of dots (the thesis's
   chrome-on-glass target: pitch 125 µm, dots 62.5 µm, the default diameter pitch / 2).
-- ``charuco:COLSxROWS:PITCH_UM[:MARKER_UM]``: a ChArUco board of COLS x ROWS *squares*
-  (OpenCV's convention), ArUco markers of the 4x4 dictionary (default size 0.7 pitch).
+- ``charuco:COLSxROWS:PITCH_UM[:MARKER_UM][:idFIRST]``: a ChArUco board of COLS x ROWS
+  *squares* (OpenCV's convention), ArUco markers of the 4x4 dictionary (default size 0.7
+  pitch) numbered from FIRST (default 0). Boards whose markers' numbers do not overlap are
+  told apart in one image: give each device of a station its own (``charuco:5x4:400:id0``,
+  ``charuco:5x4:400:id10``).
 
 The target frame: x along the columns, y along the rows, z = 0 on the target; the first
 feature (inner corner or dot) is at the origin. On a chessboard the square between the first
@@ -31,8 +34,11 @@ __all__ = ["Target", "parse_target"]
 
 TargetKind = Literal["chessboard", "dotgrid", "charuco"]
 _SPEC = re.compile(
-    r"^(chessboard|dotgrid|charuco):(\d+)x(\d+):([0-9.]+)(?::([0-9.]+))?$", re.IGNORECASE
+    r"^(chessboard|dotgrid|charuco):(\d+)x(\d+):([0-9.]+)(?::([0-9.]+))?(?::id(\d+))?$",
+    re.IGNORECASE,
 )
+#: Markers of the ArUco dictionary ChArUco boards use (4x4, 250 markers).
+MARKERS = 250
 
 
 @dataclass(frozen=True)
@@ -48,6 +54,8 @@ class Target:
         Square size or dot spacing, µm.
     feature_um : float
         Dot diameter (dotgrid) or marker size (charuco); 0 for a chessboard.
+    first_marker : int
+        The number of a ChArUco board's first marker (0 for the others).
     """
 
     kind: TargetKind
@@ -55,12 +63,27 @@ class Target:
     rows: int
     pitch_um: float
     feature_um: float = 0.0
+    first_marker: int = 0
 
     @property
     def spec(self) -> str:
         """The spec string this target parses from."""
         base = f"{self.kind}:{self.cols}x{self.rows}:{self.pitch_um:g}"
-        return base + (f":{self.feature_um:g}" if self.kind != "chessboard" else "")
+        base += f":{self.feature_um:g}" if self.kind != "chessboard" else ""
+        return base + (f":id{self.first_marker}" if self.first_marker else "")
+
+    def marker_ids(self) -> np.ndarray:
+        """The numbers of a ChArUco board's markers, (cols * rows // 2,) int (empty for the
+        other kinds)."""
+        n = self.cols * self.rows // 2 if self.kind == "charuco" else 0
+        return np.arange(self.first_marker, self.first_marker + n, dtype=np.int32)
+
+    def told_apart_from(self, other: Target) -> bool:
+        """Whether a detection of this target can never be of ``other`` when both are in one
+        image: two ChArUco boards whose markers' numbers do not overlap."""
+        if self.kind != "charuco" or other.kind != "charuco":
+            return False
+        return not set(self.marker_ids().tolist()) & set(other.marker_ids().tolist())
 
     @property
     def pattern_size(self) -> tuple[int, int]:
@@ -111,7 +134,7 @@ def parse_target(spec: str) -> Target:
     if not m:
         raise InputError(
             f"target {spec!r}: expected KIND:COLSxROWS:PITCH_UM with KIND chessboard, dotgrid "
-            f"or charuco, e.g. chessboard:4x3:400"
+            f"or charuco, e.g. chessboard:4x3:400 (charuco:5x4:400:id10: markers from 10)"
         )
     kind = m.group(1).lower()
     cols, rows = int(m.group(2)), int(m.group(3))
@@ -140,10 +163,19 @@ def parse_target(spec: str) -> Target:
             raise InputError(
                 f"target {spec!r}: expected a dot diameter below the pitch {pitch:g} µm"
             )
+    first = int(m.group(6)) if m.group(6) else 0
+    if m.group(6) and kind != "charuco":
+        raise InputError(f"target {spec!r}: only a charuco board numbers its markers (:idN)")
     if kind == "charuco":
         feature = feature or 0.7 * pitch
         if not 0 < feature < pitch:
             raise InputError(
                 f"target {spec!r}: expected a marker size below the pitch {pitch:g} µm"
             )
-    return Target(kind, cols, rows, pitch, feature)  # type: ignore[arg-type]
+        if first + cols * rows // 2 > MARKERS:
+            raise InputError(
+                f"target {spec!r}: its {cols * rows // 2} markers from {first} pass the "
+                f"dictionary's {MARKERS}; give a first marker of at most "
+                f"{MARKERS - cols * rows // 2}"
+            )
+    return Target(kind, cols, rows, pitch, feature, first)  # type: ignore[arg-type]
