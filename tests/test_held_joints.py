@@ -214,3 +214,17 @@ def test_check_poses_of_a_positioner_lie_in_its_plane_and_take_no_approach_on_z(
     d_all, approach = planned_check(ManipulatorCalibration("p1", cal.model, extra=cal.extra), stage)
     assert approach.tolist() == [20.0, 20.0, 0.0]
     assert np.all(d_all[:, 2] == 0.0)
+
+
+def test_solve_says_how_far_a_target_is_off_a_positioners_surface():
+    from microcal.procedures.compensation import solve_position
+    from microcal.report.text_tables import solution_lines
+
+    d, p, _ = _xy_data(170, 0.01, seed=5)
+    cal, _ = calibrate_manipulator("p1", d, p, "matrix", held_um={"dz": 0.0})
+    on = cal.predict_um([3000.0, 2000.0, 0.0])[0]
+    sol = solve_position(cal, on + [0.0, 0.0, 4.0], {})
+    assert sol.d_um[2] == 0.0
+    lines = solution_lines(sol, cal)
+    assert any("'p1' holds dz still" in line and "4.000 µm off it" in line for line in lines)
+    assert not any("holds dz" in line for line in solution_lines(solve_position(cal, on, {}), cal))

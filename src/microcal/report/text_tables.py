@@ -474,6 +474,12 @@ def solution_lines(solution: Any, calibration: Any) -> list[str]:
         )
     residual = ", ".join(f"{v:.2e}" for v in solution.residual_um)
     kind, name = calibration.model.kind, calibration.name
+    held, off_um = calibration.model.held_um, float(np.linalg.norm(solution.residual_um))
+    if held and off_um > 1e-3:
+        lines.append(
+            f"note: {name!r} holds {', '.join(held)} still, so it reaches a surface of {{G}}; "
+            f"this target is {off_um:.3f} µm off it, and the joints give its nearest point"
+        )
     lines.append(f"{kind} model of {name!r}: model(d) - target = {residual} µm")
     return lines
 
