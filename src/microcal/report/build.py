@@ -297,7 +297,8 @@ def _checks(data: RunData) -> dict[str, Any] | None:
     offsets = np.array([c["offset_um"] for c in data.checks], dtype=float)
     std = np.array([c["offset_std_um"] for c in data.checks], dtype=float)
     verdicts = [str(c["verdict"]) for c in data.checks]
-    return {"rows": data.checks, "figure": figures.check_history(offsets, std, verdicts)}
+    devices = [str(c.get("manipulator") or "m1") for c in data.checks]
+    return {"rows": data.checks, "figure": figures.check_history(offsets, std, verdicts, devices)}
 
 
 def _provenance(data: RunData) -> list[tuple[str, Any]]:

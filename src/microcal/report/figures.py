@@ -284,13 +284,20 @@ def decoupling(condition: str, runs: Mapping[str, tuple[FloatArray, np.ndarray]]
     return _uri(fig)
 
 
-def check_history(offsets_um: FloatArray, std_um: FloatArray, verdicts: list[str]) -> str:
+def check_history(
+    offsets_um: FloatArray,
+    std_um: FloatArray,
+    verdicts: list[str],
+    devices: list[str] | None = None,
+) -> str:
     """Offset found by each check of a calibration, per axis, with ±2 standard deviations.
 
     Parameters
     ----------
     offsets_um, std_um : (n, 3) float
     verdicts : n str
+    devices : n str, optional
+        The device each check was of; with more than one, each check's tick names it.
     """
     fig = Figure(figsize=(7.0, 3.0), layout="constrained")
     ax = fig.add_subplot(1, 1, 1)
@@ -305,6 +312,8 @@ def check_history(offsets_um: FloatArray, std_um: FloatArray, verdicts: list[str
                         textcoords="offset points", xytext=(0, 6), ha="center")  # fmt: skip
     ax.axhline(0.0, color="grey", lw=0.6)
     ax.set_xticks(k)
+    if devices is not None and len(set(devices)) > 1:
+        ax.set_xticks(k, [f"{i}\n{name}" for i, name in zip(k, devices, strict=True)])
     ax.set_xlabel("check")
     ax.set_ylabel("offset, µm (±2 std)")
     ax.legend(fontsize=8)
