@@ -283,6 +283,10 @@ def test_the_station_demo_writes_every_device_in_one_frame(tmp_path: Path):
     html = (out / "report.html").read_text(encoding="utf-8")
     assert "Devices in one frame" in html
     assert 'href="p1/report.html"' in html
+    # the positioner is an X-Y stage: its model and report say it holds z
+    assert cal.manipulators["p1"].model.held_um == {"dz": 0.0}
+    p1_html = (out / "p1" / "report.html").read_text(encoding="utf-8")
+    assert "The device holds dz at 0 µm (it has no such axis)" in p1_html
     # an earlier station demo is replaced: what it wrote goes, each device's run begins anew
     from microcal.formats.run_manifest import start_station_demo
 

@@ -191,6 +191,7 @@ def _models(data: RunData, thesis: bool) -> dict[str, Any] | None:
             "kind": kind,
             "axes": [{"axis": a, "terms": model.axis_terms(i)} for i, a in enumerate("xyz")],
             "n_terms": int(np.sum(model.selected)),
+            "held": ", ".join(f"{j} at {v:g} µm" for j, v in model.held_um.items()),
             "validation": validation,
             "thesis": VALIDATION_UM.get(kind) if thesis else None,
         }
