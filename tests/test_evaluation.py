@@ -481,8 +481,10 @@ def test_goto_and_evaluate_pick_the_device_of_the_calibration_entry(demo, tmp_pa
     fitted = demo.models["polynomial"]
     m1 = ManipulatorCalibration("m1", fitted.model, fitted.validation)
     m2 = ManipulatorCalibration("m2", plat.manipulators["m2"].truth.static, fitted.validation)
+    p1 = ManipulatorCalibration("p1", plat.manipulators["p1"].truth.static, fitted.validation)
     cams = cameras_to_dict(demo.calibration, provenance())["cameras"]
-    cal = write_calibration(tmp_path / "station.json", Calibration({"m1": m1, "m2": m2}, cams))
+    cal = write_calibration(tmp_path / "station.json",
+                            Calibration({"m1": m1, "m2": m2, "p1": p1}, cams))  # fmt: skip
     rig = tmp_path / "platform.toml"
     rig.write_text('driver = "sim"\npreset = "thesis-platform"\n', encoding="utf-8")
     res = run_microcal("goto", "--rig", rig, "--calibration", cal, "--manipulator", "m2",
@@ -492,11 +494,19 @@ def test_goto_and_evaluate_pick_the_device_of_the_calibration_entry(demo, tmp_pa
     np.testing.assert_allclose(arrived, [5000, 5000, 2000], atol=4.0)
     res = run_microcal("goto", "--rig", rig, "--calibration", cal, "5000", "5000", "2000")
     assert res.returncode == 2
-    assert "this calibration has ['m1', 'm2']; name one" in res.stderr
-    res = run_microcal("goto", "--rig", rig, "--calibration", cal, "--manipulator", "p1",
+    assert "this calibration has ['m1', 'm2', 'p1']; name one" in res.stderr
+    one = write_calibration(tmp_path / "one.json", Calibration({"m1": m1, "m2": m2}, cams))
+    res = run_microcal("goto", "--rig", rig, "--calibration", one, "--manipulator", "p1",
                        "5000", "5000", "2000")  # fmt: skip
     assert res.returncode == 2
     assert "'p1' is not calibrated" in res.stderr
+    # the X-Y positioner: the thesis's poses would move its z; refused before anything moves
+    res = run_microcal("evaluate", "--rig", rig, "--calibration", cal, "--manipulator", "p1",
+                       "--out", tmp_path / "p1.json")  # fmt: skip
+    assert res.returncode == 2
+    assert "it holds z still (an X-Y positioner)" in res.stderr
+    assert "--poses iso-cube --test pose-accuracy" in res.stderr
+    assert not (tmp_path / "p1.json").exists()
     out = tmp_path / "m2.json"
     res = run_microcal("evaluate", "--rig", rig, "--calibration", cal, "--manipulator", "m2",
                        "--test", "pose-accuracy", "--poses", "iso-cube", "--cycles", "1",

@@ -163,7 +163,7 @@ def test_a_model_cannot_use_a_held_joint_and_some_joint_must_move():
         KinematicModel.from_dict(truth.to_dict() | {"held_joints_um": {"dq": 0.0}})
     with pytest.raises(FormatError, match=r"term dx uses the held joint"):
         KinematicModel.from_dict(truth.to_dict() | {"held_joints_um": {"dx": 0.0}})
-    with pytest.raises(FormatError, match="model: "):
+    with pytest.raises(FormatError, match=r"held_joints_um: expected \{joint: µm\}, got \[1, 2\]"):
         KinematicModel.from_dict(truth.to_dict() | {"held_joints_um": [1, 2]})
     with pytest.raises(InputError, match="every joint is held"):
         calibrate_manipulator("p1", np.ones((10, 3)), np.ones((10, 3)),
@@ -228,3 +228,94 @@ def test_solve_says_how_far_a_target_is_off_a_positioners_surface():
     lines = solution_lines(sol, cal)
     assert any("'p1' holds dz still" in line and "4.000 µm off it" in line for line in lines)
     assert not any("holds dz" in line for line in solution_lines(solve_position(cal, on, {}), cal))
+
+
+XY_RIG = """
+driver = "hardware"
+[manipulator]
+kind = "smaract-mcs2"
+address = "127.0.0.1"
+channels = { x = 0, y = 1, z = 2 }
+limits_um = { x = [0, 8000], y = [0, 8000], z = [0, 4800] }
+[manipulators.p1]
+kind = "micromanager"
+xy_stage = "XY"
+limits_um = LIMITS
+[micromanager]
+python_devices = "mm_devices:load"
+[cameras.top]
+kind = "aravis"
+address = "10.0.0.11"
+[cameras.side]
+kind = "aravis"
+address = "10.0.0.12"
+"""
+
+
+def test_a_micromanager_xy_stage_is_a_positioner_of_a_rig_file(tmp_path):
+    from microcal.formats.rig_file import load_rig, rig_from_record
+
+    path = tmp_path / "rig.toml"
+    path.write_text(XY_RIG.replace("LIMITS", "{ x = [0, 6000], y = [0, 6000] }"), encoding="utf-8")
+    spec = load_rig(str(path))
+    assert spec.manipulators["p1"].axes == ("x", "y")
+    assert spec.manipulators["p1"].focus is None
+    record = spec.to_dict()
+    assert rig_from_record(record, "run.json") == spec  # a resume reads its own record
+    assert record == spec.to_dict()  # and leaves it as it was
+    path.write_text(XY_RIG.replace("LIMITS", "{ x = [0, 6000], y = [0, 6000], z = [0, 1] }"),
+                    encoding="utf-8")  # fmt: skip
+    with pytest.raises(Exception, match="limits give z but no focus stage is named"):
+        load_rig(str(path))
+
+
+def test_a_micromanager_xy_stage_moves_as_three_joints(mm_core):
+    from microcal.devices.micromanager import MMManipulator
+
+    stage = with_three_joints(MMManipulator(mm_core, xy_stage="XY", focus=None,
+                                            limits_um=[[0, 6000], [0, 6000]]))  # fmt: skip
+    assert stage.identity == "Micro-Manager XY"
+    from microcal.devices.base import RealClock
+
+    stage.move_to_um([1200.0, 800.0, 0.0])
+    stage.wait_until_stopped(RealClock(), timeout_s=10.0)
+    np.testing.assert_allclose(stage.position_um(), [1200.0, 800.0, 0.0], atol=1e-6)
+    with pytest.raises(LimitError, match="axis z"):
+        stage.move_to_um([1200.0, 800.0, 10.0])
+
+
+def test_a_positioners_evaluation_aims_at_its_surface():
+    from microcal.control.feedforward import FeedForward
+    from microcal.procedures.evaluation import aimed_poses_um
+    from microcal.sim import platform
+
+    plat = platform("thesis-platform", seed=0)
+    device = plat.manipulators["p1"]
+    ff = FeedForward(device, device.truth.static)
+    poses = iso_cube_poses(np.array([500.0, 500.0, 0.0]), np.array([5500.0, 5500.0, 0.0]))
+    aims = aimed_poses_um(ff, poses)
+    home = ff.home_um()
+    # each aim is on the model's surface, and the nearest point of it to the pose
+    reached = device.truth.static.predict_um(np.array([ff.joints_for(home + a) for a in aims]))
+    np.testing.assert_allclose(reached - home, aims, atol=1e-6)
+    assert np.abs(aims[:, 2]).max() > 1.0  # the stage's tilt and bow lift the poses
+    np.testing.assert_allclose(aims[:, :2], poses[:, :2], atol=0.1)
+    # a manipulator's poses are its poses, and so is the uncompensated condition's
+    m1 = plat.manipulators["m1"]
+    assert aimed_poses_um(FeedForward(m1, m1.truth.static), poses) is not None
+    np.testing.assert_array_equal(aimed_poses_um(FeedForward(m1, m1.truth.static), poses), poses)
+    np.testing.assert_array_equal(aimed_poses_um(None, poses), poses)
+    # an approach from below leaves the held joint where it is
+    assert device.below_um([100.0, 200.0, 0.0], 20.0).tolist() == [80.0, 180.0, 0.0]
+
+
+def test_bad_held_joint_values_are_refused_in_one_line():
+    truth = positioner_kinematics().static
+    for bad in ({"dz": True}, {"dz": "0"}):
+        with pytest.raises(FormatError, match="held_joints_um: expected"):
+            KinematicModel.from_dict(truth.to_dict() | {"held_joints_um": bad})
+    d, p, _ = _xy_data(40, 0.01, seed=6)
+    with pytest.raises(InputError, match="held joints: expected a value in µm for dz"):
+        calibrate_manipulator("p1", d, p, "matrix", held_um={"dz": "zero"})
+    with pytest.raises(InputError, match="held joints: expected names among"):
+        calibrate_manipulator("p1", d, p, "matrix", held_um={"dq": 0.0})

@@ -230,6 +230,11 @@ def test_two_tools_meet_and_a_wrong_calibration_shows_in_the_gap():
         meet_test(first, first, targets)
     with pytest.raises(LimitError):
         meet_test(first, second, [[50000.0, 0.0, 0.0]])
+    for frames in (0, -1, 2.5):
+        with pytest.raises(InputError, match="frames: expected a whole number >= 1"):
+            meet_test(first, second, targets, frames=frames)
+    with pytest.raises(InputError, match="where_um: frames: expected a whole number >= 1"):
+        first.where_um(0)
 
 
 def test_a_tool_goes_to_an_offset_from_a_point_on_the_sample():

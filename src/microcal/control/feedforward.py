@@ -111,8 +111,10 @@ class FeedForward:
 
     def joints_for(self, p_um: ArrayLike) -> FloatArray:
         """Joint commands for one position in {G}, (3,) µm; checked against the soft limits."""
+        return self._joints(p_um, None if self.extra is None else self.extra())
+
+    def _joints(self, p_um: ArrayLike, extra: ArrayLike | None) -> FloatArray:
         p = as_array(p_um, "p_um", (3,))
-        extra = None if self.extra is None else self.extra()
         if self.method == "matrix":
             return np.asarray(self._compensator.linear(p, extra=extra)[0], dtype=np.float64)
         result = self._compensator.solve(p, extra=extra)
@@ -145,8 +147,8 @@ class FeedForward:
         p = as_array(p_um, "p_um", (3,))
         if not self.model.held_um:
             return p
-        d = self.joints_for(p)
         extra = np.zeros(0) if self.extra is None else np.asarray(self.extra(), float).ravel()
+        d = self._joints(p, None if self.extra is None else extra)
         out: FloatArray = self.model.predict_um(np.concatenate([d, extra]))[0]
         return out
 

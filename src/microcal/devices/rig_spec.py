@@ -229,6 +229,11 @@ class MMStageSpec:
     focus: str | None = None
 
     def __post_init__(self) -> None:
+        if self.focus is None and isinstance(self.limits_um, Mapping) and "z" in self.limits_um:
+            raise InputError(
+                "focus: the limits give z but no focus stage is named; name the focus device, "
+                "or leave z out for an X-Y stage"
+            )
         object.__setattr__(self, "limits_um", _limits(self.limits_um, self.axes))
 
     @property
@@ -445,6 +450,8 @@ class HardwareRigSpec:
                 raise InputError(
                     f"boards.{name}: no such further device (the board of m1 is 'board')"
                 )
+            if not isinstance(spec, str):
+                raise InputError(f"boards.{name}: expected a target spec string, got {spec!r}")
             parse_target(spec)
         for name in self.manipulators:
             taken = name in ("m1", "manipulator", "target_stage") or name in self.cameras

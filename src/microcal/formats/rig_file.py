@@ -34,6 +34,7 @@ exposure_ms = 10
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import tomllib
 from pathlib import Path
@@ -128,8 +129,12 @@ def rig_from_record(record: object, where: str) -> RigSpec:
 
 def _unflatten(record: dict[str, Any]) -> dict[str, Any]:
     """A recorded rig's ``overrides`` are dotted names; the file's are tables."""
-    out = dict(record)
-    _drop_legacy(out.get("manipulator"), LEGACY_MM_STAGE_RECORD)
+    out = copy.deepcopy(record)
+    further = out.get("manipulators")
+    stages = [out.get("manipulator"), out.get("target_stage")]
+    stages += list(further.values()) if isinstance(further, dict) else []
+    for stage in stages:
+        _drop_legacy(stage, LEGACY_MM_STAGE_RECORD)
     for camera in (
         (out.get("cameras") or {}).values() if isinstance(out.get("cameras"), dict) else ()
     ):

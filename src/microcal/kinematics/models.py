@@ -353,7 +353,7 @@ class KinematicModel:
                 selected=sel,
                 covariance=cov,
                 selection=dict(data.get("selection", {})),
-                held_um={str(k): float(v) for k, v in data.get("held_joints_um", {}).items()},
+                held_um=_held_record(data.get("held_joints_um", {})),
             )
         except KeyError as exc:
             raise FormatError(f"model: missing key {exc.args[0]!r}") from None
@@ -361,6 +361,15 @@ class KinematicModel:
             if isinstance(exc, FormatError):
                 raise
             raise FormatError(f"model: {exc}") from None
+
+
+def _held_record(value: object) -> dict[str, float]:
+    """``held_joints_um`` of a model's record: joint names to numbers (not booleans)."""
+    if not isinstance(value, dict) or not all(
+        isinstance(v, int | float) and not isinstance(v, bool) for v in value.values()
+    ):
+        raise FormatError(f"held_joints_um: expected {{joint: µm}}, got {value!r}")
+    return {str(k): float(v) for k, v in value.items()}
 
 
 def held_from_limits(limits_um: ArrayLike) -> dict[str, float]:

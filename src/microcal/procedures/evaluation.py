@@ -497,6 +497,13 @@ def run_evaluation(
     rng = calibration.joint_range_um
     lim = manipulator.limits_um if rng is None else rng
     poses_um = TABLE_5_2_POSES_UM if poses == "table-5-2" else iso_cube_poses(*lim.T)
+    held = manipulator.limits_um[:, 0] == manipulator.limits_um[:, 1]
+    if held.any() and (poses == "table-5-2" or tests in ("all", "decoupling")):
+        raise InputError(
+            f"evaluate on {manipulator.name}: it holds {', '.join(np.array(list('xyz'))[held])} "
+            f"still (an X-Y positioner), but the Table 5-2 poses and the decoupling path move "
+            f"every axis; use --poses iso-cube --test pose-accuracy (or another single test)"
+        )
     # Home is the zero joints; the uncompensated commands are the displacements themselves:
     # all must lie within the soft limits, checked before anything moves.
     planned = [np.zeros((1, 3))]

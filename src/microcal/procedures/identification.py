@@ -93,7 +93,11 @@ def find_outliers(
 
 
 def _checked_held(held_um: Mapping[str, float] | None, u: FloatArray) -> dict[str, float]:
-    held = {str(k): float(v) for k, v in (held_um or {}).items()}
+    held: dict[str, float] = {}
+    for name, value in (held_um or {}).items():
+        if isinstance(value, bool) or not isinstance(value, int | float | np.floating):
+            raise InputError(f"held joints: expected a value in µm for {name}, got {value!r}")
+        held[str(name)] = float(value)
     for name, value in held.items():
         if name not in JOINTS:
             raise InputError(f"held joints: expected names among {list(JOINTS)}, got {name!r}")

@@ -27,7 +27,7 @@ from .._validation import FloatArray
 from ..control.feedforward import FeedForward
 from ..devices.base import Clock, Manipulator
 from ..metrics import distance_statistics, drift, pose_statistics, stabilisation_time_s
-from .evaluation import PositionProbe, _commanders, _measure, _sources, _visit
+from .evaluation import PositionProbe, _commanders, _measure, _sources, _visit, aimed_poses_um
 
 __all__ = ["run_distance", "run_drift", "run_stabilisation"]
 
@@ -65,10 +65,11 @@ def run_distance(
                     got[source][i].append(p - home[source])
             if progress:
                 progress(f"distance accuracy, {name}", c + 1, cycles)
+        aim1, aim2 = aimed_poses_um(conditions[name], np.array([p1_um, p2_um]))
         for source, (a1, a2) in got.items():
             ok = np.all(np.isfinite(a1), axis=1) & np.all(np.isfinite(a2), axis=1)
             if ok.sum() >= 2:
-                stats = distance_statistics(p1_um, p2_um, np.array(a1)[ok], np.array(a2)[ok])
+                stats = distance_statistics(aim1, aim2, np.array(a1)[ok], np.array(a2)[ok])
                 out[source][name] = stats.as_dict()
     return out
 
@@ -171,6 +172,7 @@ def run_drift(
     series: dict[str, dict[str, tuple[list[float], list[float]]]] = {
         s: {n: ([], []) for n in commanders} for s in out
     }
+    aims = {name: aimed_poses_um(conditions[name], np.array([p1_um]))[0] for name in commanders}
     start = clock.now_s()
     for v in range(visits):
         clock.sleep(max(0.0, start + v * duration_s / (visits - 1) - clock.now_s()))
@@ -181,7 +183,7 @@ def run_drift(
                 rel = (p - home[source])[None, :]
                 if np.all(np.isfinite(rel)):
                     series[source][name][0].append(clock.now_s() - start)
-                    series[source][name][1].append(pose_statistics(p1_um, rel).ap_p_um)
+                    series[source][name][1].append(pose_statistics(aims[name], rel).ap_p_um)
         if progress:
             progress("drift", v + 1, visits)
     for source, per in series.items():

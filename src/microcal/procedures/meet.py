@@ -138,6 +138,8 @@ def meet_test(
     """
     if first is second:
         raise InputError("meet: first and second are the same station; give two devices")
+    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
+        raise InputError(f"meet: frames: expected a whole number >= 1, got {frames!r}")
     first.check_told_apart(second)
     targets = as_rows(targets_um, "targets_um", 3)
     offset = as_array(offset_um, "offset_um", (3,))

@@ -145,6 +145,9 @@ class Station:
         DetectionError
             The cameras do not find the end-effector's target.
         """
+        if frames is not None and (isinstance(frames, bool) or not isinstance(frames, int)
+                                   or frames < 1):  # fmt: skip
+            raise InputError(f"where_um: frames: expected a whole number >= 1, got {frames!r}")
         self.rig.look_at()
         p, cov = self.probe.measure_with_covariance(self._d, frames or self.frames)
         if not np.all(np.isfinite(p)):
