@@ -178,3 +178,23 @@ def test_charuco_boards_with_their_own_markers_are_told_apart_in_one_image():
 def test_marker_numbers_are_checked(spec, message):
     with pytest.raises(InputError, match=message):
         parse_target(spec)
+
+
+def test_a_region_of_interest_is_cut_out_before_anything_else():
+    """Only the box is converted and checked: the same corners as in the cut-out image, and a
+    bad pixel outside the box does not matter (inside, it is named)."""
+    target, image, _ = view("chessboard:9x7:500")
+    full = detect(image, target)
+    q = full.q_px
+    roi = (int(q[:, 0].min()) - 40, int(q[:, 1].min()) - 40,
+           int(q[:, 0].max()) + 40, int(q[:, 1].max()) + 40)  # fmt: skip
+    boxed = detect(image, target, roi=roi)
+    cut = detect(image[roi[1] : roi[3], roi[0] : roi[2]], target)
+    np.testing.assert_array_equal(boxed.q_px, cut.q_px + (roi[0], roi[1]))
+    bad = image.astype(np.float32)
+    bad[0, 0] = np.nan
+    np.testing.assert_array_equal(detect(bad, target, roi=roi).q_px, boxed.q_px)
+    bad[roi[1] + 1, roi[0] + 1] = np.inf
+    assert detect(bad, target, roi=roi).reason == (
+        "the region of interest has 1 NaN or infinite pixels"
+    )

@@ -473,19 +473,20 @@ def detect(
     Detection
         ``found=False`` with a reason when the target is not (all) there.
     """
-    gray = to_gray(image)
-    if gray.dtype.kind == "f":
-        bad = int(np.count_nonzero(~np.isfinite(gray)))
-        if bad:
-            return Detection.none(f"the image has {bad} NaN or infinite pixels")
+    img = np.asarray(image)
     x0 = y0 = 0
-    if roi is not None:
-        h, w = gray.shape
+    if roi is not None and img.ndim in (2, 3):  # crop first: only the box is converted
+        h, w = img.shape[:2]
         x0, y0 = max(0, int(roi[0])), max(0, int(roi[1]))
         x1, y1 = min(w, int(roi[2])), min(h, int(roi[3]))
         if x1 - x0 < 8 or y1 - y0 < 8:
             return Detection.none(f"region of interest {roi} is outside the {w}x{h} image")
-        gray = gray[y0:y1, x0:x1]
+        img = img[y0:y1, x0:x1]
+    gray = to_gray(img)
+    bad = int(np.count_nonzero(~np.isfinite(gray)))
+    if bad:
+        where = "region of interest" if roi is not None else "image"
+        return Detection.none(f"the {where} has {bad} NaN or infinite pixels")
     if target.kind == "chessboard":
         det = _detect_chessboard_coarse_to_fine(gray, target)
     elif target.kind == "dotgrid":
