@@ -69,7 +69,7 @@ def settle_figures(settle: str, poses: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_vision_settling_is_fast_and_leaves_no_creep():
-    settle, creep = settle_figures("vision", 170)
+    settle, creep = settle_figures("vision", 100)
     # Thesis: a fixed 30 s per pose. Goal: <= 3 s per pose (>= 10x) with <= 0.2 µm creep left.
     assert settle.mean() <= 3.0
     assert 30.0 / settle.mean() >= 10.0
