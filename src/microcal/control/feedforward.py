@@ -133,12 +133,9 @@ class FeedForward:
         sensed = [s for s in self.model.extra_inputs if s not in self._approach_symbols]
         if not sensed or self.extra is None:
             return self.model.p_base_um
-        u = np.concatenate([self._held_joints(), np.asarray(self.extra(), float)])
+        u = np.concatenate([self.model.rest_um, np.asarray(self.extra(), float)])
         out: FloatArray = self.model.predict_um(u)[0]
         return out
-
-    def _held_joints(self) -> FloatArray:
-        return np.array([self.model.held_um.get(j, 0.0) for j in self.model.joints])
 
     def aim_um(self, p_um: ArrayLike) -> FloatArray:
         """Where the model puts the end-effector for the joints it commands for ``p_um``, (3,)
@@ -147,9 +144,10 @@ class FeedForward:
         p = as_array(p_um, "p_um", (3,))
         if not self.model.held_um:
             return p
-        extra = np.zeros(0) if self.extra is None else np.asarray(self.extra(), float).ravel()
-        d = self._joints(p, None if self.extra is None else extra)
-        out: FloatArray = self.model.predict_um(np.concatenate([d, extra]))[0]
+        extra = None if self.extra is None else np.asarray(self.extra(), float).ravel()
+        d = self._joints(p, extra)  # the inputs read once, for the joints and the prediction
+        u = d if extra is None else np.concatenate([d, extra])
+        out: FloatArray = self.model.predict_um(u)[0]
         return out
 
     def move_to_position_um(self, p_um: ArrayLike) -> FloatArray:

@@ -205,7 +205,8 @@ def servo(
         p, cov = measure(frames)
         if not np.all(np.isfinite(p)):
             raise DetectionError(f"closed loop: iteration {k}: the end-effector was not found")
-        e = reachable_error(jacobian(d), target - p)
+        J = jacobian(d)
+        e = reachable_error(J, target - p)
         within = probability_within(e, cov, config.tolerance_um)
         step = ServoStep(k, frames, d.copy(), p, cov, e, within)
         if within >= config.confidence:
@@ -213,7 +214,7 @@ def servo(
         elif k == config.max_iterations:
             status = "iterations"
         else:
-            delta = joint_step(jacobian(d), e)
+            delta = joint_step(J, e)
             if np.all(np.abs(delta) < config.resolution_um):
                 status = "resolution"
             else:

@@ -171,12 +171,17 @@ class Manipulator(Device):
         d = as_array(d_um, "d_um", (self.n_axes,))
         return check_limits(d, self.limits_um, axes=self.axes, owner=self.name)
 
+    @property
+    def held(self) -> np.ndarray:
+        """(n_axes,) bool: the axes the device holds still (soft limits of one value)."""
+        held: np.ndarray = self.limits_um[:, 0] == self.limits_um[:, 1]
+        return held
+
     def below_um(self, d_um: ArrayLike, distance_um: float) -> FloatArray:
         """Where an approach from below to ``d_um`` starts: ``distance_um`` under it on every
         joint, except a held one (it keeps its value), (n_axes,) µm; not checked."""
         d = np.asarray(d_um, dtype=np.float64)
-        moving = self.limits_um[:, 0] < self.limits_um[:, 1]
-        out: FloatArray = np.where(moving, d - distance_um, d)
+        out: FloatArray = np.where(self.held, d, d - distance_um)
         return out
 
     def move_to_um(self, d_um: ArrayLike) -> None:

@@ -10,16 +10,23 @@ Identification leaves a held joint out of the model, and a compensator solves fo
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from .._validation import FloatArray
 from ..errors import InputError
 from .base import Manipulator
 
-__all__ = ["AXES", "HeldAxes", "with_three_joints"]
+__all__ = ["AXES", "HeldAxes", "axes_in_order", "with_three_joints"]
 
 #: The three joints every procedure speaks of, in order.
 AXES: tuple[str, ...] = ("x", "y", "z")
+
+
+def axes_in_order(axes: Sequence[str]) -> bool:
+    """Whether ``axes`` are some of x, y, z, in that order (``x, y`` for an X-Y stage)."""
+    return bool(axes) and list(axes) == [a for a in AXES if a in axes]
 
 
 class HeldAxes(Manipulator):
@@ -37,11 +44,7 @@ class HeldAxes(Manipulator):
     """
 
     def __init__(self, device: Manipulator) -> None:
-        if (
-            not device.axes
-            or any(a not in AXES for a in device.axes)
-            or list(device.axes) != [a for a in AXES if a in device.axes]
-        ):
+        if not axes_in_order(device.axes):
             raise InputError(
                 f"{device.name}: expected axes among x, y, z in that order, got {list(device.axes)}"
             )

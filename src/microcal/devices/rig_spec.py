@@ -21,6 +21,7 @@ import numpy as np
 from .._validation import FloatArray
 from ..errors import InputError
 from .aravis_camera import PIXEL_FORMATS  # the driver's module loads Aravis only when opened
+from .held_axes import axes_in_order
 from .smaract_mcs2 import MCS2_PORT
 
 __all__ = [
@@ -169,7 +170,7 @@ class MCS2Spec:
         if not self.channels:
             raise InputError("channels: expected a channel per axis, e.g. {x = 0, y = 1, z = 2}")
         channels = {str(a): _integer(f"channels.{a}", c, 0) for a, c in self.channels.items()}
-        if list(channels) != [a for a in ("x", "y", "z") if a in channels]:
+        if not axes_in_order(list(channels)):
             raise InputError(
                 f"channels: expected axes among x, y, z in that order (x and y alone for an "
                 f"X-Y positioner), got {list(channels)}"

@@ -11,28 +11,30 @@ from ..geometry import AnyCamera
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from .calibration_file import Calibration, load_calibration, provenance, write_calibration
 from .cameras_file import read_cameras
+from .records import RunManifest
 
-__all__ = ["add_manipulator", "camera_models", "measured_device"]
+__all__ = ["add_manipulator", "camera_models", "measured_device", "measured_held_joints"]
+
+
+def _manifest_beside(measurements: Path) -> RunManifest | None:
+    """run.json of the run directory holding ``measurements``, if there is one."""
+    from .run_directory import RunDirectory
+
+    if not (measurements.parent / "run.json").is_file():
+        return None
+    return RunDirectory(measurements.parent).manifest
 
 
 def measured_device(measurements: Path) -> str:
     """The rig device whose run measured ``measurements`` (run.json beside it), else ``m1``."""
-    from .run_directory import RunDirectory
-
-    if not (measurements.parent / "run.json").is_file():
-        return "m1"
-    manifest = RunDirectory(measurements.parent).manifest
+    manifest = _manifest_beside(measurements)
     return (manifest.manipulator if manifest is not None else None) or "m1"
 
 
 def measured_held_joints(measurements: Path) -> dict[str, float]:
     """The joints the measured device holds still (run.json beside ``measurements``: an X-Y
     positioner's ``dz``), by value; none without a run.json."""
-    from .run_directory import RunDirectory
-
-    if not (measurements.parent / "run.json").is_file():
-        return {}
-    manifest = RunDirectory(measurements.parent).manifest
+    manifest = _manifest_beside(measurements)
     return dict(manifest.held_joints_um or {}) if manifest is not None else {}
 
 

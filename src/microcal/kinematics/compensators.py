@@ -71,8 +71,7 @@ def _linear_part(model: KinematicModel, extra: FloatArray) -> tuple[FloatArray, 
     n = extra.shape[0]
     # Terms without joints: the constant and the powers of extra inputs.
     offset = np.zeros((n, 3))
-    held = np.array([model.held_um.get(name, 0.0) for name in model.joints])
-    u0 = np.hstack([np.broadcast_to(held, (n, j)), extra])
+    u0 = np.hstack([np.broadcast_to(model.rest_um, (n, j)), extra])
     mask = np.array([not set(t.inputs) & set(model.joints) for t in model.terms])
     if mask.any():
         from .terms import design_matrix
@@ -167,7 +166,7 @@ class Compensator:
             middle[j] = mids[0] if mids else model.held_um.get(joint, 0.0)
         self._wave_middle = middle
         self._moving = np.array([j in model.moving_joints for j in model.joints])
-        self._held = np.array([model.held_um.get(j, 0.0) for j in model.joints])
+        self._held = model.rest_um
 
     def _step(self, J: FloatArray, r: FloatArray) -> FloatArray:
         """The joint step (N, 3) that solves ``J step = r``: exactly for three moving joints,

@@ -39,7 +39,7 @@ from .._validation import FloatArray
 from ..errors import DegenerateDataError, InputError
 from .models import KinematicModel, fit_model
 from .penalised import fit_penalised_axis, roughness_weights
-from .terms import JOINTS, Term, design_matrix, polynomial_terms, wave_terms
+from .terms import JOINTS, Term, design_matrix, polynomial_terms, terms_without, wave_terms
 from .validation import kfold_indices
 
 __all__ = [
@@ -155,8 +155,7 @@ def fit_family(
     them.
     """
     held = dict(held_um or {})
-    candidates = family_terms(family, inputs, extra, joint_range_um)
-    terms = tuple(t for t in candidates if not set(t.inputs) & set(held))
+    terms = terms_without(family_terms(family, inputs, extra, joint_range_um), held)
     if family.penalised:
         return _fit_penalised(u, p_um, family, terms, inputs, held)
     model = fit_model(

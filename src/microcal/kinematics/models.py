@@ -28,6 +28,7 @@ from .terms import (
     matrix_terms,
     parse_term,
     polynomial_terms,
+    terms_without,
 )
 
 __all__ = [
@@ -221,6 +222,11 @@ class KinematicModel:
     def moving_joints(self) -> tuple[str, ...]:
         """The joints a compensator solves for: all but the held ones."""
         return tuple(j for j in self.joints if j not in self.held_um)
+
+    @property
+    def rest_um(self) -> FloatArray:
+        """(j,) each joint's value where nothing moves it: a held joint's value, else 0."""
+        return np.array([self.held_um.get(j, 0.0) for j in self.joints])
 
     @property
     def extra_inputs(self) -> tuple[str, ...]:
@@ -443,7 +449,7 @@ def fit_model(
     inputs = tuple(inputs)
     held = dict(held_um or {})
     U, P = _inputs_and_targets(u, p_um, inputs)
-    terms = tuple(t for t in terms if not set(t.inputs) & set(held))
+    terms = terms_without(terms, held)
     check_inputs_move(U, inputs, [n for n in inputs if n not in held])
     if Term() not in terms:
         terms = (*terms, Term())

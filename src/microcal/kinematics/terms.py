@@ -35,6 +35,7 @@ __all__ = [
     "matrix_terms",
     "parse_term",
     "polynomial_terms",
+    "terms_without",
     "wave_terms",
 ]
 
@@ -198,6 +199,12 @@ def parse_term(text: str) -> Term:
             )
         powers.append((name, power))
     return Term(tuple(powers), tuple(waves))
+
+
+def terms_without(terms: Iterable[Term], inputs: Iterable[str]) -> tuple[Term, ...]:
+    """The terms that use none of ``inputs`` (a held joint's terms left out)."""
+    left_out = set(inputs)
+    return tuple(t for t in terms if not left_out & set(t.inputs))
 
 
 def matrix_terms(joints: Sequence[str] = JOINTS) -> tuple[Term, ...]:

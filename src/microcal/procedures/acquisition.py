@@ -138,7 +138,7 @@ def approach_start_um(
     outside = (start < limits_um[:, 0]) | (start > limits_um[:, 1])
     out: FloatArray = np.where(outside, d_um - side * config.approach_um, start)
     held = limits_um[:, 0] == limits_um[:, 1]
-    return np.where(held, d_um, out) if held.any() else out
+    return np.asarray(np.where(held, d_um, out), dtype=np.float64)
 
 
 def _retry(what: Callable[[], Any], retries: int) -> Any:

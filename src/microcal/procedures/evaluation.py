@@ -290,9 +290,8 @@ def run_multi_directional(
         "poses": [{"desired_um", "vap_um"}]}}}``.
     """
     if travel_um is None:
-        lim = manipulator.limits_um
-        margin = np.where(lim[:, 1] > lim[:, 0], 50.0, 0.0)
-        travel_um = (lim[:, 0] + margin, lim[:, 1] - margin)
+        margin = np.where(manipulator.held, 0.0, 50.0)
+        travel_um = (manipulator.limits_um[:, 0] + margin, manipulator.limits_um[:, 1] - margin)
     low, high = travel_um
     detours = [approach_detours_um(p, np.asarray(low), np.asarray(high)) for p in poses_um]
     out = _sources(probe, truth)
@@ -497,7 +496,7 @@ def run_evaluation(
     rng = calibration.joint_range_um
     lim = manipulator.limits_um if rng is None else rng
     poses_um = TABLE_5_2_POSES_UM if poses == "table-5-2" else iso_cube_poses(*lim.T)
-    held = manipulator.limits_um[:, 0] == manipulator.limits_um[:, 1]
+    held = manipulator.held
     if held.any() and (poses == "table-5-2" or tests in ("all", "decoupling")):
         raise InputError(
             f"evaluate on {manipulator.name}: it holds {', '.join(np.array(list('xyz'))[held])} "

@@ -27,7 +27,7 @@ from ..errors import DetectionError, InputError
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..metrics.error_summary import summarize_errors
 from .evaluation import iso_cube_poses
-from .station import Station
+from .station import Station, check_frames
 
 __all__ = ["MeetResult", "meet_targets_um", "meet_test"]
 
@@ -138,8 +138,7 @@ def meet_test(
     """
     if first is second:
         raise InputError("meet: first and second are the same station; give two devices")
-    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
-        raise InputError(f"meet: frames: expected a whole number >= 1, got {frames!r}")
+    check_frames(frames, "meet")
     first.check_told_apart(second)
     targets = as_rows(targets_um, "targets_um", 3)
     offset = as_array(offset_um, "offset_um", (3,))

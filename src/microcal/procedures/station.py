@@ -32,7 +32,7 @@ from ..geometry import AnyCamera
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..vision.probe import VisionProbe
 
-__all__ = ["Arrival", "Station"]
+__all__ = ["Arrival", "Station", "check_frames"]
 
 
 @dataclass(frozen=True)
@@ -80,6 +80,13 @@ class Arrival:
                 "measured_um": self.measured_um.tolist(), "std_um": self.std_um.tolist(),
                 "error_um": self.error_um.tolist(), "mode": self.mode, "status": self.status,
                 "iterations": self.iterations, "frames": self.frames}  # fmt: skip
+
+
+def check_frames(frames: object, where: str) -> None:
+    """Refuse a number of frames per camera that is not a whole number >= 1 (InputError
+    naming ``where``)."""
+    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
+        raise InputError(f"{where}: frames: expected a whole number >= 1, got {frames!r}")
 
 
 class Station:
@@ -145,9 +152,8 @@ class Station:
         DetectionError
             The cameras do not find the end-effector's target.
         """
-        if frames is not None and (isinstance(frames, bool) or not isinstance(frames, int)
-                                   or frames < 1):  # fmt: skip
-            raise InputError(f"where_um: frames: expected a whole number >= 1, got {frames!r}")
+        if frames is not None:
+            check_frames(frames, "where_um")
         self.rig.look_at()
         p, cov = self.probe.measure_with_covariance(self._d, frames or self.frames)
         if not np.all(np.isfinite(p)):

@@ -151,7 +151,7 @@ class SimManipulator(Manipulator):
         self._fault("the position query")
         d = self.joints_um(self.clock.now_s())
         noise = self.rng.normal(0.0, self.sensor_noise_um, 3)
-        out: FloatArray = d + np.where(self.limits_um[:, 0] < self.limits_um[:, 1], noise, 0.0)
+        out: FloatArray = d + np.where(self.held, 0.0, noise)
         return out
 
     def _is_moving(self) -> bool:

@@ -143,17 +143,16 @@ def _square_wave_prepared(u: FloatArray, p: float, w: FloatArray, half: FloatArr
 
 
 @lru_cache(maxsize=8)
-def _charuco_texture(
-    cols: int, rows: int, pitch_um: float, marker_um: float, first_marker: int = 0
-) -> FloatArray:
+def _charuco_texture(t: Target) -> FloatArray:
     """The ChArUco board as an image, 48 texels per square, values 0 (black) .. 1 (white)."""
     import cv2
 
     dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_250)
-    ids = np.arange(first_marker, first_marker + cols * rows // 2, dtype=np.int32)
-    board = cv2.aruco.CharucoBoard((cols, rows), pitch_um, marker_um, dictionary, ids)
+    board = cv2.aruco.CharucoBoard(
+        (t.cols, t.rows), t.pitch_um, t.feature_um, dictionary, t.marker_ids()
+    )
     texels = 48
-    image = board.generateImage((cols * texels, rows * texels), marginSize=0, borderBits=1)
+    image = board.generateImage((t.cols * texels, t.rows * texels), marginSize=0, borderBits=1)
     return np.asarray(image, dtype=np.float64) / 255.0
 
 
@@ -243,7 +242,7 @@ def _charuco_shader(
     m = placement.margin
     wu_box, wv_box = np.maximum(wu, 1e-12), np.maximum(wv, 1e-12)
     hu_box, hv_box = wu_box / 2, wv_box / 2
-    tex = _charuco_texture(t.cols, t.rows, t.pitch_um, t.feature_um, t.first_marker)
+    tex = _charuco_texture(t)
     texels = tex.shape[1] / t.cols
 
     def shade(u: FloatArray, v: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -29,7 +29,7 @@ import dataclasses
 import numpy as np
 
 from ..kinematics.models import KinematicModel
-from ..kinematics.terms import JOINTS, polynomial_terms
+from ..kinematics.terms import JOINTS, polynomial_terms, terms_without
 from .kinematics import TrueKinematics
 
 __all__ = ["positioner_kinematics", "second_manipulator_kinematics"]
@@ -46,8 +46,9 @@ def _static(linear: np.ndarray, quadratic: dict[tuple[int, str], float], base_um
     for (axis, name), value in quadratic.items():
         coef[axis, names.index(name)] = value
     coef[:, names.index("1")] = base_um
-    keep = [not set(t.inputs) & set(held) for t in terms]  # a held joint has no terms
-    terms, coef = tuple(t for t, k in zip(terms, keep, strict=True) if k), coef[:, keep]
+    kept = terms_without(terms, held)  # a held joint has no terms
+    coef = coef[:, [terms.index(t) for t in kept]]
+    terms = kept
     return KinematicModel(
         kind="polynomial", inputs=JOINTS, joints=JOINTS, terms=terms, coefficients=coef,
         selected=coef != 0, covariance=np.zeros((3, len(terms), len(terms))),
