@@ -80,11 +80,14 @@ def test_study_command_writes_and_refuses_a_foreign_file(tmp_path):
     assert "microcal did not write" in result.output
     (out / "study.json").unlink()
     result = CliRunner().invoke(app, ["study", "--preset", "population", "--seeds", "1",
-                                      "--first-seed", "6", "--workers", "1", "--out", str(out)])  # fmt: skip
+                                      "--first-seed", "6", "--workers", "1", "--prior",
+                                      "--out", str(out)])  # fmt: skip
     assert result.exit_code == 0, result.output
     study = json.loads((out / "study.json").read_text())
     assert study["format"] == "microcal.study/1"
     assert study["seeds"] == [6]
+    assert "ap_truth_over_oracle.prior" in study["summary"]
+    assert "ap_truth_over_oracle.prior" in result.output
     assert (out / "study.html").read_text().startswith("<!-- microcal study page -->")
 
 

@@ -17,6 +17,7 @@ _Workers = Annotated[int, Option(min=0, help="Processes at once (0: one per core
 _Poses = Annotated[int, Option(min=40, max=20000, help="Poses acquired per platform.")]
 _Design = Annotated[str, Option(help="Command design: random, sobol, lhs, grid, chebyshev.")]
 _Closed = Annotated[bool, Option(help="Evaluate the closed loop (visual servoing) as well.")]
+_Prior = Annotated[bool, Option(help="Add the floor: the Bayes estimator of each draw's prior.")]
 
 
 @app.command(short_help="The procedure on many simulated platforms.")
@@ -26,7 +27,7 @@ def study(
     rig: Annotated[Path | None, Option(help="A simulated rig file: preset, settings.")] = None,
     seeds: _Seeds = 20, first_seed: _First = 0, render: _Render = False, workers: _Workers = 0,
     poses: _Poses = 170, design: _Design = "random", closed_loop: _Closed = False,
-    tolerance_um: Tolerance = 0.5,
+    tolerance_um: Tolerance = 0.5, prior: _Prior = False,
 ) -> None:  # fmt: skip
     """Calibrate, identify (matrix, quadratic, smooth, auto) and evaluate on N seeded platforms,
     each in its own process, against the oracle; write study.json and study.html.
@@ -46,7 +47,8 @@ def study(
         console.print(f"seed {run['seed']}: done ({done}/{total}, {run['wall_s']:.1f} s)")
 
     config = StudyConfig(poses=poses, render=render, design=design, overrides=overrides,
-                         closed_loop=closed_loop, tolerance_um=tolerance_um)  # fmt: skip
+                         closed_loop=closed_loop, tolerance_um=tolerance_um,
+                         prior=prior)  # fmt: skip
     result = run_study(preset, range(first_seed, first_seed + seeds), config, workers or None, tick)
     path = write_study(out, result, study_page(result))
     for name, med, p90 in study_table(result):

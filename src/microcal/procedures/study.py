@@ -56,11 +56,12 @@ from ..kinematics.designs import DESIGNS, make_design
 from ..kinematics.extra_inputs import APPROACH_INPUTS
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..kinematics.models import KinematicModel, fit_model
-from ..kinematics.terms import JOINTS, Term, polynomial_terms
+from ..kinematics.terms import JOINTS
 from ..sim import SimPlatform, platform
 from ..sim.kinematics import TrueKinematics, invert_map
 from ..sim.manipulator import SimManipulator
 from ..sim.platforms import PRESETS
+from ..sim.population_prior import PriorEstimator, fit_prior_estimator, known_form_terms
 from ..sim.synthetic_run import ProjectedProbe
 from ..thesis.experiment import TABLE_5_2_POSES_UM, WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
 from .acquisition import AcquisitionConfig, approach_start_um
@@ -93,6 +94,9 @@ class StudyConfig:
     tolerance_um: float = 0.5
     overrides: dict[str, Any] = field(default_factory=dict)
     """Simulator settings (a rig file's ``overrides``) applied to every seed's platform."""
+    prior: bool = False
+    """On ``population`` platforms, add the ``prior`` figures: the Bayes estimator under the
+    draw's own prior (:mod:`~microcal.sim.population_prior`), the floor of any model."""
 
     def __post_init__(self) -> None:
         if self.design not in DESIGNS:
@@ -129,11 +133,7 @@ def fit_oracle_correction(
     inputs = ORACLE_INPUTS if sensed else ORACLE_INPUTS[:-1]
     u = np.column_stack([d_um, signs, temps])[:, : len(inputs)]
     r = p_um - truth.position_um(d_um, signs, temps)
-    extra = dict.fromkeys(inputs[3:], 1)
-    terms = list(polynomial_terms(JOINTS, 2, extra))
-    constant = terms.pop()
-    terms += [Term(((f"s{j[1]}", 1), (j, 1))) for j in JOINTS]
-    return fit_model(u, r, [*terms, constant], kind="polynomial", inputs=inputs)
+    return fit_model(u, r, known_form_terms(inputs), kind="polynomial", inputs=inputs)
 
 
 def oracle_position_um(
@@ -146,38 +146,60 @@ def oracle_position_um(
     return truth.position_um(d_um, signs, t) + correction.predict_um(u)
 
 
-class OracleFeedForward(FeedForward):
-    """The oracle compensator: the oracle's map (:func:`oracle_position_um`) inverted
-    exactly, reversal at +1 after the fixed approach from below, the temperature now."""
+#: A map of joints, approach signs (N, 3) and a temperature to positions (N, 3), µm.
+PositionMap = Callable[[FloatArray, FloatArray, float], FloatArray]
 
-    def __init__(
-        self, manipulator: SimManipulator, clock: Clock, correction: KinematicModel
-    ) -> None:
+
+class ExactFeedForward(FeedForward):
+    """A compensator that inverts a given map exactly: reversal at +1 after the fixed
+    approach from below, the temperature now (the oracle's, and the prior's floor)."""
+
+    def __init__(self, manipulator: SimManipulator, clock: Clock, position: PositionMap) -> None:
         super().__init__(manipulator, manipulator.truth.static, "optimal", None, clock)
         self.truth = manipulator.truth
-        self.correction = correction
+        self.position = position
         self.sim = manipulator
         self.approach_um = APPROACH_UM
 
     def home_um(self) -> FloatArray:
-        """The oracle's position at zero joints now, (3,) µm."""
+        """The map's position at zero joints now, (3,) µm."""
         t = self.sim.temperature_at(self.sim.clock.now_s())
-        out: FloatArray = oracle_position_um(self.truth, self.correction, np.zeros((1, 3)),
-                                             np.ones((1, 3)), t)[0]  # fmt: skip
+        out: FloatArray = self.position(np.zeros((1, 3)), np.ones((1, 3)), t)[0]
         return out
 
     def joints_for(self, p_um: Any) -> FloatArray:
-        """The joints whose oracle position is ``p_um``, (3,) µm."""
+        """The joints whose mapped position is ``p_um``, (3,) µm."""
         t = self.sim.temperature_at(self.sim.clock.now_s())
         p = np.asarray(p_um, dtype=np.float64).reshape(1, 3)
         ones = np.ones((1, 3))
         d0 = np.asarray(
             np.linalg.solve(self.truth.static.R, (p - self.truth.static.p_base_um).T).T, np.float64
         )
-        d = invert_map(lambda d: oracle_position_um(self.truth, self.correction, d, ones, t),
-                       p, d0)  # fmt: skip
+        d = invert_map(lambda d: self.position(d, ones, t), p, d0)
         out: FloatArray = d[0]
         return out
+
+
+def oracle_feed_forward(
+    manipulator: SimManipulator, clock: Clock, correction: KinematicModel
+) -> ExactFeedForward:
+    """The oracle compensator: the oracle's map (:func:`oracle_position_um`) inverted."""
+    return ExactFeedForward(manipulator, clock, functools.partial(
+        oracle_position_um, manipulator.truth, correction))  # fmt: skip
+
+
+def prior_feed_forward(
+    manipulator: SimManipulator, clock: Clock, estimator: PriorEstimator
+) -> ExactFeedForward:
+    """The prior's floor as a compensator: the kriging map of
+    :mod:`~microcal.sim.population_prior` inverted exactly."""
+
+    def position(d: FloatArray, signs: FloatArray, t: float) -> FloatArray:
+        temps = np.full((d.shape[0], 1), t)
+        u = np.column_stack([d, signs, temps])[:, : len(estimator.inputs)]
+        return estimator.predict_um(u)
+
+    return ExactFeedForward(manipulator, clock, position)
 
 
 def _acquire_fast(
@@ -333,7 +355,17 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[
         model = fits[name].model
         conditions[name] = FeedForward(sim, model, "optimal",
                                        extra_inputs_reader(model, sensors), plat.clock)  # fmt: skip
-    conditions["oracle"] = OracleFeedForward(sim, plat.clock, correction)
+    conditions["oracle"] = oracle_feed_forward(sim, plat.clock, correction)
+    if config.prior and plat.population is not None:
+        inputs = ORACLE_INPUTS if np.ptp(temps) > 0 else ORACLE_INPUTS[:-1]
+        u = np.column_stack([d, signs, temps])[:, : len(inputs)]
+        noise = np.diagonal(cov, axis1=1, axis2=2)
+        estimator = fit_prior_estimator(plat.population, u[:n_fit], inputs, p[:n_fit],
+                                        noise[:n_fit])  # fmt: skip
+        validation["prior"] = float(
+            np.linalg.norm(p[n_fit:] - estimator.predict_um(u[n_fit:]), axis=1).mean()
+        )
+        conditions["prior"] = prior_feed_forward(sim, plat.clock, estimator)
     if config.closed_loop:
         auto = fits["auto"].model
         conditions["closed_loop"] = closed_loop_condition(

@@ -41,7 +41,7 @@ from ..vision.targets import Target, parse_target
 from .camera import CameraFaults, ImageFormation, SimCamera
 from .clock import SimClock
 from .manipulator import ManipulatorFaults, SimManipulator
-from .population import draw_population
+from .population import PopulationDraw, draw_population
 from .render import Placement
 from .stage import SimStage
 
@@ -344,6 +344,7 @@ class SimPlatform:
     scene: Scene
     seed: int
     target_stage: SimStage | None = None
+    population: PopulationDraw | None = None  # the draw of a ``population`` platform
 
     @property
     def manipulators(self) -> dict[str, SimManipulator]:
@@ -431,7 +432,7 @@ def platform(
             camera, scene, clock, np.random.default_rng(seq), pixel_size_um=cfg.pixel_size_um,
             bit_depth=cfg.bit_depth, formation=formation, faults=cfg.faults,
         )  # fmt: skip
-    return SimPlatform(config, clock, manipulator, cameras, scene, seed, stage)
+    return SimPlatform(config, clock, manipulator, cameras, scene, seed, stage, draw)
 
 
 def _further_devices(

@@ -64,6 +64,10 @@ class PopulationDraw:
         Turn of each camera about the travel's middle (about {G}'s x, y, z), degrees.
     camera_magnification : (n_cameras,) float
         Factor on each camera's focal length.
+    profile_length_um, straightness_sd_um, angle_sd_urad : (3,) float
+        The prior each joint's straightness and angular profiles were drawn from: the
+        process's length scale and standard deviations (for
+        :mod:`~microcal.sim.population_prior`, the best any model can do).
     """
 
     truth: TrueKinematics
@@ -73,6 +77,9 @@ class PopulationDraw:
     temperature_drift_c_per_h: float
     camera_rotation_deg: FloatArray
     camera_magnification: FloatArray
+    profile_length_um: FloatArray
+    straightness_sd_um: FloatArray
+    angle_sd_urad: FloatArray
 
 
 def _signed_log_uniform(rng: np.random.Generator, low: float, high: float, size: int) -> FloatArray:
@@ -122,19 +129,24 @@ def _static(rng: np.random.Generator) -> KinematicModel:
     )
 
 
-def _joint_errors(rng: np.random.Generator) -> JointErrors:
+def _joint_errors(rng: np.random.Generator) -> tuple[JointErrors, FloatArray]:
+    """The joints' errors, and their prior: rows length scale (µm), straightness sd (µm)
+    and angle sd (µrad), a column per joint, (3, 3)."""
     knots = np.linspace(PROFILE_LOW_UM, PROFILE_HIGH_UM, KNOTS).T  # (3, K)
     straight = np.zeros((3, KNOTS, 3))
     angles = np.zeros((3, KNOTS, 3))
+    prior = np.zeros((3, 3))
     for j in range(3):
         length = rng.uniform(800.0, 2000.0)
         sigma = rng.uniform(0.5, 1.5)
         others = [a for a in range(3) if a != j]
         straight[j][:, others] = _gaussian_process(rng, knots[j], length, sigma, 2)
-        angles[j] = _gaussian_process(rng, knots[j], length, rng.uniform(10.0, 50.0), 3)
+        angle_sd = rng.uniform(10.0, 50.0)
+        angles[j] = _gaussian_process(rng, knots[j], length, angle_sd, 3)
+        prior[:, j] = length, sigma, angle_sd
     direction = rng.standard_normal(3)
     offset = rng.uniform(10000.0, 40000.0) * direction / np.linalg.norm(direction)
-    return JointErrors(
+    errors = JointErrors(
         knots_um=knots,
         straightness_um=straight,
         angles_urad=angles,
@@ -143,6 +155,7 @@ def _joint_errors(rng: np.random.Generator) -> JointErrors:
         periodic_period_um=rng.uniform(2.0, 20.0, 3),
         periodic_phase=rng.uniform(0.0, 2 * np.pi, 3),
     )
+    return errors, prior
 
 
 def draw_population(seed: int | np.random.SeedSequence, n_cameras: int = 2) -> PopulationDraw:
@@ -157,7 +170,7 @@ def draw_population(seed: int | np.random.SeedSequence, n_cameras: int = 2) -> P
     """
     rng = np.random.default_rng(seed)
     static = _static(rng)
-    errors = _joint_errors(rng)
+    errors, prior = _joint_errors(rng)
     centre = (PROFILE_LOW_UM + PROFILE_HIGH_UM) / 2
     truth = TrueKinematics(
         static=static,
@@ -181,4 +194,7 @@ def draw_population(seed: int | np.random.SeedSequence, n_cameras: int = 2) -> P
         temperature_drift_c_per_h=float(rng.uniform(-0.3, 0.3)),
         camera_rotation_deg=rng.uniform(-2.0, 2.0, (n_cameras, 3)),
         camera_magnification=rng.uniform(0.9, 1.1, n_cameras),
+        profile_length_um=prior[0],
+        straightness_sd_um=prior[1],
+        angle_sd_urad=prior[2],
     )
