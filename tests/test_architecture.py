@@ -34,6 +34,7 @@ ROOT_LAZY: dict[str, str] = getattr(microcal, "_LAZY", {})
 LAYERS = {
     "errors": 0,
     "_validation": 0,
+    "_parallel": 0,
     "_version": 0,
     "thesis": 0,
     "thesis.figures": 0,

@@ -10,6 +10,7 @@ from microcal import sim
 from microcal.errors import InputError
 from microcal.sim.render import Placement
 from microcal.vision.detect import detect
+from microcal.vision.roi import frames_from_region
 from microcal.vision.targets import parse_target
 
 
@@ -198,3 +199,26 @@ def test_a_region_of_interest_is_cut_out_before_anything_else():
     assert detect(bad, target, roi=roi).reason == (
         "the region of interest has 1 NaN or infinite pixels"
     )
+
+
+def test_the_same_image_gives_the_same_corners_whatever_came_before():
+    """The sector-based finder draws from OpenCV's random generator; here it judges the
+    half-resolution search of a stored region (its corners refused there, the board is
+    then found at full resolution around them). Seeded per call, a detection does not
+    depend on the detections before it (nor on the process: cameras are measured in
+    parallel)."""
+    plat = sim.platform("thesis", seed=0)
+    board = plat.scene.board
+    frame = plat.cameras["side"].grab()
+    q = detect(frame, board).q_px
+    square = float(np.median(np.linalg.norm(np.diff(q, axis=0), axis=1)))
+    lo = np.floor(q.min(axis=0) - 3 * square).astype(int)
+    hi = np.ceil(q.max(axis=0) + 3 * square).astype(int)
+    region = frame[lo[1] : hi[1], lo[0] : hi[0]]
+    stored = frames_from_region([region], lo, (frame.shape[1], frame.shape[0]))[0]
+    first = detect(stored, board)
+    assert first.found, first.reason
+    for _ in range(3):
+        detect(stored, board)
+        detect(plat.cameras["top"].grab(), board)
+    np.testing.assert_array_equal(detect(stored, board).q_px, first.q_px)

@@ -117,6 +117,11 @@ def test_3d_measurement_of_100_poses(known_calibration):
     # 0.005 px) has become comparable with the noise of five averaged frames (docs/vision.md).
     m2 = np.einsum("ni,nij,nj->n", e, np.linalg.inv(cov), e)
     assert 2.4 <= m2.mean() <= 4.5
+    # the cameras measured in two processes at once: the very same numbers
+    again = measure_poses(list(range(100)), d, lambda i, n: frames[(i, n)], cal.models(), BOARD,
+                          workers=2)  # fmt: skip
+    np.testing.assert_array_equal([r.p_um for r in again], [r.p_um for r in res])
+    np.testing.assert_array_equal([r.cov_um2 for r in again], [r.cov_um2 for r in res])
 
 
 def test_table_4_1_with_the_library_detector():

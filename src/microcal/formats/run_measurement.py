@@ -74,6 +74,7 @@ def measure_run(
     *,
     force: bool = False,
     progress: Callable[[int, int], None] | None = None,
+    workers: int | None = None,
 ) -> MeasuredRun:
     """Measure every pose of a run and write its ``measurements.csv``.
 
@@ -87,6 +88,11 @@ def measure_run(
         The end-effector's board (default: run.json's).
     force : bool
         Replace a measurements.csv that measured more poses than this measurement.
+    progress : callable (done, total), optional
+        A camera's frames of a pose at a time.
+    workers : int, optional
+        Cameras measured at once, each in its own process (default: the machine's cores);
+        the results are the same for any number.
 
     Raises
     ------
@@ -118,7 +124,15 @@ def measure_run(
     notes = [f"warning: {n}; its poses are not measured (acquire --resume acquires them again)"
              for n in [run.damage_note()] if n]  # fmt: skip
     with run_lock(run.path, "measure"):
-        results = measure_poses(poses, d, run.frames, models, board, progress=progress)
+        results = measure_poses(
+            poses,
+            d,
+            run.frames,
+            models,
+            board,
+            progress=progress,
+            workers=workers or os.cpu_count() or 1,
+        )
         ok = sum(r.status == "ok" for r in results)
         failed = [r for r in results if r.status != "ok"]
         kept = f"; kept {run.measurements_path}" if previous is not None else ""

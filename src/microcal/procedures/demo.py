@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -342,6 +343,7 @@ def run_demo(
         cal.models(),
         board,
         progress=lambda done, total: tick("measurement", done, total),
+        workers=os.cpu_count() or 1,
     )
     result = DemoResult(
         seed,

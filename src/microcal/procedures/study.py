@@ -35,16 +35,16 @@ from __future__ import annotations
 
 import functools
 import os
-import signal
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from multiprocessing import get_all_start_methods, get_context
+from multiprocessing import get_context
 from typing import Any
 
 import numpy as np
 import scipy.stats
 
+from .._parallel import can_fork, ignore_interrupts
 from .._validation import FloatArray
 from ..control.closed_loop import ClosedLoop, Measure
 from ..control.conditions import closed_loop_condition
@@ -532,10 +532,10 @@ def run_study(
         os.environ.update(dict.fromkeys(_THREAD_VARS, "1"))  # one core per seed
         try:
             # fork where there is one (a script without a main guard works), else spawn
-            method = "fork" if "fork" in get_all_start_methods() else "spawn"
+            method = "fork" if can_fork() else "spawn"
             # the workers leave an interrupt to this process, whose leaving the block ends
             # them (Pool.terminate): an interrupted study stops now, not after every seed
-            with get_context(method).Pool(workers, initializer=_ignore_interrupts) as pool:
+            with get_context(method).Pool(workers, initializer=ignore_interrupts) as pool:
                 one = functools.partial(run_seed, preset, config=config)
                 for run in pool.imap_unordered(one, seeds):
                     runs[run["seed"]] = run
@@ -552,8 +552,3 @@ def run_study(
 
 
 _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
-
-
-def _ignore_interrupts() -> None:
-    """A worker's start: Ctrl-C, sent to the whole process group, is the parent's to act on."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)

@@ -268,6 +268,10 @@ def _detect_chessboard(
         if why and refused is not None:
             refused.append(corners.reshape(-1, 2).astype(np.float64))
     if not found or why:
+        # The sector-based finder draws from OpenCV's global random generator: seeded, the
+        # same image gives the same corners whatever was detected before (or in which
+        # process: measurement runs cameras in parallel)
+        cv2.setRNGSeed(SECTOR_BASED_SEED)
         found, corners = cv2.findChessboardCornersSB(img8, size, flags=cv2.CALIB_CB_NORMALIZE_IMAGE)
         method = "sector-based"
         if found:
@@ -287,6 +291,9 @@ def _detect_chessboard(
     ids = np.arange(len(q), dtype=np.intp)
     return Detection(True, ids, q, _homography_rms(target, ids, q), method=method)
 
+
+#: The seed of OpenCV's random generator before each sector-based search.
+SECTOR_BASED_SEED = 0x6D63
 
 #: Images larger than this (pixels) are first searched at half resolution.
 COARSE_SEARCH_PX = 600_000

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from .._parallel import fork_map
 from .._validation import FloatArray
 from ..errors import DetectionError
 from ..geometry import AnyCamera, CameraModelProtocol, triangulate_views
@@ -115,6 +116,7 @@ def measure_poses(
     target: Target,
     *,
     progress: Callable[[int, int], None] | None = None,
+    workers: int = 1,
 ) -> list[PoseMeasurement]:
     """Measure every pose of a run.
 
@@ -135,32 +137,68 @@ def measure_poses(
     target : Target
         The end-effector board.
     progress : callable (done, total), optional
+        Counts a camera's frames of a pose at a time (total: poses x cameras).
+    workers : int
+        Cameras measured at once, each in its own forked process (where the system forks):
+        each camera's poses are measured in order either way, so the results are the same.
     """
     names = _check_cameras(cameras)
-    predictors = {n: RoiPredictor() for n in names}
+    total = len(poses) * len(names)
+    done = 0
+
+    def tick() -> None:
+        nonlocal done
+        done += 1
+        if progress:
+            progress(done, total)
+
+    def one_camera(name: str, tick: Callable[[], None]) -> list[Seen]:
+        return _camera_track(poses, commands_um, load_frames, cameras[name], name, target, tick)
+
+    tracks = dict(zip(names, fork_map(one_camera, names, workers, tick), strict=True))
     results: list[PoseMeasurement] = []
     for k, pose in enumerate(poses):
         m = PoseMeasurement(pose, "ok")
         lost: list[str] = []
         for name in names:
-            got: Frames | str | tuple[FloatArray, FloatArray, FloatArray]
-            got = _frames_of(load_frames, pose, name, cameras[name].image_size_px)
-            if not isinstance(got, str):
-                got = _vp_of_frames(
-                    got, target, cameras[name], predictors[name].predict(commands_um[k])
-                )
+            got = tracks[name][k]
             if isinstance(got, str):
                 lost.append(f"{name}: {got}")
                 continue
-            vps, cov, corners = got
-            predictors[name].add(commands_um[k], corners)
-            m.vp_px[name], m.vp_cov_px2[name], m.corners_px[name] = vps, cov, corners
+            m.vp_px[name], m.vp_cov_px2[name], m.corners_px[name] = got
         _judge(m, lost)
         results.append(m)
-        if progress:
-            progress(k + 1, len(poses))
     _triangulate(results, cameras, names)
     return results
+
+
+#: What one camera made of one pose: virtual points (k, 2), their covariance (2, 2) and the
+#: corners of frame 0, or why it has none.
+Seen = tuple[FloatArray, FloatArray, FloatArray] | str
+
+
+def _camera_track(
+    poses: Sequence[int],
+    commands_um: FloatArray,
+    load_frames: Callable[[int, str], Frames],
+    camera: AnyCamera,
+    name: str,
+    target: Target,
+    tick: Callable[[], None],
+) -> list[Seen]:
+    """One camera's view of every pose, in order (where it finds the board is predicted
+    from the poses before)."""
+    predictor = RoiPredictor()
+    out: list[Seen] = []
+    for k, pose in enumerate(poses):
+        got: Frames | Seen = _frames_of(load_frames, pose, name, camera.image_size_px)
+        if not isinstance(got, str):
+            got = _vp_of_frames(got, target, camera, predictor.predict(commands_um[k]))
+        if not isinstance(got, str):
+            predictor.add(commands_um[k], got[2])
+        out.append(got)
+        tick()
+    return out
 
 
 def _judge(m: PoseMeasurement, lost: list[str]) -> None:
