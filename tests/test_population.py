@@ -88,6 +88,12 @@ def test_study_command_writes_and_refuses_a_foreign_file(tmp_path):
     assert study["seeds"] == [6]
     assert "ap_truth_over_oracle.prior" in study["summary"]
     assert "ap_truth_over_oracle.prior" in result.output
+    result = CliRunner().invoke(app, ["study", "--preset", "thesis", "--seeds", "1", "--prior",
+                                      "--out", str(tmp_path / "t")])  # fmt: skip
+    assert result.exit_code == 2
+    assert result.output.count("\n") == 1
+    assert "only the population preset" in result.output
+    assert not (tmp_path / "t").exists()
     assert (out / "study.html").read_text().startswith("<!-- microcal study page -->")
 
 

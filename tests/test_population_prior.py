@@ -97,11 +97,11 @@ def test_known_form_terms_and_bad_inputs():
         fit_prior_estimator(draw, u, INPUTS, u[:, :3], u[:3, :3])
 
 
-def test_a_study_seed_reports_the_floor_on_the_population_only():
+def test_a_study_seed_reports_the_prior_on_the_population_only():
     config = StudyConfig(poses=80, cycles=1, prior=True)
     run = run_seed("population", 2, config)
     ap = run["ap_truth_mean_um"]
     assert ap["oracle"] < ap["prior"] < ap["quadratic"]
     assert run["validation_mean_um"]["prior"] < run["validation_mean_um"]["quadratic"]
-    thesis = run_seed("thesis", 2, StudyConfig(poses=60, cycles=1, prior=True))
-    assert "prior" not in thesis["ap_truth_mean_um"]
+    with pytest.raises(InputError, match="only the population preset"):
+        run_seed("thesis", 2, StudyConfig(poses=60, cycles=1, prior=True))

@@ -1,19 +1,25 @@
 """Work over a few independent items in forked processes, with progress from inside them.
 
 :func:`fork_map` runs ``fn(item, tick)`` for each item, each in a process forked from this
-one (so ``fn`` may be a closure over anything in memory: frames, callables, open files'
-paths), and gives the results in the items' order. ``tick()`` called inside ``fn`` reaches
-the caller's ``progress`` in this process. Where the system cannot fork, or one worker is
-asked for, the items run here, one after the other, with the same results.
+one (so ``fn`` may be a closure over anything in memory: frames, callables, paths), and
+gives the results in the items' order. ``tick()`` called inside ``fn`` reaches the
+caller's ``progress`` in this process. The items run here, one after the other, with the
+same results, where forking is not safe (only Linux forks here: macOS's system libraries
+are not fork-safe), when one worker is asked for, or inside a daemonic worker (which may
+not have children).
 
-The workers leave Ctrl-C to this process, which ends them (``Pool.terminate``) on leaving:
-an interrupted run stops at once, not after every item. An exception in a worker is raised
-here.
+Failures end the whole call at once: an exception in a worker is raised here (as a
+``RuntimeError`` naming it when it cannot be sent back), a worker that dies without a
+result is named, and on any of these, or Ctrl-C here, every worker still running is
+ended. Workers leave Ctrl-C to this process.
 """
 
 from __future__ import annotations
 
+import multiprocessing
+import pickle
 import signal
+import sys
 import time
 from collections.abc import Callable, Sequence
 from multiprocessing import get_all_start_methods, get_context
@@ -25,20 +31,14 @@ T = TypeVar("T")
 R = TypeVar("R")
 Tick = Callable[[], None]
 
-#: The job of the pool being run: (fn, queue of ticks); forked workers inherit it.
-_JOB: tuple[Callable[[Any, Tick], Any], Any] | None = None
 #: How often the caller looks for ticks and results, s.
 POLL_S = 0.02
 
 
 def can_fork() -> bool:
-    """Whether this system starts processes by forking (Linux; not Windows, nor macOS's
-    default)."""
-    return "fork" in get_all_start_methods()
-
-
-def _nothing() -> None:
-    pass
+    """Whether processes may be forked here: Linux (macOS offers fork, but its system
+    libraries, and OpenCV on them, are not safe across it)."""
+    return sys.platform.startswith("linux") and "fork" in get_all_start_methods()
 
 
 def ignore_interrupts() -> None:
@@ -46,10 +46,42 @@ def ignore_interrupts() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def _run(item: Any) -> Any:
-    assert _JOB is not None
-    fn, ticks = _JOB
-    return fn(item, lambda: ticks.put(1))
+def _nothing() -> None:
+    pass
+
+
+def _child(fn: Callable[[Any, Tick], Any], item: Any, conn: Any, ticks: Any) -> None:
+    """A worker: ``fn(item)``, its result or its exception sent back through ``conn``."""
+    ignore_interrupts()
+    try:
+        message: tuple[str, Any] = ("ok", fn(item, lambda: ticks.put(1)))
+    except BaseException as exc:  # everything goes back to the caller, which decides
+        message = ("error", _portable(exc))
+    try:
+        conn.send(message)
+    except Exception as exc:  # a result that does not pickle
+        conn.send(("error", RuntimeError(f"the result does not pickle: {exc}")))
+    conn.close()
+
+
+def _portable(exc: BaseException) -> BaseException:
+    """The exception itself if it survives pickling, else a RuntimeError naming it."""
+    try:
+        pickle.loads(pickle.dumps(exc))
+    except Exception:
+        return RuntimeError(f"{type(exc).__name__}: {exc}")
+    return exc
+
+
+def _receive(conn: Any) -> tuple[str, Any] | None:
+    """A worker's message, or None when it ended without one."""
+    try:
+        if conn.poll():
+            message: tuple[str, Any] = conn.recv()
+            return message
+    except (EOFError, OSError):
+        pass
+    return None
 
 
 def fork_map(
@@ -66,29 +98,60 @@ def fork_map(
         The work on one item; it calls ``tick()`` as it progresses. Its result must pickle.
     items : sequence
     workers : int
-        Processes at once (1, or a system that cannot fork: all here, in order).
+        Processes at once (1, or where forking is not safe: all here, in order).
     progress : callable () -> None, optional
         Called here once per ``tick()`` of any worker.
+
+    Raises
+    ------
+    RuntimeError
+        A worker died without a result (killed, or crashed in a library).
     """
-    global _JOB
     tick = progress or _nothing
     workers = min(workers, len(items))
-    if workers <= 1 or not can_fork():
+    if workers <= 1 or not can_fork() or multiprocessing.current_process().daemon:
         return [fn(item, tick) for item in items]
     ctx = get_context("fork")
     ticks = ctx.SimpleQueue()
-    _JOB = (fn, ticks)
+    results: dict[int, Any] = {}
+    running: dict[int, tuple[Any, Any]] = {}  # index -> (process, connection)
+    todo = list(range(len(items)))
+
+    def drain() -> None:
+        while not ticks.empty():
+            ticks.get()
+            tick()
+
     try:
-        with ctx.Pool(workers, initializer=ignore_interrupts) as pool:
-            pending = [pool.apply_async(_run, (item,)) for item in items]
-            while not all(p.ready() for p in pending):
-                time.sleep(POLL_S)
-                while not ticks.empty():
-                    ticks.get()
-                    tick()
-            while not ticks.empty():
-                ticks.get()
-                tick()
-            return [p.get() for p in pending]
+        while todo or running:
+            while todo and len(running) < workers:
+                k = todo.pop(0)
+                here, there = ctx.Pipe(duplex=False)
+                proc = ctx.Process(target=_child, args=(fn, items[k], there, ticks), daemon=True)
+                proc.start()
+                there.close()
+                running[k] = (proc, here)
+            time.sleep(POLL_S)
+            drain()
+            for k, (proc, conn) in list(running.items()):
+                if not conn.poll() and proc.is_alive():
+                    continue
+                message = _receive(conn)
+                proc.join()
+                del running[k]
+                if message is None:
+                    raise RuntimeError(
+                        f"a worker process ended without a result (exit code {proc.exitcode}): "
+                        "killed, or crashed in a library; run again, or with one worker"
+                    )
+                status, value = message
+                if status == "error":
+                    raise value
+                results[k] = value
+        drain()
     finally:
-        _JOB = None
+        for proc, _ in running.values():
+            proc.terminate()
+        for proc, _ in running.values():
+            proc.join()
+    return [results[k] for k in range(len(items))]

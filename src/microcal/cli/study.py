@@ -17,7 +17,7 @@ _Workers = Annotated[int, Option(min=0, help="Processes at once (0: one per core
 _Poses = Annotated[int, Option(min=40, max=20000, help="Poses acquired per platform.")]
 _Design = Annotated[str, Option(help="Command design: random, sobol, lhs, grid, chebyshev.")]
 _Closed = Annotated[bool, Option(help="Evaluate the closed loop (visual servoing) as well.")]
-_Prior = Annotated[bool, Option(help="Add the floor: the Bayes estimator of each draw's prior.")]
+_Prior = Annotated[bool, Option(help="Add the Bayes estimator under each draw's own prior.")]
 
 
 @app.command(short_help="The procedure on many simulated platforms.")

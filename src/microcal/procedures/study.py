@@ -96,7 +96,8 @@ class StudyConfig:
     """Simulator settings (a rig file's ``overrides``) applied to every seed's platform."""
     prior: bool = False
     """On ``population`` platforms, add the ``prior`` figures: the Bayes estimator under the
-    draw's own prior (:mod:`~microcal.sim.population_prior`), the floor of any model."""
+    draw's own prior (:mod:`~microcal.sim.population_prior`): what estimating the
+    profiles costs any model."""
 
     def __post_init__(self) -> None:
         if self.design not in DESIGNS:
@@ -110,6 +111,11 @@ class StudyConfig:
         if not self.settle_s >= 0 or not self.approach_um >= 0:
             raise InputError("settle_s and approach_um: expected >= 0")
 
+
+_PRIOR_ONLY = (
+    "prior: only the population preset draws its platforms from a prior, got preset "
+    "{preset!r}; leave out --prior"
+)
 
 #: The oracle's re-estimated inputs: approach directions and temperature.
 ORACLE_INPUTS: tuple[str, ...] = (*JOINTS, "sx", "sy", "sz", "T")
@@ -152,7 +158,7 @@ PositionMap = Callable[[FloatArray, FloatArray, float], FloatArray]
 
 class ExactFeedForward(FeedForward):
     """A compensator that inverts a given map exactly: reversal at +1 after the fixed
-    approach from below, the temperature now (the oracle's, and the prior's floor)."""
+    approach from below, the temperature now (the oracle's, and the prior's)."""
 
     def __init__(self, manipulator: SimManipulator, clock: Clock, position: PositionMap) -> None:
         super().__init__(manipulator, manipulator.truth.static, "optimal", None, clock)
@@ -191,7 +197,7 @@ def oracle_feed_forward(
 def prior_feed_forward(
     manipulator: SimManipulator, clock: Clock, estimator: PriorEstimator
 ) -> ExactFeedForward:
-    """The prior's floor as a compensator: the kriging map of
+    """The prior's estimator as a compensator: the kriging map of
     :mod:`~microcal.sim.population_prior` inverted exactly."""
 
     def position(d: FloatArray, signs: FloatArray, t: float) -> FloatArray:
@@ -300,6 +306,8 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[
     config = config or StudyConfig()
     t0 = time.perf_counter()
     plat = platform(preset, seed=seed, overrides=config.overrides)
+    if config.prior and plat.population is None:
+        raise InputError(_PRIOR_ONLY.format(preset=preset))
     d = make_design(config.design, config.poses, WORKSPACE_MIN_UM, WORKSPACE_MAX_UM,
                     demo_design_seed(seed))  # fmt: skip
     fast_probe = ProjectedProbe.on_platform(plat, np.random.default_rng([seed, 7]))
@@ -520,6 +528,8 @@ def run_study(
     if not seeds:
         raise InputError("seeds: expected at least one seed")
     config = config or StudyConfig()
+    if config.prior and preset != "population":
+        raise InputError(_PRIOR_ONLY.format(preset=preset))
     workers = min(workers or os.cpu_count() or 1, len(seeds))
     runs: dict[int, dict[str, Any]] = {}
     if workers == 1:

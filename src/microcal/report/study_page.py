@@ -54,9 +54,9 @@ def study_page(study: dict[str, Any]) -> str:
         f"<h1>Study of the {escape(study['preset'])} preset, {len(runs)} seeds</h1>",
         "<p>Each point is one seed's platform; the bar is the median. <em>oracle</em> is the "
         "true kinematics with its known parts re-estimated from the same measurements: the "
-        "floor of every figure. <em>prior</em> (with <code>--prior</code>) is the best any "
-        "model can do from the same measurements: the Bayes estimator under the draw's own "
-        "prior.</p>",
+        "floor of every figure. <em>prior</em> (with <code>--prior</code>) is the Bayes "
+        "estimator under the draw's own prior: what estimating the profiles from the same "
+        "measurements costs any model, on average.</p>",
     ]
     for key, title in FIGURES:
         parts.append(f"<img alt='{escape(title)}' src='{_strip(runs, key, title)}'>")

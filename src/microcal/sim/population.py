@@ -67,7 +67,7 @@ class PopulationDraw:
     profile_length_um, straightness_sd_um, angle_sd_urad : (3,) float
         The prior each joint's straightness and angular profiles were drawn from: the
         process's length scale and standard deviations (for
-        :mod:`~microcal.sim.population_prior`, the best any model can do).
+        :mod:`~microcal.sim.population_prior`).
     """
 
     truth: TrueKinematics

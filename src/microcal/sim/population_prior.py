@@ -1,20 +1,25 @@
-"""The best any model can do on a ``population`` platform: kriging with the true prior.
+"""A reference for how close to the oracle a model can come on a ``population`` platform:
+kriging with the draw's own prior.
 
 A model identified from measurements is compared with the oracle (the truth, its
 known-form parts re-estimated from the same measurements). The oracle knows each joint's
 straightness and angular profiles exactly; a model has to estimate them from the poses.
-How close to the oracle can any model come? The Bayes estimator under the population's own
-prior answers it: each axis's error is the oracle's known-form terms (flat prior) plus,
-per joint, a zero-mean Gaussian process with the very length scale and variance the
-platform's profiles were drawn with (:class:`~microcal.sim.population.PopulationDraw`),
-plus the measurement noise and the sensors' periodic error as white noise. Its posterior
-mean (universal kriging) has the least mean squared error of any estimator that knows the
-population's distributions but not the draw: a floor for every identified model.
+The Bayes estimator under the population's prior shows what that costs: each axis's error
+is the oracle's known-form terms (flat prior) plus, per joint, a zero-mean Gaussian process
+with the very length scale and variance the draw's profiles came from
+(:class:`~microcal.sim.population.PopulationDraw`), plus the measurement noise and the
+sensors' periodic error as white noise. It knows the draw's hyperparameters (length
+scales, deviations, tool offset, periodic amplitudes), not its profiles. Its posterior
+mean (universal kriging) has the least expected squared prediction error, over the draws
+of that prior, of any estimator from the same measurements: a reference on average, not a
+bound on every figure of every draw (AP after inversion, at eight poses, is another
+figure).
 
-Two simplifications keep it per axis, each in the estimator's disfavour by a little: the
+Three simplifications keep it per axis, each in the estimator's disfavour by a little: the
 Abbe errors of one joint are correlated across the axes (one rotation, seen at the tool),
-which a per-axis prior leaves unused, and the periodic error is treated as noise.
-Simulator only: a real manipulator's prior is not known.
+which a per-axis prior leaves unused; the measurement noise is taken per axis (its
+covariance's diagonal; triangulation correlates the axes); and the periodic error is
+treated as noise. Simulator only: a real manipulator's prior is not known.
 """
 
 from __future__ import annotations
@@ -144,6 +149,9 @@ def fit_prior_estimator(
     assert errors is not None
     terms = tuple(known_form_terms(names))
     X = design_matrix(u, names, terms)
+    scale = np.linalg.norm(X, axis=0)  # columns from 1 to ~1e7 µm²: solved scaled
+    scale[scale == 0] = 1.0
+    Xs = X / scale
     d = u[:, :3]
     corr = _correlations(d, d, draw.profile_length_um)
     variance = profile_variance_um2(draw)
@@ -154,8 +162,8 @@ def fit_prior_estimator(
         K = np.tensordot(variance[a], corr, axes=1)
         K[np.diag_indices_from(K)] += noise[:, a] + periodic[a]
         chol = np.linalg.cholesky(K)
-        Kx = _solve(chol, X)
-        coef[a] = np.linalg.solve(X.T @ Kx, Kx.T @ p[:, a])
+        Kx = _solve(chol, Xs)
+        coef[a] = np.linalg.solve(Xs.T @ Kx, Kx.T @ p[:, a]) / scale
         weights[a] = _solve(chol, p[:, a] - X @ coef[a])
     return PriorEstimator(names, terms, coef, weights, d.copy(),
                           draw.profile_length_um.copy(), variance)  # fmt: skip

@@ -139,7 +139,7 @@ def measure_poses(
     progress : callable (done, total), optional
         Counts a camera's frames of a pose at a time (total: poses x cameras).
     workers : int
-        Cameras measured at once, each in its own forked process (where the system forks):
+        Cameras measured at once, each in its own forked process (on Linux; elsewhere in turn):
         each camera's poses are measured in order either way, so the results are the same.
     """
     names = _check_cameras(cameras)
