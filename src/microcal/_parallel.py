@@ -17,6 +17,7 @@ ended. Workers leave Ctrl-C to this process.
 from __future__ import annotations
 
 import multiprocessing
+import os
 import pickle
 import signal
 import sys
@@ -87,7 +88,7 @@ def _receive(conn: Any) -> tuple[str, Any] | None:
 def fork_map(
     fn: Callable[[T, Tick], R],
     items: Sequence[T],
-    workers: int,
+    workers: int | None,
     progress: Tick | None = None,
 ) -> list[R]:
     """``[fn(item, tick) for item in items]``, in up to ``workers`` forked processes.
@@ -97,8 +98,9 @@ def fork_map(
     fn : callable (item, tick) -> result
         The work on one item; it calls ``tick()`` as it progresses. Its result must pickle.
     items : sequence
-    workers : int
-        Processes at once (1, or where forking is not safe: all here, in order).
+    workers : int or None
+        Processes at once (None: one per core; 1, or where forking is not safe: all here,
+        in order).
     progress : callable () -> None, optional
         Called here once per ``tick()`` of any worker.
 
@@ -108,7 +110,7 @@ def fork_map(
         A worker died without a result (killed, or crashed in a library).
     """
     tick = progress or _nothing
-    workers = min(workers, len(items))
+    workers = min(workers or os.cpu_count() or 1, len(items))
     if workers <= 1 or not can_fork() or multiprocessing.current_process().daemon:
         return [fn(item, tick) for item in items]
     ctx = get_context("fork")

@@ -131,7 +131,7 @@ def measure_run(
             models,
             board,
             progress=progress,
-            workers=workers or os.cpu_count() or 1,
+            workers=workers,
         )
         ok = sum(r.status == "ok" for r in results)
         failed = [r for r in results if r.status != "ok"]

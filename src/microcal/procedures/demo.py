@@ -14,7 +14,6 @@
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -343,7 +342,7 @@ def run_demo(
         cal.models(),
         board,
         progress=lambda done, total: tick("measurement", done, total),
-        workers=os.cpu_count() or 1,
+        workers=None,  # one per core
     )
     result = DemoResult(
         seed,

@@ -121,6 +121,22 @@ _PRIOR_ONLY = (
 ORACLE_INPUTS: tuple[str, ...] = (*JOINTS, "sx", "sy", "sz", "T")
 
 
+def _oracle_inputs(temps: FloatArray) -> tuple[str, ...]:
+    """The oracle's inputs for a run at these temperatures: a room held constant leaves no
+    thermal term to estimate."""
+    return ORACLE_INPUTS if np.ptp(temps) > 0 else ORACLE_INPUTS[:-1]
+
+
+def _input_columns(
+    d_um: FloatArray, signs: FloatArray, temps: FloatArray | float, inputs: Sequence[str]
+) -> FloatArray:
+    """(N, len(inputs)) columns of joints, approach signs and temperature (a scalar for all)
+    in the order of :data:`ORACLE_INPUTS`."""
+    t = np.broadcast_to(np.asarray(temps, dtype=np.float64), (d_um.shape[0],))
+    out: FloatArray = np.column_stack([d_um, signs, t])[:, : len(inputs)]
+    return out
+
+
 def fit_oracle_correction(
     truth: TrueKinematics, d_um: FloatArray, signs: FloatArray, temps: FloatArray,
     p_um: FloatArray,
@@ -135,9 +151,8 @@ def fit_oracle_correction(
     temps : (N,) float
     p_um : (N, 3) float
     """
-    sensed = np.ptp(temps) > 0  # a room held constant leaves no thermal term to estimate
-    inputs = ORACLE_INPUTS if sensed else ORACLE_INPUTS[:-1]
-    u = np.column_stack([d_um, signs, temps])[:, : len(inputs)]
+    inputs = _oracle_inputs(temps)
+    u = _input_columns(d_um, signs, temps, inputs)
     r = p_um - truth.position_um(d_um, signs, temps)
     return fit_model(u, r, known_form_terms(inputs), kind="polynomial", inputs=inputs)
 
@@ -147,9 +162,8 @@ def oracle_position_um(
     temps: FloatArray | float,
 ) -> FloatArray:  # fmt: skip
     """The oracle's prediction at (N, 3) joints, signs and temperatures, (N, 3) µm."""
-    t = np.broadcast_to(np.asarray(temps, dtype=np.float64), (d_um.shape[0],))
-    u = np.column_stack([d_um, signs, t])[:, : len(correction.inputs)]
-    return truth.position_um(d_um, signs, t) + correction.predict_um(u)
+    u = _input_columns(d_um, signs, temps, correction.inputs)
+    return truth.position_um(d_um, signs, temps) + correction.predict_um(u)
 
 
 #: A map of joints, approach signs (N, 3) and a temperature to positions (N, 3), µm.
@@ -201,9 +215,7 @@ def prior_feed_forward(
     :mod:`~microcal.sim.population_prior` inverted exactly."""
 
     def position(d: FloatArray, signs: FloatArray, t: float) -> FloatArray:
-        temps = np.full((d.shape[0], 1), t)
-        u = np.column_stack([d, signs, temps])[:, : len(estimator.inputs)]
-        return estimator.predict_um(u)
+        return estimator.predict_um(_input_columns(d, signs, t, estimator.inputs))
 
     return ExactFeedForward(manipulator, clock, position)
 
@@ -365,8 +377,8 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[
                                        extra_inputs_reader(model, sensors), plat.clock)  # fmt: skip
     conditions["oracle"] = oracle_feed_forward(sim, plat.clock, correction)
     if config.prior and plat.population is not None:
-        inputs = ORACLE_INPUTS if np.ptp(temps) > 0 else ORACLE_INPUTS[:-1]
-        u = np.column_stack([d, signs, temps])[:, : len(inputs)]
+        inputs = _oracle_inputs(temps)
+        u = _input_columns(d, signs, temps, inputs)
         noise = np.diagonal(cov, axis1=1, axis2=2)
         estimator = fit_prior_estimator(plat.population, u[:n_fit], inputs, p[:n_fit],
                                         noise[:n_fit])  # fmt: skip

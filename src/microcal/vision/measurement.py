@@ -116,7 +116,7 @@ def measure_poses(
     target: Target,
     *,
     progress: Callable[[int, int], None] | None = None,
-    workers: int = 1,
+    workers: int | None = 1,
 ) -> list[PoseMeasurement]:
     """Measure every pose of a run.
 
@@ -138,9 +138,10 @@ def measure_poses(
         The end-effector board.
     progress : callable (done, total), optional
         Counts a camera's frames of a pose at a time (total: poses x cameras).
-    workers : int
-        Cameras measured at once, each in its own forked process (on Linux; elsewhere in turn):
-        each camera's poses are measured in order either way, so the results are the same.
+    workers : int or None
+        Cameras measured at once (None: one per core), each in its own forked process (on
+        Linux; elsewhere in turn). Each camera's poses are measured in order either way, so
+        the results are the same.
     """
     names = _check_cameras(cameras)
     total = len(poses) * len(names)
