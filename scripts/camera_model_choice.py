@@ -12,7 +12,7 @@ import argparse
 
 import numpy as np
 
-from microcal.procedures.camera_model_trial import camera_model_trial
+from microcal.experiments.camera_model_trial import camera_model_trial
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--seeds", type=int, default=10)

@@ -17,10 +17,10 @@ import json
 import numpy as np
 
 from microcal.formats.calibration_file import load_calibration
-from microcal.formats.calibration_update import camera_models
 from microcal.procedures.check import CheckConfig, run_check
 from microcal.sim import platform
 from microcal.sim.synthetic_run import ProjectedProbe
+from microcal.workflows.calibration_update import camera_models
 
 
 def trial(cal, models, seed: int, change: str, frames: int, against: str) -> str:

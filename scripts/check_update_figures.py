@@ -20,12 +20,12 @@ from pathlib import Path
 import numpy as np
 
 from microcal.control.feedforward import FeedForward, extra_inputs_reader
+from microcal.experiments.demo import run_demo
 from microcal.formats.calibration_file import load_calibration
-from microcal.formats.check_file import check_calibration
 from microcal.metrics import pose_statistics
-from microcal.procedures.demo import run_demo
 from microcal.sim import platform
 from microcal.thesis.experiment import TABLE_5_2_POSES_UM
+from microcal.workflows.check import check_calibration
 
 
 def absolute_ap_um(model, seed: int, overrides: dict) -> float:

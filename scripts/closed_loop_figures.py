@@ -23,7 +23,7 @@ from microcal import sim
 from microcal.control.closed_loop import ClosedLoop
 from microcal.control.feedforward import FeedForward, extra_inputs_reader
 from microcal.control.visual_servo import ServoConfig
-from microcal.procedures.demo import run_demo
+from microcal.experiments.demo import run_demo
 from microcal.procedures.evaluation import run_pose_accuracy
 from microcal.sim.synthetic_run import ProjectedProbe
 

@@ -10,7 +10,7 @@ worst, ISO 9283 7.2.3), by ground truth. Simulator only.
 
 import argparse
 
-from microcal.procedures.demo import run_demo
+from microcal.experiments.demo import run_demo
 
 parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
 parser.add_argument("--seeds", type=int, default=3)

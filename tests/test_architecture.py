@@ -11,7 +11,9 @@ How imports are counted:
 - ``from X import a`` counts as an import of the module ``X.a`` when that is a module, and
   ``from microcal import name`` as an import of the module that the root's lazy table
   (``microcal._LAZY``) takes ``name`` from.
-- A module's layer is that of the longest dotted prefix of its name in ``LAYERS``.
+- A module's layer is that of its package (the first part of its dotted name): every
+  package has one layer, so two packages never import each other.
+- Within a package, modules import each other without cycles (``test_no_import_cycles``).
 """
 
 from __future__ import annotations
@@ -30,39 +32,45 @@ ROOT_LAYER = 0
 # the root's lazy table: public name -> the module (relative to the package) that defines it
 ROOT_LAZY: dict[str, str] = getattr(microcal, "_LAZY", {})
 
-# module (or package) prefix -> layer number
+# package (or top-level module) -> layer number: every package has exactly one layer
 LAYERS = {
     "errors": 0,
     "_validation": 0,
     "_parallel": 0,
     "_version": 0,
-    "thesis": 0,
-    "thesis.figures": 0,
-    "thesis.experiment": 0,
     "geometry": 1,
     "kinematics": 1,
     "metrics": 1,
-    "thesis.cameras": 1,
+    "thesis": 1,
     "vision": 2,
     "devices": 3,
-    "sim": 3,
-    "thesis.kinematics": 3,
-    "control": 4,
-    "procedures": 5,
-    "formats": 6,
-    "cli": 6,
-    "report": 6,
-    "__main__": 6,
+    "sim": 4,
+    "formats": 5,
+    "control": 6,
+    "procedures": 7,
+    "experiments": 8,
+    "report": 9,
+    "workflows": 10,
+    "cli": 11,
+    "__main__": 11,
 }
+_NUMERIC = {"numpy", "scipy"}
+_VISION = _NUMERIC | {"cv2"}
+_FILES = _VISION | {"pydantic", "tifffile"}
 # third-party packages each layer may use
 ALLOWED_THIRD_PARTY = {
     0: {"numpy"},
-    1: {"numpy", "scipy"},
-    2: {"numpy", "scipy", "cv2"},
-    3: {"numpy", "scipy", "cv2"},
-    4: {"numpy", "scipy", "cv2"},
-    5: {"numpy", "scipy", "cv2"},
-    6: {"numpy", "scipy", "cv2", "typer", "rich", "pydantic", "tifffile", "matplotlib", "jinja2"},
+    1: _NUMERIC,
+    2: _VISION,
+    3: _VISION,
+    4: _VISION,
+    5: _FILES,
+    6: _VISION,
+    7: _VISION,
+    8: _VISION,
+    9: _FILES | {"matplotlib", "jinja2", "rich"},
+    10: _FILES | {"matplotlib", "jinja2", "rich"},
+    11: _FILES | {"matplotlib", "jinja2", "rich", "typer"},
 }
 STDLIB_OK = set(sys.stdlib_module_names)
 # optional hardware libraries (extras), each only in its own driver module
@@ -93,14 +101,13 @@ class Import(NamedTuple):
 
 
 def layer_of(rel: str) -> int:
-    """The layer of the longest assigned prefix of a module's dotted name."""
+    """The layer of a module's package (the first part of its dotted name)."""
     if rel == ROOT:
         return ROOT_LAYER
-    parts = rel.split(".")
-    for n in range(len(parts), 0, -1):
-        if ".".join(parts[:n]) in LAYERS:
-            return LAYERS[".".join(parts[:n])]
-    raise AssertionError(f"module microcal.{rel} is not assigned to a layer in this test")
+    top = rel.split(".")[0]
+    if top not in LAYERS:
+        raise AssertionError(f"module microcal.{rel} is not assigned to a layer in this test")
+    return LAYERS[top]
 
 
 def is_module(rel: str) -> bool:
@@ -269,3 +276,93 @@ def test_the_command_line_stays_a_thin_shell():
                 if node.end_lineno is not None and node.end_lineno - start + 1 > 40:
                     long.append(f"{f.name}:{node.name} ({node.end_lineno - start + 1} lines)")
     assert not long, "functions over 40 lines: " + ", ".join(long)
+
+
+def _import_graph() -> dict[str, set[str]]:
+    """Module -> the modules of microcal it imports (every import, lazy ones included)."""
+    graph: dict[str, set[str]] = {}
+    for path, rel in modules():
+        graph[rel] = {t for t, internal, _ in imports(path, rel) if internal and t != rel}
+    return graph
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan, iterative)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+    for start in sorted(graph):
+        if start in index:
+            continue
+        work = [(start, iter(sorted(graph.get(start, ()))))]
+        index[start] = low[start] = len(index)
+        stack.append(start)
+        on_stack.add(start)
+        while work:
+            node, children = work[-1]
+            child = next(children, None)
+            if child is not None:
+                if child not in index:
+                    index[child] = low[child] = len(index)
+                    stack.append(child)
+                    on_stack.add(child)
+                    work.append((child, iter(sorted(graph.get(child, ())))))
+                elif child in on_stack:
+                    low[node] = min(low[node], index[child])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[node])
+            if low[node] == index[node]:
+                component = []
+                while True:
+                    member = stack.pop()
+                    on_stack.discard(member)
+                    component.append(member)
+                    if member == node:
+                        break
+                if len(component) > 1:
+                    found.append(sorted(component))
+    return found
+
+
+def test_no_import_cycles():
+    """No module reaches itself through imports, lazy imports inside functions included."""
+    cycles = _cycles(_import_graph())
+    assert not cycles, "import cycles:\n" + "\n".join(" <-> ".join(c) for c in cycles)
+
+
+def test_the_cycle_finder_finds_a_cycle():
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}, "e": set()}
+    assert _cycles(graph) == [["a", "b", "c"]]
+    assert _cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_every_package_has_one_layer():
+    assert all("." not in name for name in LAYERS), "a layer is assigned to a whole package"
+    tops = {rel.split(".")[0] for _, rel in modules() if rel}
+    assert tops <= set(LAYERS), f"packages without a layer: {sorted(tops - set(LAYERS))}"
+
+
+FILES_ONLY = ("control", "procedures", "experiments", "workflows", "report", "cli")
+
+
+def test_formats_reads_and_writes_files_only():
+    """``formats`` imports no control, procedure, experiment, workflow, report or CLI module."""
+    problems = [
+        f"microcal.{rel}:{line} imports microcal.{target}"
+        for path, rel in modules()
+        if rel.split(".")[0] == "formats"
+        for target, internal, line in imports(path, rel)
+        if internal and target.split(".")[0] in FILES_ONLY
+    ]
+    assert not problems, "\n".join(problems)
+
+
+def test_the_layer_check_sees_imports_inside_functions():
+    source = "def f():\n    from ..workflows import demo\n"
+    targets = _imports_of(source, "formats.thing", "formats/thing.py")
+    assert targets == ["workflows.demo"]
+    assert layer_of(targets[0]) > layer_of("formats.thing")

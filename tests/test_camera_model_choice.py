@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from microcal import DegenerateDataError
-from microcal.procedures.camera_model_trial import camera_model_trial
-from microcal.procedures.demo import CALIBRATION_STEPS_UM, target_views
+from microcal.experiments.camera_model_trial import camera_model_trial
+from microcal.experiments.demo import target_views
+from microcal.procedures.rig_stereo import CALIBRATION_STEPS_UM
 from microcal.sim import platform
 from microcal.sim.platforms import CALIBRATION_TARGET
 from microcal.vision.known_displacements import calibrate_known_displacements

@@ -207,14 +207,15 @@ def test_a_run_records_its_device_and_a_calibration_refuses_another(tmp_path):
     assert manifest is not None
     assert manifest.device == "simulated m1"
     from microcal.formats.calibration_file import load_calibration
-    from microcal.formats.calibration_update import add_manipulator
+    from microcal.workflows.calibration_update import add_manipulator
 
     validation = {"n_fit": 10, "n_validate": 2, "mean_um": 0.5, "std_um": 0.2, "max_um": 1.0,
                   "rms_um": 0.55}  # fmt: skip
     entry = ManipulatorCalibration("m1", _matrix_model(), validation)
     (tmp_path / "run" / "measurements.csv").write_text("pose\n")  # only hashed here
     add_manipulator(tmp_path / "cal.json", entry, None,
-                    {"measurements": tmp_path / "run" / "measurements.csv"}, "matrix")  # fmt: skip
+                    {"measurements": tmp_path / "run" / "measurements.csv"}, "matrix",
+                    manifest)  # fmt: skip
     assert load_calibration(tmp_path / "cal.json").manipulator().device == "simulated m1"
     m = ManipulatorCalibration(
         "m1", _matrix_model(), extra={"device": "SmarAct MCS2 A1 channels 0,1,2"}

@@ -185,7 +185,7 @@ def test_an_opencv_error_that_escapes_is_one_line(tmp_path, monkeypatch):
     def refuse(*args, **kwargs):
         raise cv2.error("OpenCV(4.10) /src/x.cpp:1: error: (-215:Assertion failed) !_src.empty()")
 
-    monkeypatch.setattr("microcal.formats.run_measurement.measure_run", refuse)
+    monkeypatch.setattr("microcal.workflows.measure.measure_run", refuse)
     result = runner.invoke(app, ["measure", str(tmp_path), "--cameras", str(tmp_path / "c.json")])
     assert result.exit_code == 2
     lines = result.stderr.strip().splitlines()

@@ -11,7 +11,7 @@ from microcal import DegenerateDataError, InputError, LimitError
 from microcal.kinematics import fit_matrix_model, fit_polynomial_model
 from microcal.kinematics.compensators import Compensator, matrix_compensator, optimal_compensator
 from microcal.sim.synthetic_run import synthetic_run
-from microcal.thesis.kinematics import thesis_kinematics
+from microcal.sim.thesis_kinematics import thesis_kinematics
 
 LOW = np.array([0.0, 0.0, 0.0])
 HIGH = np.array([8000.0, 8000.0, 4800.0])

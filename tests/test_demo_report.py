@@ -15,8 +15,8 @@ from typer.testing import CliRunner
 
 from microcal import load_calibration
 from microcal.cli import app
-from microcal.formats.run_manifest import clear_demo_dir as _clear_demo_dir
 from microcal.report import load_run
+from microcal.workflows.demo import clear_demo_dir as _clear_demo_dir
 
 runner = CliRunner()
 CONDITIONS = {"uncalibrated", "matrix", "optimal"}

@@ -11,6 +11,7 @@ from conftest import run_microcal
 from microcal import InputError, LimitError, sim
 from microcal.control.feedforward import FeedForward, extra_inputs_reader
 from microcal.errors import DegenerateDataError
+from microcal.experiments.demo import run_demo
 from microcal.formats.calibration_file import (
     Calibration,
     ManipulatorCalibration,
@@ -18,7 +19,6 @@ from microcal.formats.calibration_file import (
     write_calibration,
 )
 from microcal.formats.cameras_file import cameras_to_dict
-from microcal.procedures.demo import run_demo
 from microcal.procedures.evaluation import (
     VisionProbe,
     decoupling_path,

@@ -161,7 +161,7 @@ def _stereo_calibration() -> Any:
 
 def build_seed_files(directory: Path) -> SeedFiles:
     """Write a valid file of every kind into ``directory`` with microcal's writers; read them."""
-    from microcal.formats.calibration_file import provenance
+    from microcal.formats.provenance import provenance
     from microcal.procedures.identification import identify
     from microcal.sim.synthetic_run import synthetic_run
 

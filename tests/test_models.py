@@ -7,7 +7,7 @@ import pytest
 
 from microcal import DegenerateDataError, FormatError, InputError, KinematicModel
 from microcal.kinematics import fit_matrix_model, fit_polynomial_model
-from microcal.thesis.kinematics import thesis_kinematics
+from microcal.sim.thesis_kinematics import thesis_kinematics
 
 
 @pytest.fixture

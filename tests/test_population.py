@@ -9,9 +9,9 @@ import numpy as np
 from typer.testing import CliRunner
 
 from microcal.cli import app
+from microcal.experiments.study import StudyConfig, run_seed
 from microcal.kinematics.families import FAMILIES, fit_family
 from microcal.kinematics.terms import JOINTS
-from microcal.procedures.study import StudyConfig, run_seed
 from microcal.sim import platform
 from microcal.sim.population import draw_population
 
@@ -120,7 +120,7 @@ def test_study_takes_a_simulated_rig_and_refuses_the_rest(tmp_path):
 
 
 def test_an_interrupted_study_says_so_in_one_line_and_writes_nothing(tmp_path, monkeypatch):
-    import microcal.procedures.study as study
+    import microcal.experiments.study as study
 
     def interrupted(*_args, **_kwargs):
         raise KeyboardInterrupt

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from microcal.errors import InputError
+from microcal.experiments.study import StudyConfig, run_seed
 from microcal.kinematics.families import FAMILIES, fit_family
-from microcal.procedures.study import StudyConfig, run_seed
 from microcal.sim.population import draw_population
 from microcal.sim.population_prior import (
     fit_prior_estimator,

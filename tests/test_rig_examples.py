@@ -10,7 +10,6 @@ import pytest
 from typer.testing import CliRunner
 
 from microcal.cli import app
-from microcal.devices.rig import open_rig
 from microcal.devices.rig_spec import (
     AravisCameraSpec,
     HardwareRigSpec,
@@ -22,6 +21,7 @@ from microcal.devices.rig_spec import (
 )
 from microcal.errors import DeviceError, FormatError, InputError
 from microcal.formats.rig_file import load_rig
+from microcal.workflows.rigs import open_rig
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "rigs"
 LIMITS = {"x": [0.0, 8000.0], "y": [0.0, 8000.0], "z": [0.0, 4800.0]}

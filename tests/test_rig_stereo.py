@@ -11,15 +11,15 @@ import pytest
 from typer.testing import CliRunner
 
 from microcal.cli import app
-from microcal.devices.rig import open_rig
 from microcal.devices.rig_spec import SimRigSpec
 from microcal.errors import DeviceError, InputError, LimitError
 from microcal.formats.cameras_file import load_cameras
-from microcal.formats.rig_calibration import stereo_calibrate_rig
 from microcal.formats.rig_file import load_rig
 from microcal.procedures.rig_stereo import RigViewsConfig, calibrate_on_rig, default_steps_um
 from microcal.sim import platform
 from microcal.sim.platforms import TRAVEL_CENTRE_UM
+from microcal.workflows.rigs import open_rig
+from microcal.workflows.stereo import stereo_calibrate_rig
 
 runner = CliRunner()
 FAST = RigViewsConfig(frames_per_view=2, settle="fixed", fixed_s=0.5, camera_model="pinhole")

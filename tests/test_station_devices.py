@@ -12,16 +12,17 @@ import pytest
 from typer.testing import CliRunner
 
 from microcal.cli import app
-from microcal.devices.rig import open_rig, platform_rig
+from microcal.devices.rig import platform_rig
 from microcal.devices.rig_spec import SimRigSpec
 from microcal.errors import FormatError, InputError, LimitError
+from microcal.experiments.demo import device_workspace
 from microcal.formats.rig_file import load_rig, rig_from_record
 from microcal.kinematics.manipulator_calibration import ManipulatorCalibration
-from microcal.procedures.demo import device_workspace
 from microcal.procedures.meet import meet_targets_um, meet_test
 from microcal.procedures.station import Station
 from microcal.sim import platform
 from microcal.vision.probe import VisionProbe
+from microcal.workflows.rigs import open_rig
 
 runner = CliRunner()
 
@@ -257,7 +258,7 @@ def test_the_station_demo_writes_every_device_in_one_frame(tmp_path: Path):
     import time
 
     from microcal.formats.calibration_file import load_calibration
-    from microcal.formats.demo_outputs import run_station_demo_files
+    from microcal.workflows.demo import run_station_demo_files
 
     out = tmp_path / "station"
     result = run_station_demo_files(
@@ -293,7 +294,7 @@ def test_the_station_demo_writes_every_device_in_one_frame(tmp_path: Path):
     p1_html = (out / "p1" / "report.html").read_text(encoding="utf-8")
     assert "The device holds dz at 0 µm (it has no such axis)" in p1_html
     # an earlier station demo is replaced: what it wrote goes, each device's run begins anew
-    from microcal.formats.run_manifest import start_station_demo
+    from microcal.workflows.demo import start_station_demo
 
     start_station_demo(out, 1, 30, 1)
     assert sorted(p.name for p in out.iterdir()) == ["m1", "m2", "p1"]
@@ -308,18 +309,18 @@ def test_the_station_demo_writes_every_device_in_one_frame(tmp_path: Path):
 
 
 def test_fit_names_the_entry_after_the_runs_device(tmp_path: Path):
-    from microcal.formats.calibration_update import measured_device
     from microcal.formats.run_manifest import new_manifest
+    from microcal.workflows.calibration_update import manifest_beside, measured_device
 
     run = tmp_path / "run"
     run.mkdir()
-    assert measured_device(run / "measurements.csv") == "m1"  # no run.json: a plain CSV
+    assert measured_device(manifest_beside(run / "measurements.csv")) == "m1"  # no run.json: a plain CSV
     manifest = new_manifest(rig=SimRigSpec("thesis-platform").to_dict(), target="chessboard:4x3:400",
                             cameras=["top", "side"], design={"kind": "file", "poses": 1},
                             settle="vision", frames_per_pose=1, store="full", command="acquire",
                             device="simulated p1", manipulator="p1")  # fmt: skip
     (run / "run.json").write_text(json.dumps({"format": "microcal.run/1", **manifest}))
-    assert measured_device(run / "measurements.csv") == "p1"
+    assert measured_device(manifest_beside(run / "measurements.csv")) == "p1"
     assert "manipulator" not in new_manifest(
         rig={},
         target="t",
@@ -333,7 +334,7 @@ def test_fit_names_the_entry_after_the_runs_device(tmp_path: Path):
 
 
 def test_a_station_demo_directory_is_checked_whole_before_anything_goes(tmp_path: Path):
-    from microcal.formats.run_manifest import start_station_demo
+    from microcal.workflows.demo import start_station_demo
 
     mine = tmp_path / "mine"
     mine.mkdir()

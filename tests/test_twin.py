@@ -49,7 +49,7 @@ def served():
 def rig(served, tmp_path_factory):
     """(rig, its target stage), opened through the real drivers from the twin's rig file."""
     pytest.importorskip("pymmcore_plus")
-    from microcal.devices.rig import open_rig
+    from microcal.workflows.rigs import open_rig
 
     path = tmp_path_factory.mktemp("twin") / "twin.toml"
     path.write_text(served.rig_toml(str(path)))
@@ -190,7 +190,7 @@ def test_the_frame_server_protocol(served):
 
 def test_faults_reach_the_drivers_as_a_controllers_and_a_cameras_would(served, tmp_path):
     pytest.importorskip("pymmcore_plus")
-    from microcal.devices.rig import open_rig
+    from microcal.workflows.rigs import open_rig
 
     faults = {"top.faults.drop_rate": 1.0, "manipulator.faults.move_failure_rate": 1.0}
     with Twin(seed=1, overrides=faults, time_scale=SCALE, mcs2_port=0, frames_port=0) as twin:
@@ -209,7 +209,7 @@ def test_a_twin_of_the_whole_station_serves_every_device_on_its_own_channels(ser
     controller, each a device of its own identity (p1 with its z held); the board the
     cameras see is the device moved last."""
     pytest.importorskip("pymmcore_plus")
-    from microcal.devices.rig import open_rig
+    from microcal.workflows.rigs import open_rig
 
     with Twin(preset="thesis-platform", seed=2, time_scale=SCALE, mcs2_port=0,
               frames_port=0) as twin:  # fmt: skip
@@ -249,7 +249,7 @@ def _free_port() -> int:
 
 def test_no_twin_running_is_one_line_saying_how_to_start_it(served, tmp_path):
     pytest.importorskip("pymmcore_plus")
-    from microcal.devices.rig import open_rig
+    from microcal.workflows.rigs import open_rig
 
     port = _free_port()
     text = twin_rig_toml(served.platform, mcs2_port=_free_port(), frames_port=port)

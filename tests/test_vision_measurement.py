@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from microcal import sim
-from microcal.procedures.demo import calibrate_on_platform
+from microcal.experiments.demo import calibrate_on_platform
 from microcal.sim.render import Placement
 from microcal.vision.corner_refinement import WINDOW_FRACTION, _gradient_step, local_spacing_px
 from microcal.vision.detect import detect, to_gray

@@ -24,7 +24,6 @@ from .errors import (
 
 if TYPE_CHECKING:  # what the lazy names are, for type checkers; at run time see _LAZY
     from .formats.calibration_file import Calibration, load_calibration
-    from .formats.station_open import open_station
     from .geometry import (
         CameraModel,
         camera_centre,
@@ -43,6 +42,7 @@ if TYPE_CHECKING:  # what the lazy names are, for type checkers; at run time see
         stepwise_fit,
     )
     from .metrics.error_summary import ErrorSummary, summarize_errors
+    from .workflows.station import open_station
 
 __all__ = [
     "Calibration",
@@ -77,7 +77,7 @@ __all__ = [
 _LAZY = {
     "Calibration": "formats.calibration_file",  # pydantic
     "load_calibration": "formats.calibration_file",
-    "open_station": "formats.station_open",  # the rig's devices, the vision stack
+    "open_station": "workflows.station",  # the rig's devices, the vision stack
     "CameraModel": "geometry",  # scipy
     "camera_centre": "geometry",
     "decompose_projection_matrix": "geometry",

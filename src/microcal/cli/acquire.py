@@ -40,7 +40,7 @@ def acquire(
     Example: microcal acquire --rig sim --design random --poses 170 --out runs/a
     (first: microcal acquire --rig myrig.toml --out runs/a --dry-run)
     """
-    from ..formats.acquisition_run import AcquireRequest, run_acquire
+    from ..workflows.acquire import AcquireRequest, run_acquire
 
     request = AcquireRequest(out, rig, design, poses, seed, resume, settle, frames, store,
                              dry_run, manipulator, check_calibration, check_every)  # fmt: skip

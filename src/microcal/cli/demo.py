@@ -45,11 +45,10 @@ def demo(
 
     Example: microcal demo --seed 3 --out demo-3 (or --preset telecentric)
     """
-    from ..formats.demo_outputs import write_demo_outputs
-    from ..formats.options import check_camera_model
-    from ..formats.run_manifest import start_demo_run
-    from ..procedures.demo import demo_family, run_demo
+    from ..experiments.demo import demo_family, run_demo
     from ..report.text_tables import demo_closing, demo_intro, demo_summary
+    from ..workflows.demo import start_demo_run, write_demo_outputs
+    from ..workflows.options import check_camera_model
 
     wall0, console = time.monotonic(), Console()
     n_poses, frames = (QUICK_POSES, QUICK_FRAMES) if quick else (poses, 5)
@@ -72,8 +71,8 @@ def demo(
 
 def _station(out: Path, seed: int, poses: int, frames: int, quick: bool, camera_model: str,
              console: Console, wall0: float) -> None:  # fmt: skip
-    from ..formats.demo_outputs import run_station_demo_files
     from ..report.text_tables import station_summary
+    from ..workflows.demo import run_station_demo_files
 
     console.print(f"microcal demo on the simulated thesis-platform (every device in one camera "
                   f"frame, then the meet test), writing {out}/")  # fmt: skip

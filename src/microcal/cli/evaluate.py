@@ -51,25 +51,16 @@ def evaluate(
 
     Example: microcal evaluate --rig sim --calibration calibration.json --control all
     """
-    from ..devices.rig import open_rig
-    from ..formats import calibration_file, calibration_update, json_file, options, results_file
-    from ..formats.rig_file import load_rig
-    from ..procedures.evaluation import run_evaluation
     from ..report.text_tables import evaluation_tables, is_thesis_rig
+    from ..workflows.evaluate import EvaluateRequest
+    from ..workflows.evaluate import evaluate as run
 
-    json_file.check_json_output(out, results_file.RESULTS_FORMAT, "results.json")
-    cal = calibration_file.load_calibration(calibration)
-    m, models = cal.manipulator(manipulator), calibration_update.camera_models(cal)
-    spec = options.rig_with_seed(load_rig(rig), seed)
-    with open_rig(spec) as rig_, staged_progress() as progress:
-        opened = rig_.for_calibration(m.name)
-        parts = run_evaluation(
-            opened.manipulator, opened.clock, opened.cameras, models, opened.board, m,
-            tests=test.value, poses=poses.value, cycles=cycles, frames=frames, settle_s=settle_s,
-            truth=opened.truth, sensors=opened.sensors, progress=progress,
-            control=control.value, tolerance_um=tolerance_um, drift_s=drift_h * 3600.0,
-            band_um=band_um,
-        )  # fmt: skip
-    results_file.update_results(out, parts)
-    thesis = is_thesis_rig(spec.to_dict()) and poses == PoseChoice.table
-    print_parts(Console(), [*evaluation_tables(parts, poses.value, thesis=thesis), f"wrote {out}"])
+    request = EvaluateRequest(
+        calibration, rig, test.value, manipulator, cycles, poses.value, frames, settle_s, seed,
+        out, control.value, tolerance_um, drift_h, band_um,
+    )  # fmt: skip
+    with staged_progress() as progress:
+        done = run(request, progress)
+    thesis = is_thesis_rig(done.rig_record) and poses == PoseChoice.table
+    tables = evaluation_tables(done.parts, poses.value, thesis=thesis)
+    print_parts(Console(), [*tables, f"wrote {done.out}"])

@@ -46,33 +46,22 @@ def fit(
 
     Example: microcal fit runs/a --model polynomial --train 110 --out calibration.json
     """
-    from ..formats import calibration_update as update
-    from ..formats.calibration_file import export_mat
-    from ..formats.measurements import read_measurements
-    from ..procedures.identification import calibrate_manipulator
-    from ..procedures.planning import MIN_DESIGN_POSES
     from ..report.text_tables import fit_lines, outlier_lines
+    from ..workflows.fit import FitRequest
+    from ..workflows.fit import fit as run_fit
 
-    update.check_fit_outputs(out, mat, manipulator)
-    path = source / "measurements.csv" if source.is_dir() else source
-    meas = read_measurements(path, min_poses=MIN_DESIGN_POSES)
-    names = [*(extra or []), *(["temperature"] if temperature else [])]
-    inputs = meas.extra_inputs(names, path)
-    held = update.measured_held_joints(path)  # an X-Y positioner's dz
-    entry, fits = calibrate_manipulator(
-        manipulator or update.measured_device(path), meas.d_um, meas.p_um, model.value, train=train,
-        select=select.value, penter=penter, premove=premove, folds=folds, seed=seed,
-        extra_inputs=inputs, exclude_outliers=exclude_outliers, held_um=held,
-    )  # fmt: skip
-    result = fits[model.value]
-    calibration = update.add_manipulator(out, entry, cameras, {"measurements": path}, model.value)
-    if mat is not None:
-        export_mat(mat, calibration)
-    skipped = f" ({meas.n_failed} failed poses skipped)" if meas.n_failed else ""
-    header = f"{model.value} model of {entry.name!r} from {len(meas.pose)} poses of {path}{skipped}"
-    wrote = f"wrote {out}" + (f" and {mat}" if mat else "")
-    lines = fit_lines(result.model, result.validation, header, wrote)
-    print_parts(Console(), [*lines, *outlier_lines(result, meas.pose)])
+    names = (*(extra or []), *(["temperature"] if temperature else []))
+    done = run_fit(FitRequest(
+        source, out, model.value, select.value, penter, premove, train, folds, seed, names,
+        manipulator, cameras, mat, exclude_outliers,
+    ))  # fmt: skip
+    r = done.identification
+    skipped = f" ({done.n_failed} failed poses skipped)" if done.n_failed else ""
+    header = (f"{model.value} model of {done.entry.name!r} from {len(done.poses)} poses of "
+              f"{done.measurements}{skipped}")  # fmt: skip
+    wrote = "wrote " + " and ".join(str(w) for w in done.written)
+    lines = fit_lines(r.model, r.validation, header, wrote)
+    print_parts(Console(), [*lines, *outlier_lines(r, done.poses)])
 
 
 _Calibration = Annotated[Path, Argument(help="calibration.json")]
@@ -91,17 +80,13 @@ def solve(
 
     Example: microcal solve calibration.json 2000 2000 300 --limits 0:8000,0:8000,0:4800
     """
-    from ..formats.calibration_file import load_calibration
-    from ..formats.options import parse_limits, parse_number, parse_position
-    from ..procedures.compensation import solve_position
     from ..report.text_tables import solution_lines
+    from ..workflows.fit import SolveRequest
+    from ..workflows.fit import solve as run_solve
 
-    m = load_calibration(calibration).manipulator(manipulator)
-    values = (
-        {} if temperature is None else {"temperature": parse_number(temperature, "--temperature")}
+    done = run_solve(
+        SolveRequest(calibration, tuple(position_um), manipulator, temperature, limits)
     )
-    lim = parse_limits(limits) if limits is not None else None
-    sol = solve_position(m, parse_position(position_um), values, limits_um=lim)
-    print("dx_um dy_um dz_um\n" + " ".join(f"{v:.4f}" for v in sol.d_um))
-    for line in solution_lines(sol, m):
+    print("dx_um dy_um dz_um\n" + " ".join(f"{v:.4f}" for v in done.solution.d_um))
+    for line in solution_lines(done.solution, done.entry):
         print(line, file=sys.stderr)

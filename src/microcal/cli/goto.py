@@ -28,8 +28,8 @@ def goto(
 
     Example: microcal goto --calibration demo-out/calibration.json 3000 2000 1500 --closed
     """
-    from ..formats.station_open import open_station
     from ..report.text_tables import arrival_line
+    from ..workflows.station import open_station
 
     with open_station(rig, calibration, manipulator=manipulator, seed=seed) as station:
         arrival = station.move_to_um([x, y, z], "closed" if closed else "open", tolerance_um)

@@ -30,8 +30,8 @@ def measure(
 
     Example: microcal measure runs/a --cameras cameras.json
     """
-    from ..formats.run_measurement import measure_run
     from ..report.text_tables import measurement_lines
+    from ..workflows.measure import measure_run
 
     with staged_progress() as progress:
         tick = lambda done, n: progress("measuring", done, n)  # noqa: E731

@@ -62,10 +62,10 @@ def _from_images(target: str, images: list[str], out: Path, known_displacements:
     from ..formats.commands_csv import read_joint_csv
     from ..formats.images import read_frames
     from ..formats.json_file import check_json_output
-    from ..formats.options import check_camera_model, parse_images
     from ..procedures.stereo import calibrate_views
     from ..report.text_tables import stereo_lines
     from ..vision.targets import parse_target
+    from ..workflows.options import check_camera_model, parse_images
 
     tgt = parse_target(target)
     check_json_output(out, CAMERAS_FORMAT, "cameras.json")
@@ -85,10 +85,10 @@ def _from_images(target: str, images: list[str], out: Path, known_displacements:
 
 def _on_rig(rig: str, out: Path, views: Path | None, steps: Path | None, target: str | None,
             seed: int | None, frames: int, camera_model: str) -> None:  # fmt: skip
-    from ..formats.options import check_camera_model
-    from ..formats.rig_calibration import stereo_calibrate_rig
     from ..procedures.rig_stereo import RigViewsConfig
     from ..report.text_tables import stereo_lines
+    from ..workflows.options import check_camera_model
+    from ..workflows.stereo import stereo_calibrate_rig
 
     cfg = RigViewsConfig(frames_per_view=frames, camera_model=check_camera_model(camera_model))
     with Console(stderr=True).status("moving the target and grabbing the views ...") as status:

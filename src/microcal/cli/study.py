@@ -35,8 +35,8 @@ def study(
     Example: microcal study --preset population --seeds 20 --out study-population
     (or --rig my-sim-rig.toml: a lab's own noise and travel, the seeds as given here)
     """
+    from ..experiments.study import StudyConfig, run_study
     from ..formats.study_file import check_study_folder, study_platform, write_study
-    from ..procedures.study import StudyConfig, run_study
     from ..report.study_page import study_page, study_table
 
     preset, overrides = study_platform(preset, rig)

@@ -27,10 +27,15 @@ from .rig_spec import (
     MMCameraSpec,
     MMStageSpec,
     RigSpec,
-    SimRigSpec,
 )
 
-__all__ = ["Rig", "open_rig", "platform_rig"]
+__all__ = [
+    "Rig",
+    "check_device_name",
+    "open_hardware_rig",
+    "platform_rig",
+    "select_device",
+]
 
 
 @dataclass
@@ -207,12 +212,30 @@ def _close_all(devices: list[tuple[str, Device]], resources: list[Callable[[], N
     return failed
 
 
-def open_rig(spec: RigSpec, manipulator: str | None = None) -> Rig:
-    """Open the devices of a rig (``formats.rig_file.load_rig``'s result).
+def select_device(rig: Rig, spec: RigSpec, manipulator: str | None = None) -> Rig:
+    """The opened ``rig`` with ``manipulator`` selected, looking at it (the first device by
+    default); raises InputError, before anything is opened, for a name the spec lacks."""
+    check_device_name(spec, manipulator)
+    rig = rig.select(manipulator)
+    rig.look_at()  # what the cameras see first is the device the caller works with
+    return rig
+
+
+def check_device_name(spec: RigSpec, manipulator: str | None) -> None:
+    """Raise InputError when ``manipulator`` names no device of the rig spec."""
+    if manipulator is not None and manipulator not in spec.manipulator_names:
+        raise unknown_device(manipulator, spec.manipulator_names)
+
+
+def open_hardware_rig(spec: HardwareRigSpec, manipulator: str | None = None) -> Rig:
+    """Open the hardware devices of a rig spec (``formats.rig_file.load_rig``'s result).
+
+    A simulated rig (``SimRigSpec``) is opened by ``workflows.rigs.open_rig``, which opens
+    either kind.
 
     Parameters
     ----------
-    spec : SimRigSpec or HardwareRigSpec
+    spec : HardwareRigSpec
     manipulator : str, optional
         The device the rig's ``manipulator`` is (:meth:`Rig.select`); the first by default.
 
@@ -224,23 +247,13 @@ def open_rig(spec: RigSpec, manipulator: str | None = None) -> Rig:
         A device that cannot be reached or set up; the message names it. Whatever was
         opened before it is closed again.
     """
-    if isinstance(spec, SimRigSpec | HardwareRigSpec):
-        if manipulator is not None and manipulator not in spec.manipulator_names:
-            raise unknown_device(manipulator, spec.manipulator_names)
-        rig = (_sim(spec) if isinstance(spec, SimRigSpec) else _hardware(spec)).select(manipulator)
-        rig.look_at()  # what the cameras see first is the device the caller works with
-        return rig
-    raise DeviceError(
-        f"rig: expected a SimRigSpec or HardwareRigSpec (formats.rig_file.load_rig), "
-        f"got {type(spec).__name__}"
-    )
-
-
-def _sim(spec: SimRigSpec) -> Rig:
-    from ..sim import platform
-
-    plat = platform(spec.preset, seed=spec.seed, overrides=dict(spec.overrides))
-    return platform_rig(plat, f"simulated, preset {spec.preset}, seed {spec.seed}")
+    if not isinstance(spec, HardwareRigSpec):
+        raise DeviceError(
+            f"rig: expected a HardwareRigSpec (formats.rig_file.load_rig), "
+            f"got {type(spec).__name__}"
+        )
+    check_device_name(spec, manipulator)
+    return select_device(_hardware(spec), spec, manipulator)
 
 
 def platform_rig(plat: Any, description: str = "simulated") -> Rig:

@@ -1,6 +1,6 @@
 """What a rig is made of, as typed values: the simulator, or hardware devices and their settings.
 
-A rig file (``formats.rig_file.load_rig``) gives one of these specs, ``devices.rig.open_rig``
+A rig file (``formats.rig_file.load_rig``) gives one of these specs, ``workflows.rigs.open_rig``
 opens the devices a spec names, and :meth:`~HardwareRigSpec.to_dict` is the rig's record in a
 run's ``run.json`` (a resumed run must come from an equal record). The defaults of every
 setting live here and only here.

@@ -1,1 +1,3 @@
-"""File formats (edges layer): calibration.json, measurements.csv, MATLAB export."""
+"""File formats: every file microcal reads or writes (cameras.json, calibration.json,
+results.json, measurements.csv, the run directory and its records, rig files, images, .mat
+export). Reading and writing only: no procedure, workflow, report or command-line code."""

@@ -6,10 +6,8 @@ added freely. No pickle: plain JSON, lengths in µm.
 
 from __future__ import annotations
 
-import datetime as _dt
 import json
 import os
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -17,7 +15,6 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 from pydantic import Field
 
-from .._version import __version__
 from ..errors import FormatError, InputError
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..kinematics.models import KinematicModel
@@ -35,7 +32,6 @@ __all__ = [
     "ManipulatorCalibration",
     "export_mat",
     "load_calibration",
-    "provenance",
     "sha256_file",
     "write_calibration",
 ]
@@ -123,20 +119,6 @@ class Calibration:
             "manipulators": {n: m.to_dict() for n, m in self.manipulators.items()},
             "provenance": self.provenance,
         }
-
-
-def provenance(
-    inputs: Mapping[str, str | os.PathLike[str]] | None = None, **extra: Any
-) -> dict[str, Any]:
-    """Software version, UTC time and the SHA-256 of each input file."""
-    return {
-        "software": f"microcal {__version__}",
-        "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-        "inputs": {
-            name: {"path": str(p), "sha256": sha256_file(p)} for name, p in (inputs or {}).items()
-        },
-        **extra,
-    }
 
 
 def write_calibration(path: str | os.PathLike[str], calibration: Calibration) -> Path:

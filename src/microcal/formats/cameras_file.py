@@ -162,7 +162,7 @@ def save_stereo_calibration(
     target_spec: str,
 ) -> Path:
     """Write a stereo calibration to cameras.json with its provenance (each image's hash)."""
-    from .calibration_file import provenance
+    from .provenance import provenance
 
     inputs: dict[str, Path] = {f"{cam}/{f.name}": f for cam, fs in images.items() for f in fs}
     if displacements is not None:

@@ -1,4 +1,4 @@
-"""``microcal check``: check.json, the history of checks beside a calibration, and the update.
+"""check.json and the history of checks beside a calibration (``microcal check`` writes them).
 
 - check.json (``microcal.check/1``): the verdict and its figures (keys in docs/formats.md).
 - The history: ``<calibration>.checks.jsonl`` beside calibration.json, one JSON line per
@@ -6,45 +6,24 @@
   found it valid is the reference of the later ones (their residuals are compared with its
   residuals, pose by pose). A check whose offset lies more than ``history_sigma`` standard
   deviations from the offsets of the history (three or more checks) is flagged.
-- The update (``--update NEW``): for the verdict ``offset`` only, a new calibration.json with
-  the base offset moved by the measured offset, its provenance naming the old file; then
-  checked again. For another verdict nothing is written and check.json says why.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import datetime as _dt
 import json
 import os
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from .._version import __version__
-from ..errors import DetectionError, FormatError, InputError
-from ..procedures.check import (
-    CheckConfig,
-    CheckResult,
-    offset_updated,
-    planned_check,
-    run_check,
-)
+from ..errors import FormatError
 from .atomic import write_text_atomic
-from .calibration_file import Calibration, load_calibration, provenance, write_calibration
 from .hashing import sha256_file
-from .json_file import check_json_output
-from .station_open import open_station
 
 __all__ = [
     "CHECK_FORMAT",
-    "PeriodicCheck",
-    "check_calibration",
+    "append_history",
     "history_path",
     "of_device",
-    "parse_every",
     "read_history",
 ]
 
@@ -84,219 +63,9 @@ def of_device(history: list[dict[str, Any]], name: str, single: bool) -> list[di
     return [h for h in history if h.get("manipulator", name if single else None) == name]
 
 
-def _reference(history: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray] | None:
-    for entry in history:
-        if entry.get("verdict") == "valid" and entry.get("against") == "calibration":
-            poses = entry["poses"]
-            return (np.array([p["residual_um"] for p in poses]),
-                    np.array([p["cov_um2"] for p in poses]))  # fmt: skip
-    return None
-
-
-def _far_from_history(result: CheckResult, history: list[dict[str, Any]], sigma: float) -> str:
-    offsets = np.array([h["offset_um"] for h in history])
-    if len(offsets) < 3:
-        return ""
-    spread = offsets.std(axis=0, ddof=1)
-    z = (result.offset_um - offsets.mean(axis=0)) / np.sqrt(spread**2 + result.offset_std_um**2)
-    worst = int(np.argmax(np.abs(z)))
-    if abs(z[worst]) <= sigma:
-        return ""
-    return (f"far from the {len(offsets)} earlier checks: offset {'xyz'[worst]} "
-            f"{result.offset_um[worst]:+.2f} µm is {abs(z[worst]):.1f} sigma from their "
-            f"{offsets[:, worst].mean():+.2f} ± {spread[worst]:.2f} µm")  # fmt: skip
-
-
-def _append(path: Path, entry: dict[str, Any]) -> None:
+def append_history(path: Path, entry: dict[str, Any]) -> None:
+    """Add one entry to a history file (rewritten whole, atomically)."""
     old = path.read_text(encoding="utf-8") if path.is_file() else ""
     if old and not old.endswith("\n"):
         old += "\n"
     write_text_atomic(path, old + json.dumps(entry, allow_nan=False) + "\n")
-
-
-def check_calibration(
-    rig: str | os.PathLike[str],
-    calibration: str | os.PathLike[str],
-    out: str | os.PathLike[str],
-    *,
-    manipulator: str | None = None,
-    seed: int | None = None,
-    config: CheckConfig | None = None,
-    history_sigma: float = 3.0,
-    update: str | os.PathLike[str] | None = None,
-    progress: Callable[[int, int], None] | None = None,
-) -> dict[str, Any]:
-    """Check a calibration on its rig, write check.json, add to the history, update if asked.
-
-    Returns
-    -------
-    dict
-        check.json's object (with ``flag`` and, after an update, ``update``).
-    """
-    cfg = config or CheckConfig()
-    out_path = check_json_output(out, CHECK_FORMAT, "check.json")
-    if update is not None:
-        from .calibration_file import CALIBRATION_FORMAT
-
-        check_json_output(update, CALIBRATION_FORMAT, "calibration-updated.json", "--update")
-        if Path(update).resolve() == Path(calibration).resolve():
-            raise InputError("--update: write the updated calibration to a new file")
-    cal = load_calibration(calibration)
-    name = cal.manipulator(manipulator).name  # each device of a calibration has its history
-    history = of_device(read_history(calibration), name, len(cal.manipulators) == 1)
-    reference = _reference(history)
-    with open_station(rig, calibration, manipulator=manipulator, seed=seed,
-                      settle_s=cfg.settle_s) as station:  # fmt: skip
-        rig_ = station.rig
-        m = station.calibration
-        measure = station.probe.measure_with_covariance
-        result = run_check(rig_.manipulator, rig_.clock, measure, m, config=cfg,
-                           reference=reference, progress=progress)  # fmt: skip
-        data: dict[str, Any] = {"format": CHECK_FORMAT, **result.as_dict()}
-        data["flag"] = _far_from_history(result, history, history_sigma)
-        data["provenance"] = provenance({"calibration": calibration}, command="check")
-        if update is not None:
-            data["update"] = _update(cal, m.name, result, calibration, update, rig_, measure, cfg)
-    write_text_atomic(out_path, json.dumps(data, indent=1, allow_nan=False) + "\n")
-    entry = {k: v for k, v in data.items() if k not in ("format", "provenance", "update")}
-    entry |= {"manipulator": name, "calibration_sha256": sha256_file(calibration),
-              "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-              "software": f"microcal {__version__}"}  # fmt: skip
-    _append(history_path(calibration), entry)
-    return data
-
-
-def _update(
-    cal: Calibration,
-    name: str,
-    result: CheckResult,
-    old: str | os.PathLike[str],
-    new: str | os.PathLike[str],
-    rig: Any,
-    measure: Any,
-    cfg: CheckConfig,
-) -> dict[str, Any]:
-    """Re-fit the base offset only, write the new calibration, check it again."""
-    if result.verdict != "offset":
-        why = ("nothing to update: the calibration is valid" if result.verdict == "valid" else
-               "the model no longer fits: an update re-fits only the offset; calibrate again "
-               "(acquire, measure, fit)")  # fmt: skip
-        return {"calibration": None, "refused": why}
-    m = cal.manipulators[name]
-    model = offset_updated(m.model, result.offset_um)
-    updated = dataclasses.replace(m, model=model)
-    manipulators = {**cal.manipulators, name: updated}
-    prov = provenance({"calibration": old}, command="check --update",
-                      offset_um=result.offset_um.tolist(),
-                      offset_std_um=result.offset_std_um.tolist())  # fmt: skip
-    write_calibration(new, Calibration(manipulators, cal.cameras, prov))
-    again = run_check(rig.manipulator, rig.clock, measure, updated, config=cfg)
-    return {"calibration": str(new), "verdict_after": again.verdict,
-            "offset_after_um": again.offset_um.tolist(),
-            "offset_after_std_um": again.offset_std_um.tolist()}  # fmt: skip
-
-
-def parse_every(text: str) -> tuple[int | None, float | None]:
-    """``--check-every``: ``N`` poses, or ``Mmin`` minutes of the run's clock.
-
-    Returns (poses, seconds), one of them None.
-
-    Raises
-    ------
-    InputError
-        Anything else, with an example.
-    """
-    value = text.strip()
-    try:
-        if value.endswith("min"):
-            minutes = float(value[:-3])
-            if minutes > 0 and np.isfinite(minutes):
-                return None, minutes * 60.0
-        elif int(value) >= 1:
-            return int(value), None
-    except ValueError:
-        pass
-    raise InputError(f"--check-every {text}: expected a number of poses (20) or of minutes (15min)")
-
-
-class PeriodicCheck:
-    """A quick check of an earlier calibration inside a long run, every N poses or minutes.
-
-    Called by the acquisition after each stored pose (its ``between``): when due, the check
-    poses are measured as ``microcal check`` measures them, the result joins the
-    calibration's history (with the run and the poses stored so far), and a line says the
-    verdict. A check that cannot be made (a pose out of view) is reported and the run goes on.
-
-    Parameters
-    ----------
-    rig : Rig
-        The opened rig, its ``manipulator`` the device the calibration is of.
-    calibration : path
-        calibration.json with the cameras; its entry of the rig's device (or its only one).
-    every : str
-        ``N`` poses or ``Mmin`` minutes (:func:`parse_every`).
-    run_dir : path
-        The run the checks are made in (recorded with each).
-    say : callable (str) -> None
-        Where the verdict lines go.
-    """
-
-    def __init__(
-        self,
-        rig: Any,
-        calibration: str | os.PathLike[str],
-        every: str,
-        run_dir: str | os.PathLike[str],
-        say: Callable[[str], None],
-        config: CheckConfig | None = None,
-    ) -> None:
-        from ..vision.probe import VisionProbe
-        from .calibration_update import camera_models
-
-        self.poses, self.every_s = parse_every(every)
-        cal = load_calibration(calibration)
-        name = rig.selected if rig.selected in cal.manipulators else None
-        self.entry = cal.manipulator(name)
-        self.entry.check_device(rig.manipulator.identity)
-        d_all, approach = planned_check(self.entry, rig.manipulator)  # limits, before the run
-        self.last_leg = (d_all[-1] - approach if approach.any() else d_all[-2], d_all[-1])
-        self.single = len(cal.manipulators) == 1
-        #: Poses the run had stored before this session (a resumed run counts on from them).
-        self.stored_before = 0
-        self.config = config or CheckConfig()
-        self.rig, self.path, self.run_dir, self.say = rig, Path(calibration), str(run_dir), say
-        probe = VisionProbe(rig.cameras, camera_models(cal), rig.board, self.config.frames)
-        self.measure = probe.measure_with_covariance
-        self.last_s = rig.clock.now_s()
-        self.results: list[CheckResult] = []
-
-    def __call__(self, done_now: int) -> tuple[np.ndarray, np.ndarray] | None:
-        done = self.stored_before + done_now
-        due = (self.poses is not None and done % self.poses == 0) or (
-            self.every_s is not None and self.rig.clock.now_s() - self.last_s >= self.every_s
-        )
-        if not due:
-            return None
-        history = of_device(read_history(self.path), self.entry.name, self.single)
-        try:
-            result = run_check(self.rig.manipulator, self.rig.clock, self.measure, self.entry,
-                               config=self.config, reference=_reference(history))  # fmt: skip
-        except DetectionError as exc:
-            self.say(f"check after {done} poses not made: {exc}")
-            here = np.asarray(self.rig.manipulator.position_um(), dtype=np.float64)
-            return here, here  # the directions of the joints that moved are not known
-        finally:
-            self.last_s = self.rig.clock.now_s()
-        self.results.append(result)
-        entry = result.as_dict()
-        entry |= {"flag": _far_from_history(result, history, 3.0), "during": self.run_dir,
-                  "after_poses": done, "manipulator": self.entry.name,
-                  "calibration_sha256": sha256_file(self.path),
-                  "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-                  "software": f"microcal {__version__}"}  # fmt: skip
-        _append(history_path(self.path), entry)
-        off = ", ".join(f"{v:+.2f}" for v in result.offset_um)
-        std = ", ".join(f"{v:.2f}" for v in result.offset_std_um)
-        self.say(f"check after {done} poses: {result.verdict}, offset ({off}) ± ({std}) µm"
-                 + (f"; {entry['flag']}" if entry["flag"] else ""))  # fmt: skip
-        return self.last_leg

@@ -1,7 +1,7 @@
 """Rig files (TOML): which devices a run uses. ``sim`` alone is the simulated thesis platform.
 
 :func:`load_rig` gives a typed spec (``microcal.devices.rig_spec``: :class:`SimRigSpec` or
-:class:`HardwareRigSpec`, with every default filled in) that ``devices.rig.open_rig`` opens
+:class:`HardwareRigSpec`, with every default filled in) that ``workflows.rigs.open_rig`` opens
 and whose ``to_dict()`` is the rig's record in ``run.json``.
 
 ```toml

@@ -32,7 +32,16 @@ from ..vision.targets import Target
 from .acquisition import Settle, grab_retrying
 from .stereo import calibrate_views
 
-__all__ = ["RigViewsConfig", "calibrate_on_rig", "default_steps_um", "view_name"]
+__all__ = [
+    "CALIBRATION_STEPS_UM",
+    "RigViewsConfig",
+    "calibrate_on_rig",
+    "default_steps_um",
+    "view_name",
+]
+
+#: The known displacements of the calibration target along z, µm (thesis section 3.3.2).
+CALIBRATION_STEPS_UM = (0.0, 1000.0, 2000.0, 3000.0, 4000.0)
 
 Frame = NDArray[np.generic]
 #: ``store(view, camera, frames)``: keep the frames of one view of one camera.
@@ -41,8 +50,6 @@ ViewStore = Callable[[int, str, list[Frame]], None]
 
 def default_steps_um() -> FloatArray:
     """The demo's steps: the target lifted 0, 1, 2, 3 and 4 mm along z, (5, 3) µm."""
-    from .demo import CALIBRATION_STEPS_UM
-
     return np.array([[0.0, 0.0, z] for z in CALIBRATION_STEPS_UM])
 
 

@@ -4,7 +4,7 @@
 and 5.1): a top camera of 1600 x 1200 px with the thesis's P, a side camera of 2452 x 2056 px
 binned 2 x 2 with the thesis's P', both with a plausible lens distortion; a three-axis
 stick-slip manipulator with the true kinematics of
-:func:`~microcal.thesis.kinematics.thesis_kinematics`; the 4 x 3
+:func:`~microcal.sim.thesis_kinematics.thesis_kinematics`; the 4 x 3
 chessboard (pitch 400 µm) on the gripper, its inner-corner centroid being the end-effector.
 
 The other presets (:data:`PRESETS`) change the cameras only, but for ``population``:
@@ -382,7 +382,7 @@ def platform(
         The platform's time; a :class:`SimClock` from 0 by default (the digital twin gives
         one that follows the wall clock).
     """
-    from ..thesis.kinematics import thesis_kinematics  # the preset builds on this package
+    from .thesis_kinematics import thesis_kinematics  # the preset builds on this package
 
     config = check_overrides(overrides or {}, preset)
     root = np.random.SeedSequence(seed)

@@ -21,9 +21,9 @@ from ..kinematics.designs import make_design
 from ..thesis.cameras import thesis_cameras
 from ..thesis.experiment import WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
 from ..thesis.figures import VIRTUAL_POINT_STD_PX
-from ..thesis.kinematics import thesis_kinematics
 from .kinematics import TrueKinematics, approach_signs
 from .platforms import SimPlatform
+from .thesis_kinematics import thesis_kinematics
 
 __all__ = [
     "RENDERED_VIRTUAL_POINT_STD_PX",

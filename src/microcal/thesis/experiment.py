@@ -2,7 +2,7 @@
 
 Pure data (section numbers are the thesis's). The figures it published are in
 :mod:`microcal.thesis.figures`, its cameras in :mod:`microcal.thesis.cameras` and the
-simulator's preset kinematics sized after it in :mod:`microcal.thesis.kinematics`.
+simulator's preset kinematics sized after it in :mod:`microcal.sim.thesis_kinematics`.
 """
 
 from __future__ import annotations

@@ -16,8 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import FormatError, InputError
-from .run_directory import RunDirectory
-from .run_lock import run_lock
+from ..formats.run_directory import RunDirectory
+from ..formats.run_lock import run_lock
 
 __all__ = ["MeasuredRun", "measure_run"]
 
@@ -52,7 +52,7 @@ def _ok_poses(path: Path) -> int | None:
     InputError
         The file is not a measurements.csv microcal reads (it is not ours to replace).
     """
-    from .measurements import read_measurements
+    from ..formats.measurements import read_measurements
 
     if path.is_dir():
         raise InputError(f"{path}: is a directory; move it away to measure this run")
@@ -101,9 +101,9 @@ def measure_run(
         measuring or acquiring the run, no pose measured (nothing written), or fewer poses
         measured than the measurements.csv it would replace (kept; ``force`` replaces it).
     """
+    from ..formats.cameras_file import load_cameras
     from ..vision.measurement import measure_poses
     from ..vision.targets import parse_target
-    from .cameras_file import load_cameras
 
     run = RunDirectory.open(run_dir, require_commands=False)
     models = load_cameras(cameras)

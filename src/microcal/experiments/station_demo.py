@@ -2,7 +2,7 @@
 meet test of the two manipulators.
 
 The cameras are calibrated once; each device (``m1``, ``m2``, the positioner ``p1``) is then
-acquired, measured, identified and evaluated as :func:`~microcal.procedures.demo.run_demo`
+acquired, measured, identified and evaluated as :func:`~microcal.experiments.demo.run_demo`
 does for one, in that one frame; last, the two manipulators' tips are sent to the same
 points (ISO 9283's cube in the space both reach), open loop and closed, and the gap between
 them measured by vision and by ground truth (:mod:`~microcal.procedures.meet`).
@@ -16,11 +16,11 @@ from typing import Any
 
 from ..devices.rig import platform_rig
 from ..errors import InputError
+from ..procedures.meet import MeetResult, meet_targets_um, meet_test
+from ..procedures.station import Station
 from ..sim import SimPlatform
 from ..vision.stereo_calibration import StereoCalibration
 from .demo import DemoResult, device_workspace, run_demo
-from .meet import MeetResult, meet_targets_um, meet_test
-from .station import Station
 
 __all__ = ["StationDemoResult", "run_station_demo"]
 

@@ -19,6 +19,11 @@ from numpy.typing import ArrayLike
 
 from .._validation import FloatArray, did_you_mean
 from ..errors import InputError
+from ..formats.outputs import check_writable
+from ..formats.records import RunManifest
+from ..formats.run_directory import HOLDS_A_RUN, MANIFEST, RunDirectory, RunWriter, holds_run
+from ..formats.run_lock import run_lock
+from ..formats.run_manifest import new_manifest
 from ..kinematics.designs import DESIGNS
 from ..kinematics.models import held_from_limits
 from ..procedures.acquisition import AcquisitionConfig, RunStoppedError
@@ -30,11 +35,6 @@ from ..procedures.planning import (
     check_poses,
     plan_run,
 )
-from .outputs import check_writable
-from .records import RunManifest
-from .run_directory import HOLDS_A_RUN, MANIFEST, RunDirectory, RunWriter, holds_run
-from .run_lock import run_lock
-from .run_manifest import new_manifest
 
 __all__ = [
     "DEFAULTS",
@@ -143,7 +143,7 @@ def plan_for(
     """The plan of ``--design``: a named design over the limits, or a CSV file of commands."""
     if design in DESIGN_CHOICES:
         return plan_run(design, poses, seed, limits_um, axes=axes)
-    from .commands_csv import read_joint_csv
+    from ..formats.commands_csv import read_joint_csv
 
     if not Path(design).is_file():
         raise InputError(
@@ -165,11 +165,11 @@ def run_acquire(request: AcquireRequest) -> Iterator[str]:
         A bad option, a run directory that does not fit, a rig that does not open, or a run
         stopped (with the command that resumes it).
     """
-    from ..devices.rig import open_rig
+    from ..formats.rig_file import load_rig, rig_from_record
     from ..procedures.dry_run import dry_run as check_rig
-    from .check_file import PeriodicCheck, parse_every
+    from .check import PeriodicCheck, parse_every
     from .options import parse_settle
-    from .rig_file import load_rig, rig_from_record
+    from .rigs import open_rig
 
     out = request.out
     if request.resume and request.dry_run:
@@ -292,7 +292,7 @@ def acquire_remaining(
 
     Yields the lines to show: the start, progress where the output is not a terminal (a bar
     where it is), what was stored and every pose that failed. ``periodic``: a
-    :class:`~microcal.formats.check_file.PeriodicCheck` run between poses (its lines are
+    :class:`~microcal.workflows.check.PeriodicCheck` run between poses (its lines are
     printed as it makes them).
 
     Raises
@@ -304,7 +304,7 @@ def acquire_remaining(
     import numpy as np
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-    from .check_file import history_path
+    from ..formats.check_file import history_path
 
     yield from writer.repairs
     todo = writer.remaining(pose_ids)

@@ -57,6 +57,9 @@ from ..kinematics.extra_inputs import APPROACH_INPUTS
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..kinematics.models import KinematicModel, fit_model
 from ..kinematics.terms import JOINTS
+from ..procedures.acquisition import AcquisitionConfig, approach_start_um
+from ..procedures.evaluation import PositionProbe, run_multi_directional, run_pose_accuracy
+from ..procedures.identification import calibrate_manipulator, default_train
 from ..sim import SimPlatform, platform
 from ..sim.kinematics import TrueKinematics, invert_map
 from ..sim.manipulator import SimManipulator
@@ -64,10 +67,7 @@ from ..sim.platforms import PRESETS
 from ..sim.population_prior import PriorEstimator, fit_prior_estimator, known_form_terms
 from ..sim.synthetic_run import ProjectedProbe
 from ..thesis.experiment import TABLE_5_2_POSES_UM, WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
-from .acquisition import AcquisitionConfig, approach_start_um
 from .demo import demo_design_seed
-from .evaluation import PositionProbe, run_multi_directional, run_pose_accuracy
-from .identification import calibrate_manipulator, default_train
 
 __all__ = ["MODELS", "StudyConfig", "run_seed", "run_study", "summarize_runs"]
 

@@ -6,7 +6,7 @@ import numpy as np
 
 from ..kinematics.models import KinematicModel
 from ..kinematics.terms import JOINTS, polynomial_terms
-from ..sim.kinematics import TrueKinematics
+from .kinematics import TrueKinematics
 
 __all__ = ["thesis_kinematics"]
 

@@ -30,6 +30,15 @@ from ..kinematics.extra_inputs import APPROACH_INPUTS
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..kinematics.models import held_from_limits
 from ..metrics.error_summary import summarize_errors
+from ..procedures.acquisition import AcquisitionConfig, Store, acquire
+from ..procedures.evaluation import (
+    iso_cube_poses,
+    run_decoupling,
+    run_multi_directional,
+    run_pose_accuracy,
+)
+from ..procedures.identification import Identification, calibrate_manipulator, default_train
+from ..procedures.rig_stereo import CALIBRATION_STEPS_UM
 from ..sim import SimPlatform, platform
 from ..sim.platforms import CALIBRATION_TARGET
 from ..sim.render import Placement
@@ -40,14 +49,6 @@ from ..vision.probe import VisionProbe
 from ..vision.roi import frames_from_region
 from ..vision.stereo_calibration import StereoCalibration, calibrate_known_displacements
 from ..vision.targets import Target, parse_target
-from .acquisition import AcquisitionConfig, Store, acquire
-from .evaluation import (
-    iso_cube_poses,
-    run_decoupling,
-    run_multi_directional,
-    run_pose_accuracy,
-)
-from .identification import Identification, calibrate_manipulator, default_train
 
 __all__ = [
     "DemoResult",
@@ -64,8 +65,6 @@ def demo_family(preset: str) -> str:
     and ``auto`` (chosen by held-out error) on ``population``, whose errors lie outside it."""
     return "auto" if preset == "population" else "quadratic"
 
-
-CALIBRATION_STEPS_UM = (0.0, 1000.0, 2000.0, 3000.0, 4000.0)
 
 
 @dataclass

@@ -7,34 +7,40 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
+from ..formats.calibration_file import Calibration, load_calibration, write_calibration
+from ..formats.cameras_file import read_cameras
+from ..formats.provenance import provenance
+from ..formats.records import RunManifest
 from ..geometry import AnyCamera
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
-from .calibration_file import Calibration, load_calibration, provenance, write_calibration
-from .cameras_file import read_cameras
-from .records import RunManifest
 
-__all__ = ["add_manipulator", "camera_models", "measured_device", "measured_held_joints"]
+__all__ = [
+    "add_manipulator",
+    "camera_models",
+    "manifest_beside",
+    "measured_device",
+    "measured_held_joints",
+]
 
 
-def _manifest_beside(measurements: Path) -> RunManifest | None:
+def manifest_beside(measurements: Path) -> RunManifest | None:
     """run.json of the run directory holding ``measurements``, if there is one."""
-    from .run_directory import RunDirectory
+    from ..formats.run_directory import RunDirectory
 
     if not (measurements.parent / "run.json").is_file():
         return None
     return RunDirectory(measurements.parent).manifest
 
 
-def measured_device(measurements: Path) -> str:
-    """The rig device whose run measured ``measurements`` (run.json beside it), else ``m1``."""
-    manifest = _manifest_beside(measurements)
+def measured_device(manifest: RunManifest | None) -> str:
+    """The rig device whose run is ``manifest`` (run.json beside the measurements), else
+    ``m1``."""
     return (manifest.manipulator if manifest is not None else None) or "m1"
 
 
-def measured_held_joints(measurements: Path) -> dict[str, float]:
-    """The joints the measured device holds still (run.json beside ``measurements``: an X-Y
-    positioner's ``dz``), by value; none without a run.json."""
-    manifest = _manifest_beside(measurements)
+def measured_held_joints(manifest: RunManifest | None) -> dict[str, float]:
+    """The joints the measured device holds still (``manifest``, run.json beside the
+    measurements: an X-Y positioner's ``dz``), by value; none without a run.json."""
     return dict(manifest.held_joints_um or {}) if manifest is not None else {}
 
 
@@ -44,19 +50,16 @@ def add_manipulator(
     cameras: Path | None,
     inputs: dict[str, Any],
     model: str,
+    manifest: RunManifest | None = None,
 ) -> Calibration:
     """Write ``out`` with ``entry`` added (or replaced); returns what was written.
 
     An existing file keeps its other manipulators and its cameras, unless ``cameras`` (a
-    cameras.json) gives new ones. ``inputs`` are the files the calibration was made from.
+    cameras.json) gives new ones. ``inputs`` are the files the calibration was made from;
+    ``manifest`` the run they were measured in (its device is recorded with the entry).
     """
-    from .run_directory import RunDirectory
-
-    run = Path(inputs.get("measurements", "")).parent / "run.json"
-    if run.is_file() and "device" not in entry.extra:  # the device the poses were measured on
-        manifest = RunDirectory(run.parent).manifest
-        if manifest is not None and manifest.device:
-            entry = dataclasses.replace(entry, extra={**entry.extra, "device": manifest.device})
+    if manifest is not None and manifest.device and "device" not in entry.extra:
+        entry = dataclasses.replace(entry, extra={**entry.extra, "device": manifest.device})
     existing = load_calibration(out) if out.exists() else None
     camera_data = existing.cameras if existing else {}
     if cameras is not None:
@@ -75,9 +78,9 @@ def add_manipulator(
 def check_fit_outputs(out: Path, mat: Path | None, manipulator: str | None = "m1") -> None:
     """Refuse, before the fit, a calibration.json or .mat output that is not ours to replace,
     or an empty manipulator name."""
-    from .calibration_file import CALIBRATION_FORMAT
-    from .json_file import check_json_output
-    from .outputs import check_output, foreign_mat
+    from ..formats.calibration_file import CALIBRATION_FORMAT
+    from ..formats.json_file import check_json_output
+    from ..formats.outputs import check_output, foreign_mat
 
     if manipulator is not None and not manipulator.strip():
         raise InputError("--manipulator: expected a name such as m1, got an empty one")

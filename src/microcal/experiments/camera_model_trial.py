@@ -18,6 +18,7 @@ import numpy as np
 from .._validation import FloatArray
 from ..errors import DegenerateDataError
 from ..geometry import AnyCamera
+from ..procedures.rig_stereo import CALIBRATION_STEPS_UM
 from ..sim import SimPlatform, platform
 from ..sim.platforms import CALIBRATION_TARGET
 from ..vision.detect import Detection
@@ -25,7 +26,7 @@ from ..vision.known_displacements import calibrate_known_displacements, fit_know
 from ..vision.measurement import PoseMeasurement, measure_poses
 from ..vision.stereo_calibration import StereoCalibration
 from ..vision.targets import Target, parse_target
-from .demo import CALIBRATION_STEPS_UM, target_views
+from .demo import target_views
 
 __all__ = ["CameraModelTrial", "camera_model_trial"]
 

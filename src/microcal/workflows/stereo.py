@@ -13,9 +13,13 @@ import re
 from collections.abc import Callable
 from pathlib import Path
 
-from ..devices.rig import open_rig
 from ..devices.rig_spec import HardwareRigSpec
 from ..errors import InputError
+from ..formats.cameras_file import CAMERAS_FORMAT, save_stereo_calibration
+from ..formats.commands_csv import read_joint_csv, write_joint_csv
+from ..formats.images import write_tiff
+from ..formats.json_file import check_json_output
+from ..formats.rig_file import load_rig
 from ..procedures.rig_stereo import (
     RigViewsConfig,
     calibrate_on_rig,
@@ -24,12 +28,8 @@ from ..procedures.rig_stereo import (
 )
 from ..vision.stereo_calibration import StereoCalibration
 from ..vision.targets import parse_target
-from .cameras_file import CAMERAS_FORMAT, save_stereo_calibration
-from .commands_csv import read_joint_csv, write_joint_csv
-from .images import write_tiff
-from .json_file import check_json_output
 from .options import rig_with_seed
-from .rig_file import load_rig
+from .rigs import open_rig
 
 __all__ = ["STEPS_FILE", "stereo_calibrate_rig"]
 

@@ -1,0 +1,27 @@
+"""The provenance every file microcal writes carries: software, time and input hashes."""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+from collections.abc import Mapping
+from typing import Any
+
+from .._version import __version__
+from .hashing import sha256_file
+
+__all__ = ["provenance"]
+
+
+def provenance(
+    inputs: Mapping[str, str | os.PathLike[str]] | None = None, **extra: Any
+) -> dict[str, Any]:
+    """Software version, UTC time and the SHA-256 of each input file."""
+    return {
+        "software": f"microcal {__version__}",
+        "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        "inputs": {
+            name: {"path": str(p), "sha256": sha256_file(p)} for name, p in (inputs or {}).items()
+        },
+        **extra,
+    }
