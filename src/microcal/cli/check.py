@@ -36,9 +36,8 @@ def check(
     Example: microcal check --rig myrig.toml --calibration runs/a/calibration.json
     --out runs/a/check.json --update runs/a/calibration-moved.json
     """
-    from ..procedures.check import CheckConfig
     from ..report.text_tables import check_lines
-    from ..workflows.check import check_calibration
+    from ..workflows.check import CheckConfig, check_calibration
 
     cfg = CheckConfig(frames=frames, settle_s=settle_s, alpha=alpha)
     with Console(stderr=True).status("measuring the check poses ...") as status:

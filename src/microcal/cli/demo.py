@@ -45,9 +45,9 @@ def demo(
 
     Example: microcal demo --seed 3 --out demo-3 (or --preset telecentric)
     """
-    from ..experiments.demo import demo_family, run_demo
     from ..report.text_tables import demo_closing, demo_intro, demo_summary
-    from ..workflows.demo import start_demo_run, write_demo_outputs
+    from ..workflows.demo import DemoRequest
+    from ..workflows.demo import demo as run
     from ..workflows.options import check_camera_model
 
     wall0, console = time.monotonic(), Console()
@@ -55,17 +55,10 @@ def demo(
     check_camera_model(camera_model)
     if preset == "thesis-platform":
         return _station(out, seed, n_poses, frames, quick, camera_model, console, wall0)
-    plat, writer = start_demo_run(out, seed, n_poses, frames, preset)
-    console.print(demo_intro(out, n_poses))
+    request = DemoRequest(out, seed, n_poses, frames, quick, preset, camera_model)
     with staged_progress(console) as progress:
-        result = run_demo(
-            seed=seed, poses=n_poses, frames_per_pose=frames, progress=progress,
-            frames_per_view=4 if quick else 8, cycles=1 if quick else 3,
-            decoupling_samples=5 if quick else 17, store=writer.store, plat=plat,
-            camera_model=camera_model, family=demo_family(preset),
-        )  # fmt: skip
+        result = run(request, progress, lambda: console.print(demo_intro(out, n_poses)), wall0)
     print_parts(console, demo_summary(result, frames))
-    write_demo_outputs(out, result, wall_s=time.monotonic() - wall0)
     print_parts(console, demo_closing(result, out, time.monotonic() - wall0))
 
 

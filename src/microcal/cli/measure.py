@@ -8,7 +8,6 @@ from typing import Annotated
 from rich.console import Console
 from typer import Argument, Option
 
-from ..errors import InputError
 from ..report.console import print_parts, staged_progress
 from ._app import app
 
@@ -53,11 +52,6 @@ def report(run_dir: _ReportDir, out: _ReportOut = None) -> None:
 
     Example: microcal report demo-out
     """
-    from ..formats.outputs import check_output, foreign_report
-    from ..report import write_report
+    from ..workflows.report import report as write
 
-    if not run_dir.is_dir():
-        raise InputError(f"{run_dir}: not a directory (expected a run directory)")
-    target = out if out is not None else run_dir / "report.html"
-    check_output(target, kind="a microcal report", foreign=foreign_report, example="report.html")
-    print(f"wrote {write_report(run_dir, target)}")
+    print(f"wrote {write(run_dir, out)}")

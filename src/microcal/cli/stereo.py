@@ -58,37 +58,21 @@ def stereo_calibrate(
 
 def _from_images(target: str, images: list[str], out: Path, known_displacements: Path | None,
                  reference_view: int, lens_model: str, camera_model: str) -> None:  # fmt: skip
-    from ..formats.cameras_file import CAMERAS_FORMAT, save_stereo_calibration
-    from ..formats.commands_csv import read_joint_csv
-    from ..formats.images import read_frames
-    from ..formats.json_file import check_json_output
-    from ..procedures.stereo import calibrate_views
     from ..report.text_tables import stereo_lines
-    from ..vision.targets import parse_target
-    from ..workflows.options import check_camera_model, parse_images
+    from ..workflows.stereo import stereo_calibrate_images
 
-    tgt = parse_target(target)
-    check_json_output(out, CAMERAS_FORMAT, "cameras.json")
-    files = parse_images(images)
-    n_views = len(next(iter(files.values())))
-    disp = None
-    if known_displacements is not None:
-        disp = read_joint_csv(known_displacements, what="--known-displacements", rows=n_views)[1]
     with Console(stderr=True).status("detecting the target and calibrating ..."):
-        cal = calibrate_views({cam: [f.name for f in fs] for cam, fs in files.items()},
-                              lambda cam, i: read_frames(files[cam][i]), tgt, displacements_um=disp,
-                              reference_view=reference_view, lens_model=lens_model,
-                              camera_model=check_camera_model(camera_model))  # fmt: skip
-    save_stereo_calibration(out, cal, files, known_displacements, tgt.spec)
+        cal = stereo_calibrate_images(target, images, out, known_displacements=known_displacements,
+                                      reference_view=reference_view, lens_model=lens_model,
+                                      camera_model=camera_model)  # fmt: skip
     print_parts(Console(), stereo_lines(cal, out))
 
 
 def _on_rig(rig: str, out: Path, views: Path | None, steps: Path | None, target: str | None,
             seed: int | None, frames: int, camera_model: str) -> None:  # fmt: skip
-    from ..procedures.rig_stereo import RigViewsConfig
     from ..report.text_tables import stereo_lines
     from ..workflows.options import check_camera_model
-    from ..workflows.stereo import stereo_calibrate_rig
+    from ..workflows.stereo import RigViewsConfig, stereo_calibrate_rig
 
     cfg = RigViewsConfig(frames_per_view=frames, camera_model=check_camera_model(camera_model))
     with Console(stderr=True).status("moving the target and grabbing the views ...") as status:

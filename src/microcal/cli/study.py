@@ -35,22 +35,19 @@ def study(
     Example: microcal study --preset population --seeds 20 --out study-population
     (or --rig my-sim-rig.toml: a lab's own noise and travel, the seeds as given here)
     """
-    from ..experiments.study import StudyConfig, run_study
-    from ..formats.study_file import check_study_folder, study_platform, write_study
-    from ..report.study_page import study_page, study_table
+    from ..report.study_page import study_table
+    from ..workflows.study import StudyConfig
+    from ..workflows.study import study as run
 
-    preset, overrides = study_platform(preset, rig)
-    check_study_folder(out)
     console = Console()
 
     def tick(done: int, total: int, run: dict[str, object]) -> None:
         console.print(f"seed {run['seed']}: done ({done}/{total}, {run['wall_s']:.1f} s)")
 
-    config = StudyConfig(poses=poses, render=render, design=design, overrides=overrides,
-                         closed_loop=closed_loop, tolerance_um=tolerance_um,
-                         prior=prior)  # fmt: skip
-    result = run_study(preset, range(first_seed, first_seed + seeds), config, workers or None, tick)
-    path = write_study(out, result, study_page(result))
+    config = StudyConfig(poses=poses, render=render, design=design, closed_loop=closed_loop,
+                         tolerance_um=tolerance_um, prior=prior)  # fmt: skip
+    seed_range = range(first_seed, first_seed + seeds)
+    path, result = run(out, preset, rig, seed_range, config, workers or None, tick)
     for name, med, p90 in study_table(result):
         console.print(f"{name:48s} median {med:9.3g}  p90 {p90:9.3g}")
     console.print(f"Wrote {path} and study.html")

@@ -49,7 +49,7 @@ from ..vision.probe import VisionProbe
 from .calibration_update import camera_models
 from .station import open_station
 
-__all__ = ["PeriodicCheck", "check_calibration", "parse_every"]
+__all__ = ["CheckConfig", "PeriodicCheck", "check_calibration", "parse_every"]
 
 
 def _reference(history: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray] | None:

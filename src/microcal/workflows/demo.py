@@ -11,6 +11,8 @@ from __future__ import annotations
 import json
 import re
 import shutil
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -28,8 +30,10 @@ if TYPE_CHECKING:
 
 __all__ = [
     "DEMO_FILES",
+    "DemoRequest",
     "check_demo_dir",
     "clear_demo_dir",
+    "demo",
     "run_station_demo_files",
     "start_demo_run",
     "start_station_demo",
@@ -139,6 +143,61 @@ def write_station_outputs(out: Path, result: StationDemoResult, wall_s: float) -
     from ..report import write_report
 
     write_report(out)
+
+
+@dataclass(frozen=True)
+class DemoRequest:
+    """What ``microcal demo`` is asked (the single-device presets).
+
+    Attributes
+    ----------
+    out : Path
+        The run directory (new, empty, or an earlier demo's, which is replaced).
+    poses, frames_per_pose : int
+        The acquisition's size.
+    quick : bool
+        Fewer frames per calibration view, one ISO cycle, fewer decoupling samples.
+    camera_model : str
+        ``pinhole``, ``affine`` or ``auto``.
+    """
+
+    out: Path
+    seed: int = 0
+    poses: int = 170
+    frames_per_pose: int = 5
+    quick: bool = False
+    preset: str = "thesis"
+    camera_model: str = "auto"
+
+
+def demo(
+    request: DemoRequest,
+    progress: Any = None,
+    started: Callable[[], None] | None = None,
+    wall0_s: float | None = None,
+) -> DemoResult:
+    """``microcal demo``: check and start the run directory, run the demo on the simulated
+    platform, write what it derived; ``started()`` is called once the directory is ready.
+
+    ``wall0_s``: when the command started (``time.monotonic``; now by default).
+    """
+    import time
+
+    from ..experiments.demo import demo_family, run_demo
+
+    wall0 = time.monotonic() if wall0_s is None else wall0_s
+    r = request
+    plat, writer = start_demo_run(r.out, r.seed, r.poses, r.frames_per_pose, r.preset)
+    if started is not None:
+        started()
+    result = run_demo(
+        seed=r.seed, poses=r.poses, frames_per_pose=r.frames_per_pose, progress=progress,
+        frames_per_view=4 if r.quick else 8, cycles=1 if r.quick else 3,
+        decoupling_samples=5 if r.quick else 17, store=writer.store, plat=plat,
+        camera_model=r.camera_model, family=demo_family(r.preset),
+    )  # fmt: skip
+    write_demo_outputs(r.out, result, wall_s=time.monotonic() - wall0)
+    return result
 
 
 def run_station_demo_files(

@@ -1,4 +1,10 @@
-"""``stereo-calibrate --rig``: the files around a camera calibration made on a rig.
+"""``microcal stereo-calibrate``: cameras calibrated from image files, or on a rig.
+
+From image files (:func:`stereo_calibrate_images`): the target detected in each view of each
+camera, the cameras calibrated (known displacements or unknown poses), cameras.json written
+with each image's hash.
+
+On a rig (:func:`stereo_calibrate_rig`):
 
 The frames of every view are kept as multi-page TIFFs (``top_01.tiff`` ...) with the steps
 (``steps.csv``) in a views directory, so that ``microcal stereo-calibrate --images ...
@@ -31,7 +37,12 @@ from ..vision.targets import parse_target
 from .options import rig_with_seed
 from .rigs import open_rig
 
-__all__ = ["STEPS_FILE", "stereo_calibrate_rig"]
+__all__ = [
+    "STEPS_FILE",
+    "RigViewsConfig",
+    "stereo_calibrate_images",
+    "stereo_calibrate_rig",
+]
 
 #: The steps' file in the views directory.
 STEPS_FILE = "steps.csv"
@@ -123,3 +134,49 @@ def stereo_calibrate_rig(
     steps_path = write_joint_csv(views_dir / STEPS_FILE, steps_um)
     save_stereo_calibration(out_path, cal, files, steps_path, tgt.spec)
     return cal, out_path, views_dir
+
+
+def stereo_calibrate_images(
+    target: str,
+    images: list[str],
+    out: Path,
+    *,
+    known_displacements: Path | None = None,
+    reference_view: int = 0,
+    lens_model: str = "auto",
+    camera_model: str = "auto",
+) -> StereoCalibration:
+    """Calibrate cameras from image files and write cameras.json.
+
+    Parameters
+    ----------
+    target : str
+        The target spec (``chessboard:9x6:250``, ``dotgrid:...``).
+    images : list of str
+        ``CAMERA=GLOB`` per camera, each matching the same number of views.
+    known_displacements : Path, optional
+        The target's displacement of each view (CSV): the thesis's method; unknown poses
+        without it.
+
+    Raises
+    ------
+    InputError, FormatError, DetectionError
+        One line naming the option, the file or the view.
+    """
+    from ..formats.images import read_frames
+    from ..procedures.stereo import calibrate_views
+    from .options import check_camera_model, parse_images
+
+    tgt = parse_target(target)
+    check_json_output(out, CAMERAS_FORMAT, "cameras.json")
+    files = parse_images(images)
+    n_views = len(next(iter(files.values())))
+    disp = None
+    if known_displacements is not None:
+        disp = read_joint_csv(known_displacements, what="--known-displacements", rows=n_views)[1]
+    cal = calibrate_views({cam: [f.name for f in fs] for cam, fs in files.items()},
+                          lambda cam, i: read_frames(files[cam][i]), tgt, displacements_um=disp,
+                          reference_view=reference_view, lens_model=lens_model,
+                          camera_model=check_camera_model(camera_model))  # fmt: skip
+    save_stereo_calibration(out, cal, files, known_displacements, tgt.spec)
+    return cal
