@@ -22,8 +22,11 @@ from microcal.devices.rig_spec import HardwareRigSpec, MCS2Spec
 from microcal.devices.smaract_mcs2 import MCS2Manipulator
 from microcal.errors import DeviceError, FrameError, InputError, LimitError, MoveError
 from microcal.formats.rig_file import load_rig
+from microcal.formats.twin_rig_file import RIG_HEADER, twin_rig_toml
 from microcal.sim import platform
-from microcal.sim.twin import RIG_HEADER, ScaledClock, Twin, twin_rig_toml
+from microcal.sim.scaled_clock import ScaledClock
+from microcal.sim.twin import Twin
+from microcal.sim.twin_rig import twin_rig
 from microcal.vision.detect import detect
 from microcal.vision.targets import parse_target
 
@@ -52,7 +55,7 @@ def rig(served, tmp_path_factory):
     from microcal.workflows.rigs import open_rig
 
     path = tmp_path_factory.mktemp("twin") / "twin.toml"
-    path.write_text(served.rig_toml(str(path)))
+    path.write_text(twin_rig_toml(served.rig_description(), str(path)))
     spec = load_rig(str(path))
     assert isinstance(spec, HardwareRigSpec)
     with open_rig(spec) as opened:
@@ -195,7 +198,7 @@ def test_faults_reach_the_drivers_as_a_controllers_and_a_cameras_would(served, t
     faults = {"top.faults.drop_rate": 1.0, "manipulator.faults.move_failure_rate": 1.0}
     with Twin(seed=1, overrides=faults, time_scale=SCALE, mcs2_port=0, frames_port=0) as twin:
         path = tmp_path / "twin.toml"
-        path.write_text(twin.rig_toml())
+        path.write_text(twin_rig_toml(twin.rig_description()))
         with open_rig(load_rig(str(path))) as faulty:
             with pytest.raises(FrameError, match="frame dropped"):
                 faulty.cameras["top"].grab()
@@ -214,7 +217,7 @@ def test_a_twin_of_the_whole_station_serves_every_device_on_its_own_channels(ser
     with Twin(preset="thesis-platform", seed=2, time_scale=SCALE, mcs2_port=0,
               frames_port=0) as twin:  # fmt: skip
         path = tmp_path / "station.toml"
-        path.write_text(twin.rig_toml())
+        path.write_text(twin_rig_toml(twin.rig_description()))
         spec = load_rig(str(path))
         assert spec.manipulator_names == ("m1", "m2", "p1")
         with open_rig(spec, "p1") as opened:
@@ -252,7 +255,7 @@ def test_no_twin_running_is_one_line_saying_how_to_start_it(served, tmp_path):
     from microcal.workflows.rigs import open_rig
 
     port = _free_port()
-    text = twin_rig_toml(served.platform, mcs2_port=_free_port(), frames_port=port)
+    text = twin_rig_toml(twin_rig(served.platform, mcs2_port=_free_port(), frames_port=port))
     path = tmp_path / "twin.toml"
     path.write_text(text)
     with pytest.raises(DeviceError) as info:
@@ -264,7 +267,7 @@ def test_no_twin_running_is_one_line_saying_how_to_start_it(served, tmp_path):
 
 
 def test_the_example_rig_is_the_twins_for_the_default_ports():
-    text = twin_rig_toml(platform("thesis", 0), rig_path="examples/rigs/twin.toml")
+    text = twin_rig_toml(twin_rig(platform("thesis", 0)), rig_path="examples/rigs/twin.toml")
     assert EXAMPLE.read_text(encoding="utf-8") == text  # regenerate it if the twin changed
     spec = load_rig(str(EXAMPLE))
     assert isinstance(spec, HardwareRigSpec)

@@ -33,6 +33,7 @@ def twin(
     """
     from ..formats.atomic import write_text_atomic
     from ..formats.outputs import check_output, foreign_twin_rig
+    from ..formats.twin_rig_file import twin_rig_toml
     from ..sim.twin import Twin
 
     if rig_out is not None:
@@ -41,7 +42,7 @@ def twin(
     with Twin(preset, seed, host=host, mcs2_port=port, frames_port=frames_port,
               time_scale=time_scale) as served:  # fmt: skip
         if rig_out is not None:
-            write_text_atomic(rig_out, served.rig_toml(str(rig_out)))
+            write_text_atomic(rig_out, twin_rig_toml(served.rig_description(), str(rig_out)))
         rig = f"rig file {rig_out}" if rig_out else "no rig file (--rig-out FILE writes one)"
         line = f"{served.describe()}; {rig}; Ctrl-C stops it"
         reason = served.serve(duration_s, ready=lambda: print(line, flush=True))

@@ -3,9 +3,10 @@
 A rig file's ``[micromanager]`` table names ``python_devices =
 "microcal.devices.twin_camera:load"`` with ``options = {address = ..., port = ...}``: the
 Micro-Manager bridge then calls :func:`load`, which asks the twin's frame server
-(:mod:`microcal.sim.twin`) for its cameras and loads one :class:`TwinCamera` per camera,
-labelled with the camera's name. Each snap fetches one frame (``GRAB <camera>``), so the
-frames reach microcal through ``devices.micromanager.MMCamera`` as a real camera's would.
+(:mod:`microcal.sim.frame_server`) for its cameras and loads one :class:`TwinCamera` per
+camera, labelled with the camera's name. Each snap fetches one frame (``GRAB <camera>``), so
+the frames reach microcal through ``devices.micromanager.MMCamera`` as a real camera's would.
+The protocol, its words and limits are :mod:`microcal.devices.twin_protocol`'s.
 
 A dropped frame is a :class:`FrameError` and a frame that does not come in time a
 :class:`DeviceTimeoutError` (both transient: grab again); a twin that cannot be reached is a
@@ -14,7 +15,6 @@ one-line :class:`DeviceError` saying how to start it.
 
 from __future__ import annotations
 
-import json
 import socket
 import threading
 import time
@@ -25,15 +25,27 @@ import numpy as np
 from numpy.typing import NDArray
 from pymmcore_plus.experimental.unicore import SimpleCameraDevice
 
-from ..errors import DeviceError, DeviceTimeoutError, FrameError
+from ..errors import DeviceError, DeviceTimeoutError
+from .twin_protocol import (
+    DTYPES,
+    EOL,
+    FRAMES_PORT,
+    GRAB,
+    INFO,
+    MAX_FRAME_BYTES,
+    MAX_HEADER_BYTES,
+    OK,
+    decode_error,
+    decode_frame,
+    decode_info,
+    error_of_kind,
+    exposure_request,
+    frame_nbytes,
+    grab_request,
+    info_camera,
+)
 
 __all__ = ["FRAMES_PORT", "FrameClient", "TwinCamera", "load"]
-
-#: The frame server's default port (``microcal twin --frames-port``).
-FRAMES_PORT = 55561
-_MAX_HEADER_BYTES = 1 << 16
-_MAX_FRAME_BYTES = 1 << 28  # 256 MiB: far above any sensor here
-_DTYPES: dict[str, np.dtype[Any]] = {"uint8": np.dtype(np.uint8), "uint16": np.dtype("<u2")}
 
 
 class FrameClient:
@@ -87,7 +99,7 @@ class FrameClient:
         while (b"\n" not in self._buffer) if n is None else (len(self._buffer) < n):
             if time.monotonic() > deadline:
                 raise TimeoutError
-            if n is None and len(self._buffer) > _MAX_HEADER_BYTES:
+            if n is None and len(self._buffer) > MAX_HEADER_BYTES:
                 raise ConnectionError("an answer line too long: not a microcal twin")
             chunk = self._sock.recv(1 << 20)
             if not chunk:
@@ -103,13 +115,12 @@ class FrameClient:
         """Send one request; its answer line and, after ``OK h w dtype n``, the n bytes."""
         if self._sock is None:
             self._sock = self._open()
-        self._sock.sendall(request.encode("ascii") + b"\r\n")
+        self._sock.sendall(request.encode("ascii") + EOL)
         deadline = time.monotonic() + self.timeout_s
         line = self._read_until(None, deadline).decode("ascii", errors="replace")
-        words = line.split()
-        if request.startswith("GRAB ") and len(words) == 5 and words[0] == "OK":
-            nbytes = int(words[4])
-            if not 0 <= nbytes <= _MAX_FRAME_BYTES:
+        nbytes = frame_nbytes(line) if request.startswith(f"{GRAB} ") else None
+        if nbytes is not None:
+            if not 0 <= nbytes <= MAX_FRAME_BYTES:
                 raise ConnectionError(f"a frame of {nbytes} bytes announced")
             return line, self._read_until(nbytes, deadline)
         return line, b""
@@ -145,16 +156,14 @@ class FrameClient:
 
     def info(self) -> dict[str, Any]:
         """The twin's INFO: its cameras (name, width, height, dtype, exposure_ms ...)."""
-        line, _ = self.request("INFO")
+        line, _ = self.request(INFO)
         try:
-            info = json.loads(line)
-            cameras = list(info["cameras"])
+            return decode_info(line)
         except (ValueError, KeyError, TypeError):
             raise DeviceError(
                 f"{self._where()} answered {line[:60]!r} to INFO: not a microcal twin's frame "
                 "server (is the port the MCS2 one?)"
             ) from None
-        return {**info, "cameras": cameras}
 
     def grab(self, camera: str) -> NDArray[np.unsignedinteger]:
         """One frame of a camera, (height, width), uint8 or uint16.
@@ -166,23 +175,20 @@ class FrameClient:
         DeviceError
             Any other failure.
         """
-        line, data = self.request(f"GRAB {camera}")
-        words = line.split()
-        if len(words) == 5 and words[0] == "OK" and words[3] in _DTYPES:
-            try:
-                return np.frombuffer(data, _DTYPES[words[3]]).reshape(int(words[1]), int(words[2]))
-            except ValueError:
-                pass  # a size that does not match: said below
-        kind, _, message = line.partition(" ")[2].partition(" ")
-        if words[:1] == ["ERR"]:
-            error = {"frame": FrameError, "timeout": DeviceTimeoutError}.get(kind, DeviceError)
-            raise error(message or line)
-        raise DeviceError(f"twin at {self._where()}: unexpected answer {line[:60]!r} to GRAB")
+        line, data = self.request(grab_request(camera))
+        frame = decode_frame(line, data)
+        if frame is not None:
+            return frame
+        error = decode_error(line)  # neither a frame nor an error: said below
+        if error is not None:
+            kind, message = error
+            raise error_of_kind(kind)(message or line)
+        raise DeviceError(f"twin at {self._where()}: unexpected answer {line[:60]!r} to {GRAB}")
 
     def set_exposure_ms(self, camera: str, exposure_ms: float) -> None:
         """Set a camera's exposure, ms."""
-        line, _ = self.request(f"EXPOSURE {camera} {exposure_ms!r}")
-        if line != "OK":
+        line, _ = self.request(exposure_request(camera, exposure_ms))
+        if line != OK:
             raise DeviceError(f"twin: exposure of {camera} not accepted ({line[:80]})")
 
 
@@ -209,7 +215,7 @@ class TwinCamera(SimpleCameraDevice):  # type: ignore[misc, unused-ignore]  # An
         super().__init__()
         self._client, self._name = client, name
         self._shape_px = (int(shape_px[0]), int(shape_px[1]))
-        self._dtype = _DTYPES[dtype]
+        self._dtype = DTYPES[dtype]
         self._exposure_ms = float(exposure_ms)
 
     def sensor_shape(self) -> tuple[int, int]:
@@ -256,10 +262,9 @@ def load(core: Any, address: str = "127.0.0.1", port: int = FRAMES_PORT,
     client = FrameClient(str(address), int(port), float(timeout_s))
     for cam in client.info()["cameras"]:
         try:
-            shape = (int(cam["height"]), int(cam["width"]))
-            args = (str(cam["name"]), shape, str(cam["dtype"]), float(cam["exposure_ms"]))
+            args = info_camera(cam)
         except (KeyError, TypeError, ValueError):
             raise DeviceError(f"twin at {address}:{port}: a camera described as {cam!r}") from None
-        if args[2] not in _DTYPES:
+        if args[2] not in DTYPES:
             raise DeviceError(f"twin at {address}:{port}: camera pixel type {args[2]!r}")
         core.loadPyDevice(args[0], TwinCamera(client, *args))

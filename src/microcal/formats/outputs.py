@@ -85,7 +85,7 @@ def foreign_report(path: Path) -> str | None:
 
 def foreign_twin_rig(path: Path) -> str | None:
     """None for a rig file ``microcal twin --rig-out`` wrote (its first line)."""
-    from ..sim.twin import RIG_HEADER
+    from .twin_rig_file import RIG_HEADER
 
     return None if _head(path, 256).startswith(RIG_HEADER.encode("utf-8")) else _NOT_OURS
 
