@@ -23,11 +23,17 @@ PYTHON_VERSION := $(if $(PYTHON),$(shell $(PYTHON) $(PYTHON_PROBE) 2>/dev/null))
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 JOBS   ?= auto
-# extras to install: dev (tests, lint); CI adds hardware,hardware-test (drivers and peers)
+# extras to install: dev (tests, lint); CI adds hardware-test (drivers and peers) and docs
 EXTRAS ?= dev
 comma  := ,
 # the stamp names the interpreter's version: a venv made by another Python is rebuilt
 STAMP  := $(VENV)/.installed-py$(PYTHON_VERSION)-$(subst $(comma),-,$(EXTRAS))
+# `make docs` needs the docs extra (mkdocs, mkdocstrings): in EXTRAS, or added to the venv
+ifeq ($(filter docs,$(subst $(comma), ,$(EXTRAS))),)
+DOCS_STAMP := $(VENV)/.installed-py$(PYTHON_VERSION)-docs-extra
+else
+DOCS_STAMP := $(STAMP)
+endif
 
 # the targets that need Python stop here, with one line, when there is none
 ifeq ($(PYTHON_VERSION),)
@@ -36,7 +42,7 @@ $(error $(PYTHON_MISSING))
 endif
 endif
 
-.PHONY: help demo test lint bench clean
+.PHONY: help demo test lint docs bench clean
 
 help:  ## list the targets
 	@grep -E '^[a-z]+:.*##' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-6s %s\n", $$1, $$2}'
@@ -61,8 +67,17 @@ lint: $(STAMP)  ## ruff (lint and format check) and mypy
 	$(BIN)/ruff format --check src tests benchmarks scripts
 	$(BIN)/mypy
 
+ifneq ($(DOCS_STAMP),$(STAMP))
+$(DOCS_STAMP): $(STAMP) pyproject.toml
+	$(BIN)/python -m pip install --quiet -e '.[docs]'
+	@touch $(DOCS_STAMP)
+endif
+
+docs: $(DOCS_STAMP)  ## build the documentation site into site/ (warnings are errors)
+	$(BIN)/mkdocs build --strict --site-dir site
+
 bench: $(STAMP)  ## run the benchmarks; results in benchmarks/results/
 	$(BIN)/python -m benchmarks
 
-clean:  ## remove the virtual environment and caches
-	rm -rf $(VENV) .venv-3.13 .pytest_cache .mypy_cache .ruff_cache build dist
+clean:  ## remove the virtual environment, caches and the built site
+	rm -rf $(VENV) .venv-3.13 .pytest_cache .mypy_cache .ruff_cache build dist site
