@@ -31,19 +31,8 @@ def twin(
     Example: microcal twin --seed 0 --rig-out twin.toml  (then, in another terminal:
     microcal acquire --rig twin.toml --out runs/a --dry-run)
     """
-    from ..formats.atomic import write_text_atomic
-    from ..formats.outputs import check_output, foreign_twin_rig
-    from ..formats.twin_rig_file import twin_rig_toml
-    from ..sim.twin import Twin
+    from ..workflows.twin import TwinRequest, serve_twin
 
-    if rig_out is not None:
-        check_output(rig_out, kind="a twin rig file", foreign=foreign_twin_rig,
-                     example="twin.toml", option="--rig-out")  # fmt: skip
-    with Twin(preset, seed, host=host, mcs2_port=port, frames_port=frames_port,
-              time_scale=time_scale) as served:  # fmt: skip
-        if rig_out is not None:
-            write_text_atomic(rig_out, twin_rig_toml(served.rig_description(), str(rig_out)))
-        rig = f"rig file {rig_out}" if rig_out else "no rig file (--rig-out FILE writes one)"
-        line = f"{served.describe()}; {rig}; Ctrl-C stops it"
-        reason = served.serve(duration_s, ready=lambda: print(line, flush=True))
+    request = TwinRequest(preset, seed, host, port, frames_port, time_scale, rig_out, duration_s)
+    reason = serve_twin(request, ready=lambda line: print(line, flush=True))
     print(f"digital twin stopped ({reason})")
