@@ -325,6 +325,18 @@ def test_no_import_cycles():
     assert not cycles, "import cycles:\n" + "\n".join(" <-> ".join(c) for c in cycles)
 
 
+def test_no_two_packages_import_each_other():
+    """Packages (the first part of a module's name) form no cycle either."""
+    packages: dict[str, set[str]] = {}
+    for rel, targets in _import_graph().items():
+        own = rel.split(".")[0]
+        packages.setdefault(own, set()).update(
+            t.split(".")[0] for t in targets if t and t.split(".")[0] != own
+        )
+    cycles = _cycles(packages)
+    assert not cycles, "package cycles:\n" + "\n".join(" <-> ".join(c) for c in cycles)
+
+
 def test_the_cycle_finder_finds_a_cycle():
     graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}, "e": set()}
     assert _cycles(graph) == [["a", "b", "c"]]
