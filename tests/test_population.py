@@ -120,7 +120,7 @@ def test_study_takes_a_simulated_rig_and_refuses_the_rest(tmp_path):
 
 
 def test_an_interrupted_study_says_so_in_one_line_and_writes_nothing(tmp_path, monkeypatch):
-    import microcal.experiments.study as study
+    import microcal.workflows.study as study
 
     def interrupted(*_args, **_kwargs):
         raise KeyboardInterrupt
