@@ -13,10 +13,10 @@ from microcal.formats.calibration_file import (
     Calibration,
     ManipulatorCalibration,
     export_mat,
-    provenance,
     write_calibration,
 )
 from microcal.formats.measurements import read_measurements, write_measurements
+from microcal.formats.provenance import provenance
 from microcal.procedures.identification import identify
 from microcal.sim.synthetic_run import synthetic_run
 

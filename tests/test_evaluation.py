@@ -15,10 +15,10 @@ from microcal.experiments.demo import run_demo
 from microcal.formats.calibration_file import (
     Calibration,
     ManipulatorCalibration,
-    provenance,
     write_calibration,
 )
 from microcal.formats.cameras_file import cameras_to_dict
+from microcal.formats.provenance import provenance
 from microcal.procedures.evaluation import (
     VisionProbe,
     decoupling_path,
