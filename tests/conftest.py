@@ -27,16 +27,28 @@ def thesis_pair():
     return thesis_cameras()
 
 
-def run_microcal(*args: object, cwd=None) -> subprocess.CompletedProcess[str]:
-    """Run ``python -m microcal ARGS`` as a user would: no standard input, output captured."""
-    return subprocess.run([sys.executable, "-m", "microcal", *map(str, args)], capture_output=True,
-                          text=True, check=False, stdin=subprocess.DEVNULL, cwd=cwd)  # fmt: skip
+@pytest.fixture(scope="session")
+def quick_demo(tmp_path_factory):
+    """One ``microcal demo --quick`` run for the whole session: (directory, terminal output).
+
+    A test that changes the run directory works on a copy of it.
+    """
+    from typer.testing import CliRunner
+
+    from microcal.cli import app
+
+    out = tmp_path_factory.mktemp("demo") / "run"
+    result = CliRunner().invoke(
+        app, ["demo", "--quick", "--seed", "1", "--out", str(out)], env={"COLUMNS": "200"}
+    )
+    assert result.exit_code == 0, result.output
+    return out, result.output
 
 
 @pytest.fixture
 def netns():
-    """The test runs in its own network namespace with only loopback (see tests/netns.py)."""
-    from netns import own_network_namespace, unavailable_reason
+    """The test runs in its own network namespace with only loopback (see tests/support/netns.py)."""
+    from support.netns import own_network_namespace, unavailable_reason
 
     reason = unavailable_reason()
     if reason:
@@ -48,7 +60,7 @@ def netns():
 @pytest.fixture
 def fake_mcs2(netns):
     """A fake MCS2 controller on 127.0.0.1:55551 inside the test's network namespace."""
-    from fake_mcs2 import FakeMCS2
+    from support.fake_mcs2 import FakeMCS2
 
     with FakeMCS2(port=55551) as fake:
         yield fake
@@ -87,7 +99,7 @@ def gige_cameras(netns):
             pytest.importorskip(
                 "viva_genicam.testing", reason="needs viva-genicam (pip install viva-genicam)"
             )
-            peer = Path(__file__).with_name("viva_peer.py")
+            peer = Path(__file__).parent / "support" / "viva_peer.py"
             proc = subprocess.Popen([sys.executable, str(peer), str(viva[0]), str(viva[1]), address],
                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)  # fmt: skip
             procs.append(proc)
@@ -119,10 +131,10 @@ def gige_cameras(netns):
 @pytest.fixture
 def mm_core():
     """A Micro-Manager core (pymmcore-plus UniMMCore) with the pure-Python devices of
-    tests/mm_devices.py."""
+    tests/support/mm_devices.py."""
     pytest.importorskip("pymmcore_plus", reason="needs pymmcore-plus (pip install 'microcal[mm]')")
     from microcal.devices.micromanager import open_core
 
-    core = open_core(python_devices="mm_devices:load")
+    core = open_core(python_devices="support.mm_devices:load")
     yield core
     core.unloadAllDevices()

@@ -27,7 +27,7 @@ from microcal.sim.twin import RIG_HEADER, ScaledClock, Twin, twin_rig_toml
 from microcal.vision.detect import detect
 from microcal.vision.targets import parse_target
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "rigs" / "twin.toml"
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "rigs" / "twin.toml"
 SCALE = 20.0  # simulated seconds per wall second: moves and settling 20 times faster
 A_UM = np.array([4000.0, 4000.0, 2400.0])
 
@@ -35,7 +35,7 @@ A_UM = np.array([4000.0, 4000.0, 2400.0])
 @pytest.fixture(scope="module")
 def served():
     """A twin in the module's own network namespace (loopback only), on free ports."""
-    from netns import own_network_namespace, unavailable_reason
+    from support.netns import own_network_namespace, unavailable_reason
 
     reason = unavailable_reason()
     if reason:

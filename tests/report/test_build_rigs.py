@@ -17,9 +17,7 @@ import pytest
 from microcal.report import build_report
 from microcal.report.data import RUN_FILES
 from microcal.thesis import figures as thesis
-from test_demo_report import _cells, check_number_cells, quick_demo
-
-__all__ = ["quick_demo"]  # the shared demo run, a fixture
+from support.report_cells import cells, check_number_cells
 
 #: A hardware rig as run.json records it (examples/rigs/smaract-gige.toml).
 HARDWARE = {
@@ -168,4 +166,4 @@ def test_another_rig_is_reported_without_the_thesis(quick_demo, tmp_path, rig, m
     # the run's own figures, all of them, each equal to its file
     ours = check_number_cells(run, run / "report.html")
     assert ours == check_number_cells(out, out / "report.html")
-    assert len(_cells(run / "report.html").images) == len(_cells(out / "report.html").images)
+    assert len(cells(run / "report.html").images) == len(cells(out / "report.html").images)

@@ -179,7 +179,7 @@ def good(tmp_path_factory: pytest.TempPathFactory) -> Good:
     # rig files and a design
     (root / "rig.toml").write_text(SIM_RIG.replace("seed = 0", "seed = 3"), encoding="utf-8")
     (root / "hardware.toml").write_text(HARDWARE_RIG, encoding="utf-8")
-    shutil.copy2(Path(__file__).parents[1] / "examples/rigs/micromanager.toml",
+    shutil.copy2(Path(__file__).parents[2] / "examples/rigs/micromanager.toml",
                  root / "micromanager.toml")  # fmt: skip
     rng = np.random.default_rng(7)
     d = rng.uniform([0.0, 0.0, 0.0], [8000.0, 8000.0, 4800.0], (12, 3))

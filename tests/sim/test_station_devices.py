@@ -314,7 +314,8 @@ def test_fit_names_the_entry_after_the_runs_device(tmp_path: Path):
 
     run = tmp_path / "run"
     run.mkdir()
-    assert measured_device(manifest_beside(run / "measurements.csv")) == "m1"  # no run.json: a plain CSV
+    # no run.json: a plain CSV
+    assert measured_device(manifest_beside(run / "measurements.csv")) == "m1"
     manifest = new_manifest(rig=SimRigSpec("thesis-platform").to_dict(), target="chessboard:4x3:400",
                             cameras=["top", "side"], design={"kind": "file", "poses": 1},
                             settle="vision", frames_per_pose=1, store="full", command="acquire",

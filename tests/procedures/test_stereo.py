@@ -23,7 +23,7 @@ from microcal.procedures.stereo import calibrate_views
 from microcal.vision.detect import detect
 from microcal.vision.targets import parse_target
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "boofcv_bumblebee2_chess"
+DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "boofcv_bumblebee2_chess"
 TARGET = "chessboard:6x4:30000"
 
 pytestmark = pytest.mark.skipif(

@@ -13,10 +13,10 @@ import time
 import numpy as np
 import pytest
 
-from conftest import run_microcal
 from microcal import DegenerateDataError, LimitError, sim
 from microcal.kinematics.designs import check_design, make_design
 from microcal.procedures.acquisition import AcquisitionConfig, acquire
+from support.cli import run_microcal
 
 LIMITS = np.array([[-500, 8500], [-500, 8500], [-500, 5300.0]])
 LOW, HIGH = [0, 0, 0], [8000, 8000, 4800]

@@ -71,7 +71,7 @@ READER_RECURSION_LIMIT = 1000
 #: Inputs per reader in the test suite (the script runs more).
 EXAMPLES = 200
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 RIG_EXAMPLES = REPO / "examples" / "rigs"
 
 

@@ -108,7 +108,7 @@ def test_study_takes_a_simulated_rig_and_refuses_the_rest(tmp_path):
     both = runner.invoke(app, ["study", "--preset", "thesis", "--rig", str(rig), "--out", "x"])
     assert both.exit_code == 2
     assert "one of them" in both.output
-    hardware = Path(__file__).parents[1] / "examples" / "rigs" / "smaract-gige.toml"
+    hardware = Path(__file__).parents[2] / "examples" / "rigs" / "smaract-gige.toml"
     hw = runner.invoke(app, ["study", "--rig", str(hardware), "--out", "x"])
     assert hw.exit_code == 2
     assert "driver = sim" in hw.output

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 import tifffile
 
-from conftest import run_microcal
 from microcal import sim
 from microcal.geometry import CameraModel
 from microcal.sim.calibration_views import (
@@ -22,6 +21,7 @@ from microcal.sim.clock import SimClock
 from microcal.sim.render import Placement
 from microcal.sim.synthetic_geometry import look_at_camera
 from microcal.vision.targets import parse_target
+from support.cli import run_microcal
 
 
 def one_line_error(out, message):

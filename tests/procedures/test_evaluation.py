@@ -7,7 +7,6 @@ import json
 import numpy as np
 import pytest
 
-from conftest import run_microcal
 from microcal import InputError, LimitError, sim
 from microcal.control.feedforward import FeedForward, extra_inputs_reader
 from microcal.errors import DegenerateDataError
@@ -25,6 +24,7 @@ from microcal.procedures.evaluation import (
     run_decoupling,
     run_pose_accuracy,
 )
+from support.cli import run_microcal
 
 
 @pytest.fixture(scope="module")
@@ -311,7 +311,7 @@ def test_station_goto_and_evaluate_on_the_digital_twin(demo, tmp_path):
     import microcal
     from microcal.cli import app
     from microcal.sim.twin import Twin
-    from netns import own_network_namespace, unavailable_reason
+    from support.netns import own_network_namespace, unavailable_reason
 
     reason = unavailable_reason()
     if reason:

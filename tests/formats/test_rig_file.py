@@ -23,7 +23,7 @@ from microcal.errors import DeviceError, FormatError, InputError
 from microcal.formats.rig_file import load_rig
 from microcal.workflows.rigs import open_rig
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "rigs"
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples" / "rigs"
 LIMITS = {"x": [0.0, 8000.0], "y": [0.0, 8000.0], "z": [0.0, 4800.0]}
 
 # The records run.json files hold (as load_rig's dicts gave them before the typed specs):

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import run_microcal
 from microcal.formats.measurements import write_measurements
 from microcal.procedures.identification import OUTLIER_Z, calibrate_manipulator, find_outliers
 from microcal.sim.synthetic_run import synthetic_run
+from support.cli import run_microcal
 
 
 def _with_outlier(seed: int, shift_um: float = 40.0, row: int = 17):

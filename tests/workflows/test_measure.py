@@ -19,9 +19,9 @@ from pathlib import Path
 
 import pytest
 
-from conftest import run_microcal
 from microcal import sim
 from microcal.formats.cameras_file import write_cameras
+from support.cli import run_microcal
 
 POSES = 12
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import run_microcal as microcal
 from microcal import load_calibration
 from microcal.formats.measurements import write_measurements
 from microcal.sim.synthetic_run import synthetic_run
+from support.cli import run_microcal as microcal
 
 
 @pytest.fixture(scope="module")

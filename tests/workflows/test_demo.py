@@ -6,8 +6,6 @@ import json
 import re
 import shutil
 import subprocess
-from html.parser import HTMLParser
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,30 +15,11 @@ from microcal import load_calibration
 from microcal.cli import app
 from microcal.report import load_run
 from microcal.workflows.demo import clear_demo_dir as _clear_demo_dir
+from support.report_cells import cells, check_number_cells
 
 runner = CliRunner()
 CONDITIONS = {"uncalibrated", "matrix", "optimal"}
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-
-
-_DEMO: dict[str, tuple[Path, str]] = {}
-
-
-@pytest.fixture(scope="session")
-def quick_demo(tmp_path_factory):
-    """One ``microcal demo --quick`` run for the whole session: (directory, terminal output).
-
-    Other modules import this fixture and share the same run; a test that changes the run
-    directory works on a copy of it.
-    """
-    if "quick" not in _DEMO:
-        out = tmp_path_factory.mktemp("demo") / "run"
-        result = runner.invoke(
-            app, ["demo", "--quick", "--seed", "1", "--out", str(out)], env={"COLUMNS": "200"}
-        )
-        assert result.exit_code == 0, result.output
-        _DEMO["quick"] = (out, result.output)
-    return _DEMO["quick"]
 
 
 def test_demo_prints_each_step_and_the_thesis_figures(quick_demo):
@@ -113,77 +92,10 @@ def test_demo_files_hold_the_keys_other_tools_read(quick_demo):
     assert {"simulated_s", "wall_s"} <= set(res["timing"])
 
 
-class _Cells(HTMLParser):
-    """Collects the report's number cells (data-key, data-value, text) and its images."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.cells: list[tuple[str, str, str]] = []
-        self.images: list[str] = []
-        self._open: tuple[str, str] | None = None
-        self._text = ""
-
-    def handle_starttag(self, tag, attrs):
-        a = dict(attrs)
-        if tag == "td" and "data-key" in a:
-            self._open, self._text = (a["data-key"], a["data-value"]), ""
-        if tag == "img":
-            self.images.append(a.get("src", ""))
-
-    def handle_data(self, data):
-        if self._open:
-            self._text += data
-
-    def handle_endtag(self, tag):
-        if tag == "td" and self._open:
-            self.cells.append((*self._open, self._text.strip()))
-            self._open = None
-
-
-def _cells(path: Path) -> _Cells:
-    parser = _Cells()
-    parser.feed(path.read_text(encoding="utf-8"))
-    return parser
-
-
-def _lookup(data, key: str):
-    for part in key.split("."):
-        data = data[int(part)] if isinstance(data, list) else data[part]
-    return data
-
-
-def check_number_cells(out: Path, page: Path) -> set[str]:
-    """Every number cell of the report ``page`` equals the file of ``out`` its key names.
-
-    Returns the keys checked.
-    """
-    parsed = _cells(page)
-    sources = {
-        "results": json.loads((out / "results.json").read_text()),
-        "cameras": json.loads((out / "cameras.json").read_text())["cameras"],
-        "calibration": {
-            e.model.kind: e.validation
-            for e in load_run(out).model_errors()  # matrix and polynomial, each its own
-        },
-    }
-    checked = set()
-    for key, value, text in parsed.cells:
-        head, _, rest = key.partition(".")
-        if head in ("cameras", "calibration"):
-            expected = _lookup(sources[head], rest)
-        else:
-            expected = _lookup(sources["results"], key)
-        assert float(value) == pytest.approx(expected, rel=1e-12, abs=1e-12), key
-        digits = len(text.split(".")[1]) if "." in text else 0
-        assert text == f"{expected:.{digits}f}", key
-        checked.add(key)
-    return checked
-
-
 def test_report_numbers_equal_the_result_files(quick_demo):
     out, _ = quick_demo
     checked = check_number_cells(out, out / "report.html")
-    parsed = _cells(out / "report.html")
+    parsed = cells(out / "report.html")
     must = {"stereo.top.rms_px", "stereo.side.rms_px", "measurement.rms_error_um",
             "models.matrix.validation.mean_um", "models.polynomial.validation.max_um",
             "calibration.polynomial.mean_um", "calibration.matrix.mean_um"}  # fmt: skip
@@ -213,7 +125,7 @@ def test_report_command_rebuilds_the_same_report(quick_demo, tmp_path):
     out, _ = quick_demo
     result = runner.invoke(app, ["report", str(out), "--out", str(tmp_path / "again.html")])
     assert result.exit_code == 0, result.output
-    assert _cells(tmp_path / "again.html").cells == _cells(out / "report.html").cells
+    assert cells(tmp_path / "again.html").cells == cells(out / "report.html").cells
 
 
 def test_report_of_a_run_that_is_only_acquired(quick_demo, tmp_path):

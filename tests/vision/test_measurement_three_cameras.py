@@ -140,7 +140,7 @@ def test_a_three_camera_rig_acquires_and_measures_through_the_commands(tmp_path)
     from microcal.formats.measurements import read_measurements
     from microcal.vision.stereo_calibration import CameraCalibration, StereoCalibration
 
-    rig = Path(__file__).resolve().parents[1] / "examples" / "rigs" / "sim-3cam.toml"
+    rig = Path(__file__).resolve().parents[2] / "examples" / "rigs" / "sim-3cam.toml"
     run = tmp_path / "run"
     runner = CliRunner()
     got = runner.invoke(app, ["acquire", "--rig", str(rig), "--poses", "12", "--frames", "2",

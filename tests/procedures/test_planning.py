@@ -8,9 +8,9 @@ import json
 import numpy as np
 import pytest
 
-from conftest import run_microcal
 from microcal import DeviceError, sim
 from microcal.formats.cameras_file import write_cameras
+from support.cli import run_microcal
 
 
 def _true_cameras(path):

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from conftest import run_microcal
 from microcal import load_calibration
 from microcal.cli import app
 from microcal.formats.measurements import write_measurements
 from microcal.sim.synthetic_run import synthetic_run
+from support.cli import run_microcal
 
 runner = CliRunner()
 

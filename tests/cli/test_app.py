@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 from typer.testing import CliRunner
 
-from conftest import run_microcal
 from microcal import __version__
 from microcal.cli import app
+from support.cli import run_microcal
 
 runner = CliRunner()
 

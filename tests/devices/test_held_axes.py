@@ -242,7 +242,7 @@ kind = "micromanager"
 xy_stage = "XY"
 limits_um = LIMITS
 [micromanager]
-python_devices = "mm_devices:load"
+python_devices = "support.mm_devices:load"
 [cameras.top]
 kind = "aravis"
 address = "10.0.0.11"

@@ -194,7 +194,7 @@ MM_RIG = """
 driver = "hardware"
 
 [micromanager]
-python_devices = "mm_devices:load"
+python_devices = "support.mm_devices:load"
 
 [manipulator]
 kind = "micromanager"
