@@ -28,6 +28,21 @@ def thesis_pair():
 
 
 @pytest.fixture(scope="session")
+def acquired_run(tmp_path_factory) -> tuple[Path, Path]:
+    """A complete simulated run of 12 poses (2 frames, regions) and the simulator's true
+    cameras.json, made once: (run directory, cameras.json). Tests copy the run to change it."""
+    from support.cli import run_microcal
+    from support.runs import write_true_cameras
+
+    root = tmp_path_factory.mktemp("acquired")
+    run = root / "run"
+    out = run_microcal("acquire", "--rig", "sim", "--poses", 12, "--frames", "2",
+                       "--store", "roi", "--out", run)  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    return run, write_true_cameras(root / "cameras.json")
+
+
+@pytest.fixture(scope="session")
 def quick_demo(tmp_path_factory):
     """One ``microcal demo --quick`` run for the whole session: (directory, terminal output).
 

@@ -162,37 +162,6 @@ def test_the_check_refuses_poses_beyond_the_limits_and_a_board_out_of_view(calib
         run_check(plat.manipulator, plat.clock, blind, calibration)
 
 
-def test_the_report_shows_the_check_history_and_the_iso_characteristics(tmp_path):
-    import json
-
-    from microcal.formats.calibration_file import Calibration, write_calibration
-    from microcal.formats.check_file import history_path
-    from microcal.formats.hashing import sha256_file
-    from microcal.formats.results_file import update_results
-    from microcal.report.build import build_report
-
-    validation = {"n_fit": 40, "n_validate": 20, "mean_um": 0.5, "std_um": 0.2, "max_um": 1.0,
-                  "rms_um": 0.55}  # fmt: skip
-    m1 = ManipulatorCalibration("m1", _matrix_model(), validation)
-    cal = write_calibration(tmp_path / "calibration.json", Calibration({"m1": m1}))
-    digest = sha256_file(cal)
-    lines = [{"calibration_sha256": digest, "verdict": v, "against": "calibration",
-              "offset_um": [o, 0.0, 0.0], "offset_std_um": [0.1, 0.1, 0.1], "p_value": 0.5,
-              "flag": "", "created": "2026-12-03T07:00:00+00:00"}
-             for v, o in (("valid", 0.05), ("offset", 1.2))]  # fmt: skip
-    lines.append({**lines[0], "calibration_sha256": "0" * 64, "verdict": "refit"})  # another file
-    history_path(cal).write_text("".join(json.dumps(x) + "\n" for x in lines))
-    update_results(tmp_path / "results.json", {"distance_accuracy": {"vision": {"optimal": {
-        "commanded_um": 5000.0, "mean_um": 5000.2, "ad_um": [0.1, 0.1, 0.1], "ad_p_um": 0.2,
-        "rd_um": [0.3, 0.3, 0.3], "rd_p_um": 0.4, "n": 3}}}})  # fmt: skip
-    html = build_report(tmp_path)
-    assert "Checks of the calibration" in html
-    assert html.count('<td class="num">1.20, 0.00, 0.00</td>') == 1
-    assert ">refit<" not in html  # the line of another calibration file is not its history
-    assert "distance AD_P / RD (7.4)" in html
-    assert "0.20 / 0.40 µm over 5000 µm" in html
-
-
 def test_a_run_records_its_device_and_a_calibration_refuses_another(tmp_path):
     from typer.testing import CliRunner
 

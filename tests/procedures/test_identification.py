@@ -1,14 +1,12 @@
-"""Outlier measurements: fitted only with a warning naming the pose; left out when asked."""
+"""Identification with outlier measurements: found and named worst first; left out when asked."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from microcal.formats.measurements import write_measurements
 from microcal.procedures.identification import OUTLIER_Z, calibrate_manipulator, find_outliers
 from microcal.sim.synthetic_run import synthetic_run
-from support.cli import run_microcal
 
 
 def _with_outlier(seed: int, shift_um: float = 40.0, row: int = 17):
@@ -55,19 +53,3 @@ def test_find_outliers_orders_worst_first():
     fit = fits["matrix"]
     rows = [row for row, _, _ in find_outliers(fit.model, fit.inputs, fit.positions_um)]
     assert rows[:2] == [40, 17]
-
-
-def test_fit_warns_with_the_pose_number_and_excludes_when_asked(tmp_path):
-    run, p = _with_outlier(2)
-    n = len(p)
-    path = write_measurements(tmp_path / "measurements.csv", run.d_um, p,
-                              std_um=np.full((n, 3), 0.5), status=["ok"] * n,
-                              reason=[""] * n, pose=list(range(1, n + 1)))  # fmt: skip
-    out = run_microcal("fit", path, "--out", tmp_path / "calibration.json")
-    assert out.returncode == 0, out.stderr
-    assert "warning: pose 18 is " in out.stdout
-    assert "check it (--exclude-outliers leaves such poses out)" in out.stdout
-    out = run_microcal("fit", path, "--out", tmp_path / "calibration.json", "--exclude-outliers")
-    assert out.returncode == 0, out.stderr
-    assert "warning: pose 18 is " in out.stdout
-    assert "left out of the fit" in out.stdout

@@ -1,4 +1,5 @@
-"""Camera calibration on real photographs: the BoofCV Bumblebee2 chessboard stereo set.
+"""Camera calibration from views (procedures.stereo): the lens model is checked before any
+image is loaded, and real photographs, the BoofCV Bumblebee2 chessboard stereo set, calibrate.
 
 The images are not in the repository: they are read from ``../shared/data`` beside it (see
 that folder's PROVENANCE.md for their source, licence and the reference results), and the
@@ -18,7 +19,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
+from microcal.cli import app
+from microcal.errors import InputError
 from microcal.procedures.stereo import calibrate_views
 from microcal.vision.detect import detect
 from microcal.vision.targets import parse_target
@@ -126,9 +130,6 @@ def test_diagnostics_say_what_limits_this_set(calibration):
 
 
 def test_stereo_calibrate_command_on_the_photographs(tmp_path):
-    from typer.testing import CliRunner
-
-    from microcal.cli import app
 
     out = tmp_path / "cameras.json"
     result = CliRunner().invoke(
@@ -145,3 +146,36 @@ def test_stereo_calibrate_command_on_the_photographs(tmp_path):
     assert left["diagnostics"]["verdict"]
     assert data["stereo"]["turned_views"]
     assert abs(data["stereo"]["baseline_um"] - 120_000.0) <= 600.0
+
+
+#: The board named to the procedure in the refusals (no image is read).
+REFUSED_TARGET = "chessboard:7x4:25000"
+
+
+class _Loader:
+    """A view loader that records what it was asked for."""
+
+    def __init__(self):
+        self.calls = []
+
+    def __call__(self, cam, i):
+        self.calls.append((cam, i))
+        raise AssertionError("no image should be read")
+
+
+NAMES_BY_CAMERA = {"left": ["l0.png", "l1.png"], "right": ["r0.png", "r1.png"]}
+
+
+def test_procedure_checks_the_lens_model_before_loading():
+    load = _Loader()
+    with pytest.raises(InputError, match="lens model 'nope'"):
+        calibrate_views(NAMES_BY_CAMERA, load, parse_target(REFUSED_TARGET), lens_model="nope")
+    assert load.calls == []
+
+
+def test_procedure_refuses_a_lens_model_with_known_displacements_before_loading():
+    load = _Loader()
+    with pytest.raises(InputError, match="--lens-model"):
+        calibrate_views(NAMES_BY_CAMERA, load, parse_target(REFUSED_TARGET),
+                        displacements_um=np.zeros((2, 3)), lens_model="radial1")  # fmt: skip
+    assert load.calls == []

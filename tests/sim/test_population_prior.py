@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from microcal.errors import InputError
-from microcal.experiments.study import StudyConfig, run_seed
 from microcal.kinematics.families import FAMILIES, fit_family
 from microcal.sim.population import draw_population
 from microcal.sim.population_prior import (
@@ -95,13 +94,3 @@ def test_known_form_terms_and_bad_inputs():
         fit_prior_estimator(draw, u, ("sx", "sy", "sz", "dx", "dy", "dz"), u[:, :3], u[:, :3])
     with pytest.raises(InputError, match=r"expected \(5, 3\)"):
         fit_prior_estimator(draw, u, INPUTS, u[:, :3], u[:3, :3])
-
-
-def test_a_study_seed_reports_the_prior_on_the_population_only():
-    config = StudyConfig(poses=80, cycles=1, prior=True)
-    run = run_seed("population", 2, config)
-    ap = run["ap_truth_mean_um"]
-    assert ap["oracle"] < ap["prior"] < ap["quadratic"]
-    assert run["validation_mean_um"]["prior"] < run["validation_mean_um"]["quadratic"]
-    with pytest.raises(InputError, match="only the population preset"):
-        run_seed("thesis", 2, StudyConfig(poses=60, cycles=1, prior=True))

@@ -1,93 +1,36 @@
-"""Acquisition (thesis 4.2): designs, settling, crash safety, faults, refusals."""
+"""``microcal acquire``: crash safety, faults, resume, refusals, designs on a rig's limits.
+
+What a run records is what it resumes: a damaged journal line costs only its pose, a resume
+needs no option and keeps the first part, a stop's temporary files go; a new run never goes
+among a user's files.
+"""
 
 from __future__ import annotations
 
+import csv
 import hashlib
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from microcal import DegenerateDataError, LimitError, sim
-from microcal.kinematics.designs import check_design, make_design
-from microcal.procedures.acquisition import AcquisitionConfig, acquire
+from microcal import sim
+from microcal.formats.cameras_file import write_cameras
 from support.cli import run_microcal
-
-LIMITS = np.array([[-500, 8500], [-500, 8500], [-500, 5300.0]])
-LOW, HIGH = [0, 0, 0], [8000, 8000, 4800]
-
-
-@pytest.mark.parametrize("kind", ["random", "sobol", "lhs", "grid"])
-def test_designs_are_reproducible_and_identifiable(kind):
-    a = make_design(kind, 170, LOW, HIGH, seed=3)
-    b = make_design(kind, 170, LOW, HIGH, seed=3)
-    np.testing.assert_array_equal(a, b)
-    assert np.all(a >= LOW)
-    assert np.all(a <= HIGH)
-    check_design(a, LIMITS)
-
-
-def test_designs_that_cannot_identify_are_refused():
-    d = make_design("random", 50, LOW, HIGH, seed=1)
-    one_axis = d.copy()
-    one_axis[:, 2] = 100.0
-    with pytest.raises(DegenerateDataError, match="moves axis z over 0 % of its travel"):
-        check_design(one_axis, LIMITS)
-    together = d.copy()
-    together[:, 1] = together[:, 0]
-    with pytest.raises(DegenerateDataError, match="moves axes x and y together"):
-        check_design(together, LIMITS)
-    outside = d.copy()
-    outside[7, 0] = 9000.0
-    with pytest.raises(
-        LimitError, match=r"command 8: axis x = 9000\.000 µm is outside the soft limits"
-    ):
-        check_design(outside, LIMITS)
-
-
-def settle_figures(settle: str, poses: int) -> tuple[np.ndarray, np.ndarray]:
-    """Settle time and true residual creep at the grab, per pose, on the thesis preset."""
-    plat = sim.platform("thesis", seed=0)
-    d = make_design("random", poses, LOW, HIGH, seed=0)
-    out = []
-
-    def store(pose, frames, record):
-        t = plat.clock.now_s()
-        residual = plat.manipulator.true_position_um(t) - plat.manipulator.true_position_um(t + 1e4)
-        out.append((record["settle_s"], np.linalg.norm(residual)))
-
-    cfg = AcquisitionConfig(settle=settle, fixed_s=30.0)
-    acquire(plat.manipulator, plat.cameras, plat.clock, d, list(range(1, poses + 1)), plat.scene.board,
-            store, config=cfg)  # fmt: skip
-    r = np.array(out)
-    return r[:, 0], r[:, 1]
-
-
-def test_vision_settling_is_fast_and_leaves_no_creep():
-    settle, creep = settle_figures("vision", 100)
-    # Thesis: a fixed 30 s per pose. Goal: <= 3 s per pose (>= 10x) with <= 0.2 µm creep left.
-    assert settle.mean() <= 3.0
-    assert 30.0 / settle.mean() >= 10.0
-    assert creep.max() <= 0.2
+from support.runs import fails_cleanly, file_hashes, journal
 
 
 def fake_rig(tmp_path, faults: str = "") -> str:
     path = tmp_path / "rig.toml"
     path.write_text('driver = "sim"\npreset = "thesis"\nseed = 0\n' + faults)
     return str(path)
-
-
-def journal(run):
-    return [
-        json.loads(line)
-        for line in (run / "journal.jsonl").read_text().splitlines()
-        if line.strip()
-    ]
 
 
 def check_run_complete(run, n):
@@ -197,7 +140,6 @@ def test_acquire_then_measure(tmp_path):
     assert run_microcal("acquire", "--rig", "sim", "--poses", "12", "--frames", "2", "--store", "roi",
                         "--out", run).returncode == 0  # fmt: skip
     plat = sim.platform("thesis", seed=0)
-    from microcal.formats.cameras_file import write_cameras
 
     cams = {"format": "microcal.cameras/1", "cameras": {
         n: {"image_size_px": list(m.image_size_px), "K": m.K.tolist(), "dist": m.dist.tolist(),
@@ -249,3 +191,123 @@ def test_evaluation_trajectories_as_designs(tmp_path):
     assert records[0]["commanded_um"] == [2000.0, 0.0, 0.0]
     assert records[0]["settle_s"] == 1.0
     assert records[0]["temperature_c"] == 22.0
+
+
+def _rows(path):
+    with open(path, encoding="utf-8") as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_designs_follow_the_rigs_limits(tmp_path):
+    # A rig whose travel is smaller than the thesis's workspace: the design covers its own
+    # limits (the old code drew over 0-8000 µm and refused every such rig).
+    rig = tmp_path / "small.toml"
+    rig.write_text('driver = "sim"\n[overrides.manipulator]\n'
+                   "limits_um = [[0.0, 3000.0], [0.0, 3000.0], [0.0, 2000.0]]\n")  # fmt: skip
+    out = run_microcal("acquire", "--rig", rig, "--poses", "30", "--frames", "1",
+                       "--settle", "fixed:1", "--out", tmp_path / "run")  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    d = np.array([[float(r[c]) for c in ("dx_um", "dy_um", "dz_um")]
+                  for r in _rows(tmp_path / "run" / "commands.csv")])  # fmt: skip
+    high = np.array([3000.0, 3000.0, 2000.0])
+    assert np.all(d >= 0)
+    assert np.all(d <= high)
+    assert np.all(np.ptp(d, axis=0) > 0.5 * high)  # spread over the travel, not a corner of it
+    manifest = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert manifest["design"]["high_um"] == high.tolist()
+    assert manifest["store"] == "full"
+
+
+def test_acquire_into_a_file_is_one_line(tmp_path):
+    target = tmp_path / "notes.txt"
+    target.write_text("mine")
+    out = run_microcal("acquire", "--rig", "sim", "--out", target, "--poses", "20")
+    assert out.returncode == 2
+    assert (
+        out.stderr.strip()
+        == f"microcal: error: --out {target}: is a file; choose a directory for the run"
+    )
+    assert target.read_text() == "mine"
+
+
+@pytest.fixture
+def run(acquired_run, tmp_path) -> Path:
+    """This test's own copy of the session's 12-pose run."""
+    return shutil.copytree(acquired_run[0], tmp_path / "run")
+
+
+def test_a_damaged_journal_line_costs_only_its_pose_on_resume(run):
+    """One corrupted byte in line 5: resume says so, re-acquires pose 5 only, and the seven
+    intact lines after it (and their images) are kept byte for byte."""
+    journal = run / "journal.jsonl"
+    lines = journal.read_bytes().split(b"\n")
+    lines[4] = lines[4][:20] + b"\x00" + lines[4][21:]
+    journal.write_bytes(b"\n".join(lines))
+    images_after = {k: v for k, v in file_hashes(run / "images").items() if int(k[-9:-5]) > 5}
+    out = run_microcal("acquire", "--out", run, "--resume")
+    assert out.returncode == 0, out.stderr
+    assert "dropped line 5 (pose 5): not JSON (damaged); its pose is acquired again" in out.stdout
+    assert "1 of 12 poses to do" in out.stdout
+    new = journal.read_bytes().split(b"\n")
+    assert new[4:11] == lines[5:12]  # poses 6..12: the same bytes, in the same order
+    assert [r["pose"] for r in journal(run)] == [1, 2, 3, 4, *range(6, 13), 5]
+    after = file_hashes(run / "images")
+    assert all(after[k] == v for k, v in images_after.items())
+
+
+def test_a_new_run_never_goes_among_a_users_files(tmp_path):
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    (folder / "commands.csv").write_text("my own commands\n")
+    (folder / "images").mkdir()
+    (folder / "images" / "top_0001.tiff").write_bytes(b"my own image")
+    before = file_hashes(folder)
+    out = run_microcal("acquire", "--rig", "sim", "--poses", 12, "--out", folder)
+    fails_cleanly(out, "holds other files (commands.csv, images)", "new or empty directory")
+    assert file_hashes(folder) == before
+
+
+def test_a_resume_needs_no_option_and_keeps_the_first_parts(tmp_path):
+    """Begun with --frames 3 --store roi --settle fixed:0.5 and stopped: `--resume` alone
+    goes on as begun; an option given again must agree."""
+    run = tmp_path / "run"
+    args = [sys.executable, "-m", "microcal", "acquire", "--rig", "sim", "--poses", "12",
+            "--frames", "3", "--store", "roi", "--settle", "fixed:0.5", "--out", str(run)]  # fmt: skip
+    with subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                          stdin=subprocess.DEVNULL) as proc:  # fmt: skip
+        assert proc.stdout is not None
+        for line in proc.stdout:  # bounded: the run prints a handful of lines
+            if line.startswith("starting"):
+                break
+        for _ in range(1200):  # at most a minute
+            if proc.poll() is not None or (
+                (run / "journal.jsonl").exists() and len(journal(run)) >= 2
+            ):
+                break
+            time.sleep(0.05)
+        proc.terminate()  # the process this test started
+        proc.wait(timeout=60)
+    done = len(journal(run))
+    assert 0 < done < 12
+    out = run_microcal("acquire", "--out", run, "--resume", "--frames", "5")
+    fails_cleanly(out, "--frames 5: this run was begun with --frames 3", "leave --frames out")
+    out = run_microcal("acquire", "--out", run, "--resume", "--frames", "3")
+    assert out.returncode == 0, out.stderr
+    records = journal(run)
+    assert [r["pose"] for r in records] == list(range(1, 13))
+    assert {image["frames"] for r in records for image in r["images"].values()} == {3}
+    assert {r["settle_s"] for r in records} == {0.5}
+    assert all("offset_px" in image for r in records for image in r["images"].values())
+
+
+def test_resume_removes_the_temporary_files_a_stop_left(run):
+    journal = run / "journal.jsonl"
+    lines = journal.read_text().splitlines()
+    journal.write_text("\n".join(lines[:-1]) + "\n")  # pose 12 was being written
+    tmp = run / "images" / ".top_0012.tiff.abc123.tmp"
+    tmp.write_bytes(b"half an image")
+    out = run_microcal("acquire", "--out", run, "--resume")
+    assert out.returncode == 0, out.stderr
+    assert f"removed {tmp}, left by a stop while it was written" in out.stdout
+    assert not list(run.rglob("*.tmp"))
+    assert [r["pose"] for r in journal(run)] == list(range(1, 13))

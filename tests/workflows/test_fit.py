@@ -148,3 +148,26 @@ def test_fit_embeds_the_cameras(run_dir, tmp_path):
     assert bad.returncode == 2
     assert "not a JSON file" in bad.stderr
     assert not (tmp_path / "d.json").exists()
+
+
+def _with_outlier(seed: int, shift_um: float = 40.0, row: int = 17):
+    run = synthetic_run(120, seed=seed)
+    p = run.measured_um.copy()
+    p[row, 2] += shift_um  # a pose measured off (a frame of another pose, a mis-detection)
+    return run, p
+
+
+def test_fit_warns_with_the_pose_number_and_excludes_when_asked(tmp_path):
+    run, p = _with_outlier(2)
+    n = len(p)
+    path = write_measurements(tmp_path / "measurements.csv", run.d_um, p,
+                              std_um=np.full((n, 3), 0.5), status=["ok"] * n,
+                              reason=[""] * n, pose=list(range(1, n + 1)))  # fmt: skip
+    out = run_microcal("fit", path, "--out", tmp_path / "calibration.json")
+    assert out.returncode == 0, out.stderr
+    assert "warning: pose 18 is " in out.stdout
+    assert "check it (--exclude-outliers leaves such poses out)" in out.stdout
+    out = run_microcal("fit", path, "--out", tmp_path / "calibration.json", "--exclude-outliers")
+    assert out.returncode == 0, out.stderr
+    assert "warning: pose 18 is " in out.stdout
+    assert "left out of the fit" in out.stdout

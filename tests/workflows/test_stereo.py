@@ -1,4 +1,5 @@
-"""`microcal stereo-calibrate` and `microcal measure` on files: microscope and photographs."""
+"""`microcal stereo-calibrate` on files (microscope and photographs), and `microcal measure` with
+the cameras it wrote."""
 
 from __future__ import annotations
 
@@ -206,14 +207,3 @@ def test_three_cameras_from_tilted_views(tmp_path):
 )  # fmt: skip
 def test_stereo_calibrate_user_errors(args, message):
     one_line_error(run_microcal("stereo-calibrate", *args), message)
-
-
-def test_measure_user_errors(tmp_path):
-    one_line_error(
-        run_microcal("measure", tmp_path / "none", "--cameras", tmp_path / "c.json"),
-        "not a directory",
-    )
-    (tmp_path / "c.json").write_text('{"format": "microcal.calibration/1", "manipulators": {}}')
-    one_line_error(
-        run_microcal("measure", tmp_path, "--cameras", tmp_path / "c.json"), "holds no cameras"
-    )

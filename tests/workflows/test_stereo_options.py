@@ -1,5 +1,5 @@
 """``stereo-calibrate --lens-model``: the name checked before any image is read, refused with
-known displacements, and a fixed model used as asked (CLI, procedure and lens_models)."""
+known displacements, and a fixed model used as asked; ``--out`` never replaces another file."""
 
 from __future__ import annotations
 
@@ -7,20 +7,15 @@ import hashlib
 import json
 
 import cv2
-import numpy as np
 import pytest
 from typer.testing import CliRunner
 
 from microcal.cli import app
-from microcal.errors import InputError
-from microcal.procedures.stereo import calibrate_views
 from microcal.sim.calibration_views import (
-    render_calibration_views,
     render_stereo_calibration_views,
-    wide_angle_camera,
     wide_angle_stereo_pair,
 )
-from microcal.vision.lens_models import LENS_MODELS, choose_lens_model, fit_camera, lens_model
+from microcal.vision.lens_models import LENS_MODELS
 from microcal.vision.targets import parse_target
 
 runner = CliRunner()
@@ -86,90 +81,6 @@ def test_lens_model_with_known_displacements_is_refused(unreadable_pair, tmp_pat
     assert not out.exists()
 
 
-class _Loader:
-    """A view loader that records what it was asked for."""
-
-    def __init__(self):
-        self.calls = []
-
-    def __call__(self, cam, i):
-        self.calls.append((cam, i))
-        raise AssertionError("no image should be read")
-
-
-NAMES_BY_CAMERA = {"left": ["l0.png", "l1.png"], "right": ["r0.png", "r1.png"]}
-
-
-def test_procedure_checks_the_lens_model_before_loading():
-    load = _Loader()
-    with pytest.raises(InputError, match="lens model 'nope'"):
-        calibrate_views(NAMES_BY_CAMERA, load, parse_target(TARGET), lens_model="nope")
-    assert load.calls == []
-
-
-def test_procedure_refuses_a_lens_model_with_known_displacements_before_loading():
-    load = _Loader()
-    with pytest.raises(InputError, match="--lens-model"):
-        calibrate_views(NAMES_BY_CAMERA, load, parse_target(TARGET),
-                        displacements_um=np.zeros((2, 3)), lens_model="radial1")  # fmt: skip
-    assert load.calls == []
-
-
-@pytest.mark.parametrize("name", ["nope", "", "auto", "Radial1", "radial1 ", "radial4"])
-def test_lens_model_unknown_name_raises_input_error(name):
-    with pytest.raises(InputError) as info:
-        lens_model(name)
-    message = str(info.value)
-    assert repr(name) in message
-    for known in NAMES:
-        assert known in message
-
-
-def test_lens_model_finds_each_model_by_name():
-    assert NAMES == ["radial1", "radial2", "radial2-tangential", "radial3-tangential",
-                     "rational", "thin-prism", "tilted"]  # fmt: skip
-    for model in LENS_MODELS:
-        assert lens_model(model.name) is model
-
-
-@pytest.fixture(scope="module")
-def mono_views():
-    views = render_calibration_views(wide_angle_camera(), parse_target(TARGET), 6, seed=1)
-    obj = [views.target.points_um()] * views.n_views
-    return obj, views.corners_px, views.camera.image_size_px
-
-
-@pytest.mark.parametrize("name", ["radial2", "radial3-tangential", "rational"])
-def test_choose_lens_model_with_one_model_uses_it_as_asked(mono_views, name):
-    obj, img, size = mono_views
-    model = lens_model(name)
-    choice = choose_lens_model(obj, img, size, models=(model,))
-    assert choice.fit.model is model
-    assert choice.reason == f"lens model {name} as asked"
-    assert choice.candidates == []
-    assert choice.fit.dist.shape == (model.n_coefficients,)
-    # The same fit as fitting that model directly (OpenCV's threads make the two calls differ
-    # in the last digits): K within 1e-6 px, the distortion coefficients within 1e-5
-    # (absolute), the RMS reprojection error within 1e-9 px.
-    direct = fit_camera(obj, img, size, model)
-    np.testing.assert_allclose(choice.fit.K, direct.K, rtol=0, atol=1e-6)
-    np.testing.assert_allclose(choice.fit.dist, direct.dist, rtol=0, atol=1e-5)
-    assert choice.fit.rms_px == pytest.approx(direct.rms_px, abs=1e-9)
-    # Field of view of the fitted pinhole: within 1 deg of the true camera's (about 75 deg
-    # diagonal for fx = 525 px on 640 x 480).
-    true_fov = np.degrees(2 * np.arctan(np.hypot(320 / 525.0, 240 / 527.0)))
-    assert choice.field_of_view_deg == pytest.approx(true_fov, abs=1.0)
-
-
-def test_radial2_fixes_the_terms_it_leaves_out(mono_views):
-    obj, img, size = mono_views
-    choice = choose_lens_model(obj, img, size, models=(lens_model("radial2"),))
-    k1, k2, p1, p2, k3 = choice.fit.dist
-    assert (p1, p2, k3) == (0.0, 0.0, 0.0)  # fixed by the flags: exactly zero
-    assert k1 != 0.0
-    assert k2 != 0.0
-
-
 @pytest.fixture(scope="module")
 def stereo_images(tmp_path_factory):
     root = tmp_path_factory.mktemp("stereo")
@@ -232,29 +143,3 @@ def test_stereo_calibrate_refuses_a_directory_as_out(tmp_path):
     )  # fmt: skip
     assert result.exit_code == 2
     assert "is a directory; give a file name such as cameras.json" in result.output
-
-
-@pytest.mark.parametrize("mistake", ["steps in mm", "steps out of order"])
-def test_known_displacements_that_fit_no_camera_are_a_clear_error(mistake):
-    from microcal.errors import DegenerateDataError
-    from microcal.thesis.cameras import thesis_cameras
-    from microcal.vision.detect import Detection
-    from microcal.vision.stereo_calibration import calibrate_known_displacements
-
-    cams = dict(zip(("top", "side"), thesis_cameras(), strict=True))
-    target = parse_target("dotgrid:20x15:250")
-    steps = np.array([[0.0, 0.0, z] for z in (0.0, 1000.0, 2000.0, 3000.0, 4000.0)])
-    rng = np.random.default_rng(5)
-    dets = {
-        n: [Detection(True, np.arange(300), c.project(target.points_um() + [2000, 2000, 0] + s)
-                      + rng.normal(0, 0.05, (300, 2)), 0.05) for s in steps]
-        for n, c in cams.items()
-    }  # fmt: skip
-    names = {n: [f"{n}{k}" for k in range(5)] for n in cams}
-    sizes = {n: c.image_size_px for n, c in cams.items()}
-    given = steps / 1000.0 if mistake == "steps in mm" else steps[[3, 0, 4, 1, 2]]
-    with pytest.raises(DegenerateDataError, match=r"the views do not fit one camera .*steps in µm"):
-        calibrate_known_displacements(dets, names, target, given, sizes)
-    # The same detections with the right steps calibrate (metric: RMS reprojection, px).
-    cal = calibrate_known_displacements(dets, names, target, steps, sizes)
-    assert all(c.rms_px < 0.1 for c in cal.cameras.values())
