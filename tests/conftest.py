@@ -31,13 +31,13 @@ def thesis_pair():
 def acquired_run(tmp_path_factory) -> tuple[Path, Path]:
     """A complete simulated run of 12 poses (2 frames, regions) and the simulator's true
     cameras.json, made once: (run directory, cameras.json). Tests copy the run to change it."""
-    from support.cli import run_microcal
+    from support.cli import invoke_microcal
     from support.runs import write_true_cameras
 
     root = tmp_path_factory.mktemp("acquired")
     run = root / "run"
-    out = run_microcal("acquire", "--rig", "sim", "--poses", 12, "--frames", "2",
-                       "--store", "roi", "--out", run)  # fmt: skip
+    out = invoke_microcal("acquire", "--rig", "sim", "--poses", 12, "--frames", "2",
+                          "--store", "roi", "--out", run)  # fmt: skip
     assert out.returncode == 0, out.stderr
     return run, write_true_cameras(root / "cameras.json")
 

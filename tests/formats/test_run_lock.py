@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from support.cli import run_microcal
+from support.cli import invoke_microcal
 from support.runs import fails_cleanly, file_hashes
 
 
@@ -28,18 +28,18 @@ def test_a_run_in_use_is_refused_with_the_pid_of_its_holder(run, cameras):
 
     before = file_hashes(run)
     with run_lock(run, "test"):
-        out = run_microcal("acquire", "--out", run, "--resume")
+        out = invoke_microcal("acquire", "--out", run, "--resume")
         fails_cleanly(out, f"in use by microcal (PID {os.getpid()})")
-        out = run_microcal("measure", run, "--cameras", cameras)
+        out = invoke_microcal("measure", run, "--cameras", cameras)
         fails_cleanly(out, f"in use by microcal (PID {os.getpid()})")
     assert file_hashes(run) == before
     # the lock ends with its holder: the next command runs
-    out = run_microcal("measure", run, "--cameras", cameras)
+    out = invoke_microcal("measure", run, "--cameras", cameras)
     assert out.returncode == 0, out.stderr
     assert not (run / ".microcal.lock").exists()
 
 
 def test_a_lock_left_by_a_killed_process_does_not_block(run, cameras):
     (run / ".microcal.lock").write_text("999999\n")  # a holder that died without unlocking
-    out = run_microcal("measure", run, "--cameras", cameras)
+    out = invoke_microcal("measure", run, "--cameras", cameras)
     assert out.returncode == 0, out.stderr

@@ -24,7 +24,7 @@ from microcal.procedures.evaluation import (
     run_decoupling,
     run_pose_accuracy,
 )
-from support.cli import run_microcal
+from support.cli import invoke_microcal
 
 
 @pytest.fixture(scope="module")
@@ -122,8 +122,8 @@ def test_evaluate_command(demo, tmp_path):
     cams = cameras_to_dict(demo.calibration, provenance())["cameras"]
     cal_path = write_calibration(tmp_path / "calibration.json", Calibration({"m1": entry}, cams))
     out = tmp_path / "results.json"
-    res = run_microcal("evaluate", "--rig", "sim", "--calibration", cal_path, "--test", "pose-accuracy",
-                       "--cycles", "1", "--frames", "2", "--out", out)  # fmt: skip
+    res = invoke_microcal("evaluate", "--rig", "sim", "--calibration", cal_path, "--test", "pose-accuracy",
+                          "--cycles", "1", "--frames", "2", "--out", out)  # fmt: skip
     assert res.returncode == 0, res.stderr
     data = json.loads(out.read_text())
     assert data["format"] == "microcal.results/1"
@@ -134,15 +134,15 @@ def test_evaluate_command(demo, tmp_path):
     # The same through a rig file (evaluate opens any rig as acquire does), on another seed.
     rig = tmp_path / "rig.toml"
     rig.write_text('driver = "sim"\npreset = "thesis"\nseed = 3\n')
-    res = run_microcal("evaluate", "--rig", rig, "--calibration", cal_path, "--test", "decoupling",
-                       "--frames", "1", "--out", tmp_path / "rig-results.json")  # fmt: skip
+    res = invoke_microcal("evaluate", "--rig", rig, "--calibration", cal_path, "--test", "decoupling",
+                          "--frames", "1", "--out", tmp_path / "rig-results.json")  # fmt: skip
     assert res.returncode == 0, res.stderr
     data = json.loads((tmp_path / "rig-results.json").read_text())
     assert set(data["decoupling"]["vision"]) == {"uncalibrated", "matrix", "optimal"}
     # ISO 9283's distance test and the drift of AP (a fifth of an hour, on the simulator)
-    res = run_microcal("evaluate", "--rig", "sim", "--calibration", cal_path, "--test", "distance",
-                       "--drift-h", "0.2", "--cycles", "2", "--frames", "1",
-                       "--out", tmp_path / "iso.json")  # fmt: skip
+    res = invoke_microcal("evaluate", "--rig", "sim", "--calibration", cal_path, "--test", "distance",
+                          "--drift-h", "0.2", "--cycles", "2", "--frames", "1",
+                          "--out", tmp_path / "iso.json")  # fmt: skip
     assert res.returncode == 0, res.stderr
     data = json.loads((tmp_path / "iso.json").read_text())
     assert data["distance_accuracy"]["truth"]["optimal"]["n"] == 2
@@ -159,7 +159,7 @@ def test_evaluate_command(demo, tmp_path):
         ),
         (["--calibration", cal_path, "--manipulator", "m2"], "manipulator 'm2' is not calibrated"),
     ):
-        res = run_microcal("evaluate", *args, "--out", tmp_path / "r2.json")
+        res = invoke_microcal("evaluate", *args, "--out", tmp_path / "r2.json")
         assert res.returncode == 2
         assert len(res.stderr.strip().splitlines()) == 1
         assert message in res.stderr
@@ -258,11 +258,13 @@ def test_station_and_goto_on_the_simulator(demo, tmp_path):
             station.rig.manipulator.joints_um(station.rig.clock.now_s()), before
         )
     assert station.rig.closed
-    res = run_microcal("goto", "--calibration", cal, "--seed", "7", *map(str, target), "--closed")
+    res = invoke_microcal(
+        "goto", "--calibration", cal, "--seed", "7", *map(str, target), "--closed"
+    )
     assert res.returncode == 0, res.stderr
     assert "arrived at (" in res.stdout
     assert "closed loop" in res.stdout
-    res = run_microcal("goto", "--calibration", cal, "1e9", "0", "0")
+    res = invoke_microcal("goto", "--calibration", cal, "1e9", "0", "0")
     assert res.returncode == 2
     assert len(res.stderr.strip().splitlines()) == 1
 
@@ -392,7 +394,7 @@ def test_check_and_its_update_through_the_command(demo, tmp_path):
     QUICK = ("--frames", "5")  # 98 % power for a 1 µm offset (scripts/check_power.py)
 
     cal = _calibration_file(demo, tmp_path)
-    res = run_microcal(
+    res = invoke_microcal(
         "check", *QUICK, "--calibration", cal, "--seed", "3", "--out", tmp_path / "c1.json"
     )
     assert res.returncode == 0, res.stderr
@@ -401,8 +403,8 @@ def test_check_and_its_update_through_the_command(demo, tmp_path):
     moved.write_text('driver = "sim"\nseed = 4\n[overrides.manipulator]\n'
                      "mount_offset_um = [0.0, -1.0, 0.5]\n")  # fmt: skip
     new = tmp_path / "moved-calibration.json"
-    res = run_microcal("check", *QUICK, "--calibration", cal, "--rig", moved, "--out",
-                       tmp_path / "c2.json", "--update", new)  # fmt: skip
+    res = invoke_microcal("check", *QUICK, "--calibration", cal, "--rig", moved, "--out",
+                          tmp_path / "c2.json", "--update", new)  # fmt: skip
     assert res.returncode == 0, res.stderr
     data = json.loads((tmp_path / "c2.json").read_text())
     assert data["format"] == "microcal.check/1"
@@ -418,15 +420,15 @@ def test_check_and_its_update_through_the_command(demo, tmp_path):
     assert history_path(cal).name == "calibration.checks.jsonl"
     # nothing moved: no update is written (the check is kept), and a check.json is not
     # someone else's file
-    res = run_microcal("check", *QUICK, "--calibration", cal, "--seed", "5", "--out",
-                       tmp_path / "c3.json", "--update", tmp_path / "x.json")  # fmt: skip
+    res = invoke_microcal("check", *QUICK, "--calibration", cal, "--seed", "5", "--out",
+                          tmp_path / "c3.json", "--update", tmp_path / "x.json")  # fmt: skip
     assert res.returncode == 0, res.stderr
     assert "no update written: nothing to update" in res.stdout
     assert not (tmp_path / "x.json").exists()
     assert json.loads((tmp_path / "c3.json").read_text())["verdict"] == "valid"
     theirs = tmp_path / "notes.json"
     theirs.write_text("{}")
-    res = run_microcal("check", *QUICK, "--calibration", cal, "--out", theirs)
+    res = invoke_microcal("check", *QUICK, "--calibration", cal, "--out", theirs)
     assert res.returncode == 2
     assert theirs.read_text() == "{}"
 
@@ -442,9 +444,9 @@ def test_a_periodic_check_inside_a_long_run(demo, tmp_path):
     moved.write_text('driver = "sim"\nseed = 6\n[overrides.manipulator]\n'
                      "mount_offset_um = [2.0, 0.0, 0.0]\n")  # fmt: skip
     out = tmp_path / "run"
-    res = run_microcal("acquire", "--rig", moved, "--design", "random", "--poses", "12",
-                       "--frames", "1", "--settle", "fixed:1", "--out", out,
-                       "--check-calibration", cal, "--check-every", "10")  # fmt: skip
+    res = invoke_microcal("acquire", "--rig", moved, "--design", "random", "--poses", "12",
+                          "--frames", "1", "--settle", "fixed:1", "--out", out,
+                          "--check-calibration", cal, "--check-every", "10")  # fmt: skip
     assert res.returncode == 0, res.stderr
     assert res.stdout.count("check after") == 1
     assert "check after 10 poses: offset" in res.stdout
@@ -462,8 +464,8 @@ def test_a_periodic_check_inside_a_long_run(demo, tmp_path):
     for axis, delta in zip("xyz", step, strict=True):
         if abs(delta) > 1e-3:
             assert journal[10][f"approach_{axis}"] == np.sign(delta)
-    bad = run_microcal("acquire", "--rig", moved, "--poses", "12", "--out", tmp_path / "b",
-                       "--check-calibration", cal, "--check-every", "often")  # fmt: skip
+    bad = invoke_microcal("acquire", "--rig", moved, "--poses", "12", "--out", tmp_path / "b",
+                          "--check-calibration", cal, "--check-every", "often")  # fmt: skip
     assert bad.returncode == 2
     assert "--check-every often: expected a number of poses (20) or of minutes (15min)" in (
         bad.stderr
@@ -487,30 +489,30 @@ def test_goto_and_evaluate_pick_the_device_of_the_calibration_entry(demo, tmp_pa
                             Calibration({"m1": m1, "m2": m2, "p1": p1}, cams))  # fmt: skip
     rig = tmp_path / "platform.toml"
     rig.write_text('driver = "sim"\npreset = "thesis-platform"\n', encoding="utf-8")
-    res = run_microcal("goto", "--rig", rig, "--calibration", cal, "--manipulator", "m2",
-                       "5000", "5000", "2000")  # fmt: skip
+    res = invoke_microcal("goto", "--rig", rig, "--calibration", cal, "--manipulator", "m2",
+                          "5000", "5000", "2000")  # fmt: skip
     assert res.returncode == 0, res.stderr
     arrived = [float(v) for v in res.stdout.split("arrived at (")[1].split(")")[0].split(",")]
     np.testing.assert_allclose(arrived, [5000, 5000, 2000], atol=4.0)
-    res = run_microcal("goto", "--rig", rig, "--calibration", cal, "5000", "5000", "2000")
+    res = invoke_microcal("goto", "--rig", rig, "--calibration", cal, "5000", "5000", "2000")
     assert res.returncode == 2
     assert "this calibration has ['m1', 'm2', 'p1']; name one" in res.stderr
     one = write_calibration(tmp_path / "one.json", Calibration({"m1": m1, "m2": m2}, cams))
-    res = run_microcal("goto", "--rig", rig, "--calibration", one, "--manipulator", "p1",
-                       "5000", "5000", "2000")  # fmt: skip
+    res = invoke_microcal("goto", "--rig", rig, "--calibration", one, "--manipulator", "p1",
+                          "5000", "5000", "2000")  # fmt: skip
     assert res.returncode == 2
     assert "'p1' is not calibrated" in res.stderr
     # the X-Y positioner: the thesis's poses would move its z; refused before anything moves
-    res = run_microcal("evaluate", "--rig", rig, "--calibration", cal, "--manipulator", "p1",
-                       "--out", tmp_path / "p1.json")  # fmt: skip
+    res = invoke_microcal("evaluate", "--rig", rig, "--calibration", cal, "--manipulator", "p1",
+                          "--out", tmp_path / "p1.json")  # fmt: skip
     assert res.returncode == 2
     assert "it holds z still (an X-Y positioner)" in res.stderr
     assert "--poses iso-cube --test pose-accuracy" in res.stderr
     assert not (tmp_path / "p1.json").exists()
     out = tmp_path / "m2.json"
-    res = run_microcal("evaluate", "--rig", rig, "--calibration", cal, "--manipulator", "m2",
-                       "--test", "pose-accuracy", "--poses", "iso-cube", "--cycles", "1",
-                       "--frames", "2", "--out", out)  # fmt: skip
+    res = invoke_microcal("evaluate", "--rig", rig, "--calibration", cal, "--manipulator", "m2",
+                          "--test", "pose-accuracy", "--poses", "iso-cube", "--cycles", "1",
+                          "--frames", "2", "--out", out)  # fmt: skip
     assert res.returncode == 0, res.stderr
     truth = json.loads(out.read_text())["pose_accuracy"]["truth"]
     # m2's true static map compensates m2: hysteresis and creep are left

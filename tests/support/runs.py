@@ -38,7 +38,7 @@ def file_hashes(root: Path) -> dict[str, str]:
     }
 
 
-def journal(run: Path) -> list[dict[str, Any]]:
+def journal_records(run: Path) -> list[dict[str, Any]]:
     """The run's journal lines, parsed (blank lines skipped)."""
     return [json.loads(x) for x in (run / "journal.jsonl").read_text().splitlines() if x.strip()]
 

@@ -23,8 +23,8 @@ import pytest
 
 from microcal import sim
 from microcal.formats.cameras_file import write_cameras
-from support.cli import run_microcal
-from support.runs import fails_cleanly, file_hashes, journal
+from support.cli import invoke_microcal
+from support.runs import fails_cleanly, file_hashes, journal_records
 
 
 def fake_rig(tmp_path, faults: str = "") -> str:
@@ -34,7 +34,7 @@ def fake_rig(tmp_path, faults: str = "") -> str:
 
 
 def check_run_complete(run, n):
-    records = journal(run)
+    records = journal_records(run)
     assert sorted(r["pose"] for r in records) == list(range(1, n + 1))  # every pose exactly once
     for r in records:
         for image in r.get("images", {}).values():
@@ -62,13 +62,13 @@ def test_crash_safety_kill_and_resume(tmp_path):
         proc.wait(timeout=120)
         if proc.returncode == 0 and kills >= 20:
             break
-        if proc.returncode == 0 and len(journal(run)) == 12:
+        if proc.returncode == 0 and len(journal_records(run)) == 12:
             # finished before being killed: start over to keep killing mid-run
             for f in list(run.rglob("*"))[::-1]:
                 f.unlink() if f.is_file() else f.rmdir()
             run.rmdir()
     assert kills == 20
-    out = run_microcal(
+    out = invoke_microcal(
         "acquire", "--rig", "sim", "--poses", "12", "--out", run, "--resume", "--store", "roi"
     )
     assert out.returncode == 0, out.stderr
@@ -83,7 +83,7 @@ def test_faults_are_retried_recorded_and_nothing_is_lost(tmp_path):
               "[overrides.manipulator.faults]\ntimeout_rate = 0.02\n")  # fmt: skip
     rig = fake_rig(tmp_path, faults)
     run = tmp_path / "run"
-    out = run_microcal(
+    out = invoke_microcal(
         "acquire", "--rig", rig, "--poses", "60", "--frames", "2", "--store", "roi", "--out", run
     )
     assert out.returncode == 0, out.stderr
@@ -98,21 +98,21 @@ def test_faults_are_retried_recorded_and_nothing_is_lost(tmp_path):
 
 def test_resume_refuses_another_rig_or_edited_files(tmp_path):
     run = tmp_path / "run"
-    assert run_microcal("acquire", "--rig", "sim", "--design", "sobol", "--poses", "12", "--frames", "1", "--store", "roi",
-                        "--out", run).returncode == 0  # fmt: skip
-    out = run_microcal("acquire", "--rig", fake_rig(tmp_path, "[overrides.manipulator]\nspeed_um_s = 10.0\n"),
-                       "--out", run, "--resume")  # fmt: skip
+    assert invoke_microcal("acquire", "--rig", "sim", "--design", "sobol", "--poses", "12", "--frames", "1", "--store", "roi",
+                           "--out", run).returncode == 0  # fmt: skip
+    out = invoke_microcal("acquire", "--rig", fake_rig(tmp_path, "[overrides.manipulator]\nspeed_um_s = 10.0\n"),
+                          "--out", run, "--resume")  # fmt: skip
     assert out.returncode == 2
     assert "made with another rig" in out.stderr
     image = run / "images" / "top_0002.tiff"
     image.write_bytes(image.read_bytes() + b"x")
-    out = run_microcal("acquire", "--rig", "sim", "--out", run, "--resume")
+    out = invoke_microcal("acquire", "--rig", "sim", "--out", run, "--resume")
     assert out.returncode == 2
     assert "missing or changed since it was recorded" in out.stderr
     (run / "commands.csv").write_text((run / "commands.csv").read_text() + "4,1,1,1\n")
-    out = run_microcal("acquire", "--rig", "sim", "--out", run, "--resume")
+    out = invoke_microcal("acquire", "--rig", "sim", "--out", run, "--resume")
     assert "commands.csv was edited" in out.stderr
-    out = run_microcal("acquire", "--rig", "sim", "--poses", "12", "--out", run)
+    out = invoke_microcal("acquire", "--rig", "sim", "--poses", "12", "--out", run)
     assert "already holds a run; use --resume" in out.stderr
 
 
@@ -127,7 +127,7 @@ def test_resume_refuses_another_rig_or_edited_files(tmp_path):
 def test_bad_designs_exit_2_and_move_nothing(tmp_path, rows, message):
     design = tmp_path / "design.csv"
     design.write_text(rows)
-    out = run_microcal("acquire", "--rig", "sim", "--design", design, "--out", tmp_path / "run")
+    out = invoke_microcal("acquire", "--rig", "sim", "--design", design, "--out", tmp_path / "run")
     assert out.returncode == 2
     lines = out.stderr.strip().splitlines()
     assert len(lines) == 1
@@ -137,15 +137,15 @@ def test_bad_designs_exit_2_and_move_nothing(tmp_path, rows, message):
 
 def test_acquire_then_measure(tmp_path):
     run = tmp_path / "run"
-    assert run_microcal("acquire", "--rig", "sim", "--poses", "12", "--frames", "2", "--store", "roi",
-                        "--out", run).returncode == 0  # fmt: skip
+    assert invoke_microcal("acquire", "--rig", "sim", "--poses", "12", "--frames", "2", "--store", "roi",
+                           "--out", run).returncode == 0  # fmt: skip
     plat = sim.platform("thesis", seed=0)
 
     cams = {"format": "microcal.cameras/1", "cameras": {
         n: {"image_size_px": list(m.image_size_px), "K": m.K.tolist(), "dist": m.dist.tolist(),
             "R": m.R.tolist(), "t_um": m.t_um.tolist()} for n, m in plat.camera_models.items()}}  # fmt: skip
     write_cameras(tmp_path / "cameras.json", cams)
-    out = run_microcal("measure", run, "--cameras", tmp_path / "cameras.json")
+    out = invoke_microcal("measure", run, "--cameras", tmp_path / "cameras.json")
     assert out.returncode == 0, out.stderr
     assert "measured 12 of 12 poses" in out.stdout
 
@@ -157,7 +157,8 @@ def test_sigterm_stops_cleanly_and_resume_finishes(tmp_path):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True)  # fmt: skip
     deadline = time.time() + 60
     while (
-        time.time() < deadline and len(journal(run) if (run / "journal.jsonl").exists() else []) < 3
+        time.time() < deadline
+        and len(journal_records(run) if (run / "journal.jsonl").exists() else []) < 3
     ):
         time.sleep(0.1)
     os.kill(proc.pid, signal.SIGTERM)  # only the process this test started
@@ -165,10 +166,10 @@ def test_sigterm_stops_cleanly_and_resume_finishes(tmp_path):
     assert proc.returncode == 2
     assert "run stopped (stopped on request before pose" in err
     assert "resume with: microcal acquire --out" in err
-    stored = len(journal(run))
+    stored = len(journal_records(run))
     assert 3 <= stored < 40
     check_run_complete(run, stored)  # what was stored is whole
-    out = run_microcal(
+    out = invoke_microcal(
         "acquire", "--rig", "sim", "--out", run, "--resume", "--store", "roi", "--frames", "1"
     )
     assert out.returncode == 0, out.stderr
@@ -177,15 +178,15 @@ def test_sigterm_stops_cleanly_and_resume_finishes(tmp_path):
 
 def test_manipulator_error_stops_the_run_with_how_to_resume(tmp_path):
     rig = fake_rig(tmp_path, "[overrides.manipulator.faults]\nmove_failure_rate = 1.0\n")
-    out = run_microcal("acquire", "--rig", rig, "--poses", "12", "--out", tmp_path / "run")
+    out = invoke_microcal("acquire", "--rig", rig, "--poses", "12", "--out", tmp_path / "run")
     assert out.returncode == 2
     assert "refused the move" in out.stderr
     assert "0 of 12 poses stored; resume with" in out.stderr
 
 
 def test_evaluation_trajectories_as_designs(tmp_path):
-    out = run_microcal("acquire", "--rig", "sim", "--design", "table-5-2", "--frames", "1", "--store", "roi",
-                       "--settle", "fixed:1", "--out", tmp_path / "run")  # fmt: skip
+    out = invoke_microcal("acquire", "--rig", "sim", "--design", "table-5-2", "--frames", "1", "--store", "roi",
+                          "--settle", "fixed:1", "--out", tmp_path / "run")  # fmt: skip
     assert out.returncode == 0, out.stderr
     records = check_run_complete(tmp_path / "run", 8)
     assert records[0]["commanded_um"] == [2000.0, 0.0, 0.0]
@@ -204,8 +205,8 @@ def test_designs_follow_the_rigs_limits(tmp_path):
     rig = tmp_path / "small.toml"
     rig.write_text('driver = "sim"\n[overrides.manipulator]\n'
                    "limits_um = [[0.0, 3000.0], [0.0, 3000.0], [0.0, 2000.0]]\n")  # fmt: skip
-    out = run_microcal("acquire", "--rig", rig, "--poses", "30", "--frames", "1",
-                       "--settle", "fixed:1", "--out", tmp_path / "run")  # fmt: skip
+    out = invoke_microcal("acquire", "--rig", rig, "--poses", "30", "--frames", "1",
+                          "--settle", "fixed:1", "--out", tmp_path / "run")  # fmt: skip
     assert out.returncode == 0, out.stderr
     d = np.array([[float(r[c]) for c in ("dx_um", "dy_um", "dz_um")]
                   for r in _rows(tmp_path / "run" / "commands.csv")])  # fmt: skip
@@ -221,7 +222,7 @@ def test_designs_follow_the_rigs_limits(tmp_path):
 def test_acquire_into_a_file_is_one_line(tmp_path):
     target = tmp_path / "notes.txt"
     target.write_text("mine")
-    out = run_microcal("acquire", "--rig", "sim", "--out", target, "--poses", "20")
+    out = invoke_microcal("acquire", "--rig", "sim", "--out", target, "--poses", "20")
     assert out.returncode == 2
     assert (
         out.stderr.strip()
@@ -244,13 +245,13 @@ def test_a_damaged_journal_line_costs_only_its_pose_on_resume(run):
     lines[4] = lines[4][:20] + b"\x00" + lines[4][21:]
     journal.write_bytes(b"\n".join(lines))
     images_after = {k: v for k, v in file_hashes(run / "images").items() if int(k[-9:-5]) > 5}
-    out = run_microcal("acquire", "--out", run, "--resume")
+    out = invoke_microcal("acquire", "--out", run, "--resume")
     assert out.returncode == 0, out.stderr
     assert "dropped line 5 (pose 5): not JSON (damaged); its pose is acquired again" in out.stdout
     assert "1 of 12 poses to do" in out.stdout
     new = journal.read_bytes().split(b"\n")
     assert new[4:11] == lines[5:12]  # poses 6..12: the same bytes, in the same order
-    assert [r["pose"] for r in journal(run)] == [1, 2, 3, 4, *range(6, 13), 5]
+    assert [r["pose"] for r in journal_records(run)] == [1, 2, 3, 4, *range(6, 13), 5]
     after = file_hashes(run / "images")
     assert all(after[k] == v for k, v in images_after.items())
 
@@ -262,7 +263,7 @@ def test_a_new_run_never_goes_among_a_users_files(tmp_path):
     (folder / "images").mkdir()
     (folder / "images" / "top_0001.tiff").write_bytes(b"my own image")
     before = file_hashes(folder)
-    out = run_microcal("acquire", "--rig", "sim", "--poses", 12, "--out", folder)
+    out = invoke_microcal("acquire", "--rig", "sim", "--poses", 12, "--out", folder)
     fails_cleanly(out, "holds other files (commands.csv, images)", "new or empty directory")
     assert file_hashes(folder) == before
 
@@ -281,19 +282,19 @@ def test_a_resume_needs_no_option_and_keeps_the_first_parts(tmp_path):
                 break
         for _ in range(1200):  # at most a minute
             if proc.poll() is not None or (
-                (run / "journal.jsonl").exists() and len(journal(run)) >= 2
+                (run / "journal.jsonl").exists() and len(journal_records(run)) >= 2
             ):
                 break
             time.sleep(0.05)
         proc.terminate()  # the process this test started
         proc.wait(timeout=60)
-    done = len(journal(run))
+    done = len(journal_records(run))
     assert 0 < done < 12
-    out = run_microcal("acquire", "--out", run, "--resume", "--frames", "5")
+    out = invoke_microcal("acquire", "--out", run, "--resume", "--frames", "5")
     fails_cleanly(out, "--frames 5: this run was begun with --frames 3", "leave --frames out")
-    out = run_microcal("acquire", "--out", run, "--resume", "--frames", "3")
+    out = invoke_microcal("acquire", "--out", run, "--resume", "--frames", "3")
     assert out.returncode == 0, out.stderr
-    records = journal(run)
+    records = journal_records(run)
     assert [r["pose"] for r in records] == list(range(1, 13))
     assert {image["frames"] for r in records for image in r["images"].values()} == {3}
     assert {r["settle_s"] for r in records} == {0.5}
@@ -306,8 +307,8 @@ def test_resume_removes_the_temporary_files_a_stop_left(run):
     journal.write_text("\n".join(lines[:-1]) + "\n")  # pose 12 was being written
     tmp = run / "images" / ".top_0012.tiff.abc123.tmp"
     tmp.write_bytes(b"half an image")
-    out = run_microcal("acquire", "--out", run, "--resume")
+    out = invoke_microcal("acquire", "--out", run, "--resume")
     assert out.returncode == 0, out.stderr
     assert f"removed {tmp}, left by a stop while it was written" in out.stdout
     assert not list(run.rglob("*.tmp"))
-    assert [r["pose"] for r in journal(run)] == list(range(1, 13))
+    assert [r["pose"] for r in journal_records(run)] == list(range(1, 13))

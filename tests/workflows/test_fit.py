@@ -10,7 +10,7 @@ from microcal import load_calibration
 from microcal.cli import app
 from microcal.formats.measurements import write_measurements
 from microcal.sim.synthetic_run import synthetic_run
-from support.cli import run_microcal
+from support.cli import invoke_microcal
 
 runner = CliRunner()
 
@@ -116,7 +116,7 @@ def test_user_errors_exit_2_with_one_line(run_dir, tmp_path, setup, args, messag
     if setup == "badcal":
         (tmp_path / "bad.json").write_text("{oops")
     argv = [a.format(tmp=tmp_path, run=run_dir) for a in args]
-    out = run_microcal(*argv, cwd=tmp_path)
+    out = invoke_microcal(*argv, cwd=tmp_path)
     assert out.returncode == 2, out.stderr + out.stdout
     lines = out.stderr.strip().splitlines()
     assert len(lines) == 1, out.stderr
@@ -142,7 +142,7 @@ def test_fit_embeds_the_cameras(run_dir, tmp_path):
     assert result.exit_code == 0, result.output
     assert sorted(load_calibration(out).cameras) == ["side", "top"]
     assert load_calibration(out).manipulator().extra["matrix_model"]["kind"] == "matrix"
-    bad = run_microcal(
+    bad = invoke_microcal(
         "fit", run_dir, "-o", tmp_path / "d.json", "--cameras", run_dir / "measurements.csv"
     )
     assert bad.returncode == 2
@@ -163,11 +163,11 @@ def test_fit_warns_with_the_pose_number_and_excludes_when_asked(tmp_path):
     path = write_measurements(tmp_path / "measurements.csv", run.d_um, p,
                               std_um=np.full((n, 3), 0.5), status=["ok"] * n,
                               reason=[""] * n, pose=list(range(1, n + 1)))  # fmt: skip
-    out = run_microcal("fit", path, "--out", tmp_path / "calibration.json")
+    out = invoke_microcal("fit", path, "--out", tmp_path / "calibration.json")
     assert out.returncode == 0, out.stderr
     assert "warning: pose 18 is " in out.stdout
     assert "check it (--exclude-outliers leaves such poses out)" in out.stdout
-    out = run_microcal("fit", path, "--out", tmp_path / "calibration.json", "--exclude-outliers")
+    out = invoke_microcal("fit", path, "--out", tmp_path / "calibration.json", "--exclude-outliers")
     assert out.returncode == 0, out.stderr
     assert "warning: pose 18 is " in out.stdout
     assert "left out of the fit" in out.stdout

@@ -8,7 +8,7 @@ import pytest
 from microcal import load_calibration
 from microcal.formats.measurements import write_measurements
 from microcal.sim.synthetic_run import synthetic_run
-from support.cli import run_microcal as microcal
+from support.cli import invoke_microcal as microcal
 
 
 @pytest.fixture(scope="module")

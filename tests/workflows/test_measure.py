@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from support.cli import run_microcal
+from support.cli import invoke_microcal
 from support.runs import fails_cleanly, write_true_cameras
 
 
@@ -41,7 +41,7 @@ def test_measure_names_a_damaged_journal_line_and_measures_the_rest(run, cameras
     lines = journal.read_text().splitlines()
     lines[2] = lines[2][:-5]  # pose 3's line cut
     journal.write_text("\n".join(lines) + "\n")
-    out = run_microcal("measure", run, "--cameras", cameras)
+    out = invoke_microcal("measure", run, "--cameras", cameras)
     assert out.returncode == 0, out.stderr
     assert "journal.jsonl: line 3 (pose 3): not JSON (damaged)" in out.stdout
     assert "measured 11 of 12 poses" in out.stdout
@@ -53,7 +53,7 @@ def test_swapped_images_fail_their_poses_with_the_reason(run, cameras):
     data_a, data_b = a.read_bytes(), b.read_bytes()
     a.write_bytes(data_b)
     b.write_bytes(data_a)
-    out = run_microcal("measure", run, "--cameras", cameras)
+    out = invoke_microcal("measure", run, "--cameras", cameras)
     assert out.returncode == 0, out.stderr
     assert "measured 10 of 12 poses" in out.stdout
     for pose in (3, 4):
@@ -71,27 +71,27 @@ def test_edited_commands_are_refused_by_measure(run, cameras, edit):
     else:
         del rows[6]
     path.write_text("\n".join(rows) + "\n")
-    out = run_microcal("measure", run, "--cameras", cameras)
+    out = invoke_microcal("measure", run, "--cameras", cameras)
     fails_cleanly(out, "commands.csv: edited since the run began", "restore the original")
     assert not (run / "measurements.csv").exists()
 
 
 def test_a_worse_measurement_never_replaces_a_better_one(run, cameras):
-    assert run_microcal("measure", run, "--cameras", cameras).returncode == 0
+    assert invoke_microcal("measure", run, "--cameras", cameras).returncode == 0
     good = (run / "measurements.csv").read_bytes()
     for pose in range(1, 9):  # the images of 8 poses moved away since
         (run / "images" / f"side_{pose:04d}.tiff").unlink()
-    out = run_microcal("measure", run, "--cameras", cameras)
+    out = invoke_microcal("measure", run, "--cameras", cameras)
     fails_cleanly(out, "only 4 of 12 poses measured, fewer than the 12 of the measurements.csv "
                    "it would replace; kept", "--force")  # fmt: skip
     assert (run / "measurements.csv").read_bytes() == good
-    out = run_microcal("measure", run, "--cameras", cameras, "--force")
+    out = invoke_microcal("measure", run, "--cameras", cameras, "--force")
     assert out.returncode == 0, out.stderr
     assert _measurements_status(run).count("ok") == 4
 
 
 def test_measure_that_measures_nothing_writes_nothing(run, cameras):
-    out = run_microcal("measure", run, "--cameras", cameras, "--target", "chessboard:5x4:400")
+    out = invoke_microcal("measure", run, "--cameras", cameras, "--target", "chessboard:5x4:400")
     fails_cleanly(out, "no pose measured, all 12 failed", "check --cameras and --target")
     assert not (run / "measurements.csv").exists()
 
@@ -107,17 +107,19 @@ def test_temperature_flows_from_acquisition_through_measure_to_fit(tmp_path):
     rig = tmp_path / "warm.toml"
     rig.write_text('driver = "sim"\n[overrides.manipulator]\ntemperature_drift_c_per_h = 20.0\n')
     run = tmp_path / "run"
-    out = run_microcal("acquire", "--rig", rig, "--poses", "40", "--frames", "1",
-                       "--settle", "fixed:20", "--store", "roi", "--out", run)  # fmt: skip
+    out = invoke_microcal("acquire", "--rig", rig, "--poses", "40", "--frames", "1",
+                          "--settle", "fixed:20", "--store", "roi", "--out", run)  # fmt: skip
     assert out.returncode == 0, out.stderr
-    out = run_microcal("measure", run, "--cameras", write_true_cameras(tmp_path / "cameras.json"))
+    out = invoke_microcal(
+        "measure", run, "--cameras", write_true_cameras(tmp_path / "cameras.json")
+    )
     assert out.returncode == 0, out.stderr
     rows = _rows(run / "measurements.csv")
     temps = np.array([float(r["temperature_c"]) for r in rows])
     journal = [json.loads(line) for line in (run / "journal.jsonl").read_text().splitlines()]
     np.testing.assert_allclose(temps, [j["temperature_c"] for j in journal], atol=1e-4)
     assert temps.max() - temps.min() > 0.1  # the room did warm during the run
-    out = run_microcal("fit", run, "--temperature", "--out", tmp_path / "cal.json")
+    out = invoke_microcal("fit", run, "--temperature", "--out", tmp_path / "cal.json")
     assert out.returncode == 0, out.stderr
     model = json.loads((tmp_path / "cal.json").read_text())["manipulators"]["m1"]["model"]
     assert model["inputs"] == ["dx", "dy", "dz", "T"]
@@ -132,10 +134,10 @@ def one_line_error(out, message):
 
 def test_measure_user_errors(tmp_path):
     one_line_error(
-        run_microcal("measure", tmp_path / "none", "--cameras", tmp_path / "c.json"),
+        invoke_microcal("measure", tmp_path / "none", "--cameras", tmp_path / "c.json"),
         "not a directory",
     )
     (tmp_path / "c.json").write_text('{"format": "microcal.calibration/1", "manipulators": {}}')
     one_line_error(
-        run_microcal("measure", tmp_path, "--cameras", tmp_path / "c.json"), "holds no cameras"
+        invoke_microcal("measure", tmp_path, "--cameras", tmp_path / "c.json"), "holds no cameras"
     )

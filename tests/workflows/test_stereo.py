@@ -22,7 +22,7 @@ from microcal.sim.clock import SimClock
 from microcal.sim.render import Placement
 from microcal.sim.synthetic_geometry import look_at_camera
 from microcal.vision.targets import parse_target
-from support.cli import run_microcal
+from support.cli import invoke_microcal
 
 
 def one_line_error(out, message):
@@ -70,9 +70,9 @@ def microscope_files(tmp_path_factory):
         rows.append(f"{i},{di[0]},{di[1]},{di[2]}")
     (run / "commands.csv").write_text("\n".join(rows) + "\n")
     cams = root / "cameras.json"
-    out = run_microcal("stereo-calibrate", "--target", "dotgrid:40x30:250", "--images", f"top={root}/cal/top_*.tiff",
-                       "--images", f"side={root}/cal/side_*.tiff", "--known-displacements", root / "cal/steps.csv",
-                       "--out", cams)  # fmt: skip
+    out = invoke_microcal("stereo-calibrate", "--target", "dotgrid:40x30:250", "--images", f"top={root}/cal/top_*.tiff",
+                          "--images", f"side={root}/cal/side_*.tiff", "--known-displacements", root / "cal/steps.csv",
+                          "--out", cams)  # fmt: skip
     assert out.returncode == 0, out.stderr
     return root, np.array(truth)
 
@@ -96,7 +96,7 @@ def test_stereo_calibrate_then_measure(microscope_files):
         }
         assert c["rms_px"] <= 0.1
     assert data["stereo"]["baseline_um"] > 0
-    out = run_microcal("measure", root / "run", "--cameras", cams)
+    out = invoke_microcal("measure", root / "run", "--cameras", cams)
     assert out.returncode == 0, out.stderr
     assert "measured 6 of 6 poses" in out.stdout
     text = (root / "run" / "measurements.csv").read_text().splitlines()
@@ -117,7 +117,7 @@ def test_measure_marks_broken_poses_and_goes_on(microscope_files, tmp_path):
     (run / "images" / "top_0002.tiff").write_bytes(b"not an image")
     (run / "images" / "side_0003.tiff").unlink()
     tifffile.imwrite(run / "images" / "top_0004.tiff", np.full((1200, 1600), 80, np.uint8))
-    out = run_microcal("measure", run, "--cameras", cams)
+    out = invoke_microcal("measure", run, "--cameras", cams)
     assert out.returncode == 0, out.stderr
     assert "measured 3 of 6 poses" in out.stdout
     assert "pose 2 failed: top: " in out.stdout
@@ -160,8 +160,8 @@ def test_ordinary_photographs_any_format(tmp_path):
             write(tmp_path / f"{cam.name}_{k:02d}.{suffix}", cam.grab())
     (tmp_path / "left_99.png").write_bytes(b"broken")  # a corrupt file: rejected, not fatal
     (tmp_path / "right_99.png").write_bytes((tmp_path / "right_00.jpg").read_bytes())
-    out = run_microcal("stereo-calibrate", "--target", "chessboard:9x6:25000", "--images", f"left={tmp_path}/left_*",
-                       "--images", f"right={tmp_path}/right_*", "--out", tmp_path / "cams.json")  # fmt: skip
+    out = invoke_microcal("stereo-calibrate", "--target", "chessboard:9x6:25000", "--images", f"left={tmp_path}/left_*",
+                          "--images", f"right={tmp_path}/right_*", "--out", tmp_path / "cams.json")  # fmt: skip
     assert out.returncode == 0, out.stderr
     data = json.loads((tmp_path / "cams.json").read_text())
     assert set(data["cameras"]) == {"left", "right"}
@@ -184,8 +184,8 @@ def test_three_cameras_from_tilted_views(tmp_path):
         for k, image in enumerate(images):
             cv2.imwrite(str(tmp_path / f"{name}_{k:02d}.png"), image)
     args = [a for n in cams for a in ("--images", f"{n}={tmp_path}/{n}_*.png")]
-    out = run_microcal("stereo-calibrate", "--target", "chessboard:7x4:25000", *args,
-                       "--out", tmp_path / "cams.json")  # fmt: skip
+    out = invoke_microcal("stereo-calibrate", "--target", "chessboard:7x4:25000", *args,
+                          "--out", tmp_path / "cams.json")  # fmt: skip
     assert out.returncode == 0, out.stderr
     data = json.loads((tmp_path / "cams.json").read_text())
     assert list(data["cameras"]) == ["left", "right", "low"]
@@ -206,4 +206,4 @@ def test_three_cameras_from_tilted_views(tmp_path):
     ],
 )  # fmt: skip
 def test_stereo_calibrate_user_errors(args, message):
-    one_line_error(run_microcal("stereo-calibrate", *args), message)
+    one_line_error(invoke_microcal("stereo-calibrate", *args), message)
