@@ -1,4 +1,5 @@
-"""Shared fixtures: seeded generators and camera pairs."""
+"""Shared fixtures: seeded generators, camera pairs, and the runs a session makes once (a
+12-pose acquisition, the quick demo) for all its workers."""
 
 from __future__ import annotations
 
@@ -30,34 +31,45 @@ def thesis_pair():
 @pytest.fixture(scope="session")
 def acquired_run(tmp_path_factory) -> tuple[Path, Path]:
     """A complete simulated run of 12 poses (2 frames, regions) and the simulator's true
-    cameras.json, made once: (run directory, cameras.json). Tests copy the run to change it."""
+    cameras.json, made once per session and shared by its workers: (run directory,
+    cameras.json). A test that changes the run works on a copy of it."""
     from support.cli import invoke_microcal
     from support.runs import write_true_cameras
+    from support.shared import made_once
 
-    root = tmp_path_factory.mktemp("acquired")
-    run = root / "run"
-    out = invoke_microcal("acquire", "--rig", "sim", "--poses", 12, "--frames", "2",
-                          "--store", "roi", "--out", run)  # fmt: skip
-    assert out.returncode == 0, out.stderr
-    return run, write_true_cameras(root / "cameras.json")
+    def make(root: Path) -> None:
+        out = invoke_microcal("acquire", "--rig", "sim", "--poses", 12, "--frames", "2",
+                              "--store", "roi", "--out", root / "run")  # fmt: skip
+        assert out.returncode == 0, out.stderr
+        write_true_cameras(root / "cameras.json")
+
+    root = made_once(tmp_path_factory, "acquired-run", make)
+    return root / "run", root / "cameras.json"
+
+
+#: The demo every test of a demo's files shares (``microcal demo`` with these options).
+QUICK_DEMO = ("demo", "--quick", "--seed", "0")
 
 
 @pytest.fixture(scope="session")
-def quick_demo(tmp_path_factory):
-    """One ``microcal demo --quick`` run for the whole session: (directory, terminal output).
-
-    A test that changes the run directory works on a copy of it.
-    """
+def quick_demo(tmp_path_factory) -> tuple[Path, str]:
+    """One ``microcal demo --quick --seed 0`` for the whole session, shared by its workers:
+    (run directory, terminal output at 200 columns). A test that changes the run directory
+    works on a copy of it."""
     from typer.testing import CliRunner
 
     from microcal.cli import app
+    from support.shared import made_once
 
-    out = tmp_path_factory.mktemp("demo") / "run"
-    result = CliRunner().invoke(
-        app, ["demo", "--quick", "--seed", "1", "--out", str(out)], env={"COLUMNS": "200"}
-    )
-    assert result.exit_code == 0, result.output
-    return out, result.output
+    def make(root: Path) -> None:
+        result = CliRunner().invoke(
+            app, [*QUICK_DEMO, "--out", str(root / "run")], env={"COLUMNS": "200"}
+        )
+        assert result.exit_code == 0, result.output
+        (root / "output.txt").write_text(result.output, encoding="utf-8")
+
+    root = made_once(tmp_path_factory, "quick-demo", make)
+    return root / "run", (root / "output.txt").read_text(encoding="utf-8")
 
 
 @pytest.fixture

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import pickle
 
 import numpy as np
 import pytest
@@ -25,12 +26,20 @@ from microcal.procedures.evaluation import (
     run_pose_accuracy,
 )
 from support.cli import invoke_microcal
+from support.shared import made_once
 
 
 @pytest.fixture(scope="module")
-def demo():
-    """Cameras and both models identified from 170 measured poses (the thesis's procedure)."""
-    return run_demo(seed=0, poses=170, evaluate=False)  # the tests below run their own
+def demo(tmp_path_factory):
+    """Cameras and both models identified from 170 measured poses (the thesis's procedure),
+    computed once per session and shared by its workers (pickled)."""
+
+    def make(root):
+        result = run_demo(seed=0, poses=170, evaluate=False)  # the tests below run their own
+        (root / "demo.pickle").write_bytes(pickle.dumps(result))
+
+    root = made_once(tmp_path_factory, "demo-170-poses", make)
+    return pickle.loads((root / "demo.pickle").read_bytes())
 
 
 def optimal(plat, demo):

@@ -5,6 +5,7 @@ and repeats exactly from the kept frames."""
 from __future__ import annotations
 
 import json
+import pickle
 
 import numpy as np
 import pytest
@@ -20,6 +21,7 @@ from microcal.sim import platform
 from microcal.sim.platforms import TRAVEL_CENTRE_UM
 from microcal.workflows.rigs import open_rig
 from microcal.workflows.stereo import stereo_calibrate_rig
+from support.shared import made_once
 
 runner = CliRunner()
 FAST = RigViewsConfig(frames_per_view=2, settle="fixed", fixed_s=0.5, camera_model="pinhole")
@@ -35,9 +37,15 @@ def one_line_error(result, *fragments):
 
 @pytest.fixture(scope="module")
 def calibrated(tmp_path_factory):
-    """A calibration on the simulated rig (seed 4), its files and the truth."""
-    folder = tmp_path_factory.mktemp("rigcal")
-    cal, out, views = stereo_calibrate_rig("sim", folder / "cameras.json", seed=4, config=FAST)
+    """A calibration on the simulated rig (seed 4), its files and the truth; made once per
+    session and shared by its workers (the calibration pickled beside its files)."""
+
+    def make(folder):
+        cal, out, views = stereo_calibrate_rig("sim", folder / "cameras.json", seed=4, config=FAST)
+        (folder / "calibration.pickle").write_bytes(pickle.dumps((cal, out, views)))
+
+    folder = made_once(tmp_path_factory, "rig-stereo-seed-4", make)
+    cal, out, views = pickle.loads((folder / "calibration.pickle").read_bytes())
     return cal, out, views, platform("thesis", seed=4).camera_models
 
 
