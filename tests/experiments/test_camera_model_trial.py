@@ -19,6 +19,7 @@ from microcal.vision.known_displacements import calibrate_known_displacements
 from microcal.vision.targets import parse_target
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("preset", "kind"), [("telecentric", "affine"), ("thesis", "pinhole")])
 @pytest.mark.parametrize("seed", [101, 202])
 def test_auto_picks_the_model_of_the_lens(preset, kind, seed):
@@ -37,6 +38,7 @@ def test_auto_picks_the_model_of_the_lens(preset, kind, seed):
         assert not any(trial.pinhole_problem.values())
 
 
+@pytest.mark.slow
 def test_telecentric_affine_fit_reaches_the_noise_floor_and_the_true_cameras():
     trial = camera_model_trial("telecentric", 303, frames_per_view=4, poses=12, frames=3)
     # Metric: reprojection RMS over the RMS of the detected dots' error against their true
@@ -59,6 +61,7 @@ def telecentric_views():
     return dets, names, sizes, steps
 
 
+@pytest.mark.slow
 def test_pinhole_asked_for_on_telecentric_views_is_refused(telecentric_views):
     dets, names, sizes, steps = telecentric_views
     grid = parse_target(CALIBRATION_TARGET)

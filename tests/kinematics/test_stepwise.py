@@ -134,6 +134,7 @@ def test_selects_the_true_terms_in_at_least_90_percent_of_trials():
     assert np.mean(within_3se) >= 0.95
 
 
+@pytest.mark.slow
 def test_false_terms_enter_at_about_the_entry_level():
     # With only the three linear terms true, each of the six false terms is tested at the
     # 5 % level: the share of trials in which a given false term enters is near 5 %.

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from microcal import sim
 from microcal.kinematics.designs import make_design
@@ -29,6 +30,7 @@ def settle_figures(settle: str, poses: int) -> tuple[np.ndarray, np.ndarray]:
     return r[:, 0], r[:, 1]
 
 
+@pytest.mark.slow
 def test_vision_settling_is_fast_and_leaves_no_creep():
     settle, creep = settle_figures("vision", 100)
     # Thesis: a fixed 30 s per pose. Goal: <= 3 s per pose (>= 10x) with <= 0.2 µm creep left.

@@ -57,6 +57,7 @@ def conditions(plat, demo):
     }
 
 
+@pytest.mark.slow
 def test_pose_accuracy_by_ground_truth(demo):
     plat = sim.platform("thesis", seed=100)
     r = run_pose_accuracy(plat.manipulator, plat.clock, None, conditions(plat, demo), cycles=3,
@@ -74,6 +75,7 @@ def test_pose_accuracy_by_ground_truth(demo):
     assert pose["rp_um"] < 2.5
 
 
+@pytest.mark.slow
 def test_decoupling_by_ground_truth(demo):
     plat = sim.platform("thesis", seed=101)
     r = run_decoupling(plat.manipulator, plat.clock, None, conditions(plat, demo),
@@ -86,6 +88,7 @@ def test_decoupling_by_ground_truth(demo):
     assert r["optimal"]["omega"]["y"] < 0.3 * r["uncalibrated"]["omega"]["y"]
 
 
+@pytest.mark.slow
 def test_runs_measured_by_vision(demo):
     plat = sim.platform("thesis", seed=102)
     probe = VisionProbe(plat.cameras, demo.calibration.models(), plat.scene.board, frames=3)
@@ -108,6 +111,7 @@ def test_decoupling_path_is_fig_5_5():
     assert segment.tolist() == [0] * 17 + [1] * 17 + [2] * 17
 
 
+@pytest.mark.slow
 def test_feed_forward_refuses_and_moves_nothing(demo):
     plat = sim.platform("thesis", seed=103)
     ff = optimal(plat, demo)
@@ -124,6 +128,7 @@ def test_feed_forward_refuses_and_moves_nothing(demo):
     assert d.shape == (3,)
 
 
+@pytest.mark.slow
 def test_evaluate_command(demo, tmp_path):
     m = demo.models["polynomial"]
     entry = ManipulatorCalibration("m1", m.model, m.validation,
@@ -190,6 +195,7 @@ def test_iso_cube_poses():
     assert diag > 0
 
 
+@pytest.mark.slow
 def test_identification_through_the_vision_pipeline_reaches_the_oracle(demo):
     # 170 poses rendered, measured (5 frames each) and identified with the thesis's split: the
     # polynomial model's mean validation error is within 0.35 µm of the oracle's (the true
@@ -214,6 +220,7 @@ def _calibration_file(demo, tmp_path):
     return write_calibration(tmp_path / "calibration.json", Calibration({"m1": entry}, cams))
 
 
+@pytest.mark.slow
 def test_closed_loop_pose_accuracy_by_ground_truth(demo):
     """The closed loop on the thesis preset at the Table 5-2 poses, 3 cycles: AP by truth
     within 0.5 µm on average and 1 µm at worst, and the loop's 95 % region holds the true
@@ -243,6 +250,7 @@ def test_closed_loop_pose_accuracy_by_ground_truth(demo):
     assert s["truth_in_measured_95"] >= 0.9
 
 
+@pytest.mark.slow
 def test_station_and_goto_on_the_simulator(demo, tmp_path):
     import microcal
     from microcal.procedures.station import Station
@@ -278,6 +286,7 @@ def test_station_and_goto_on_the_simulator(demo, tmp_path):
     assert len(res.stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_distance_stabilisation_and_drift_on_the_simulator(demo, tmp_path):
     from microcal.procedures.iso_tests import run_distance, run_drift, run_stabilisation
 
@@ -313,6 +322,7 @@ def test_distance_stabilisation_and_drift_on_the_simulator(demo, tmp_path):
     assert dr["truth"]["optimal"]["drift_ap_um"] < 0.3
 
 
+@pytest.mark.slow
 def test_station_goto_and_evaluate_on_the_digital_twin(demo, tmp_path):
     """The same calibration driven through the real drivers: the twin's MCS2 controller and
     its Micro-Manager cameras, on loopback in a network namespace of the test's own."""
@@ -395,6 +405,7 @@ def test_the_thesis_tables_leave_the_closed_loop_without_a_published_figure():
     assert "(" in table.rows[0][1]
 
 
+@pytest.mark.slow
 def test_check_and_its_update_through_the_command(demo, tmp_path):
     """``microcal check`` on rendered frames: valid on an unchanged platform (the reference),
     ``offset`` on one whose end-effector moved, ``--update`` fixes it; the history grows."""
@@ -442,6 +453,7 @@ def test_check_and_its_update_through_the_command(demo, tmp_path):
     assert theirs.read_text() == "{}"
 
 
+@pytest.mark.slow
 def test_a_periodic_check_inside_a_long_run(demo, tmp_path):
     """acquire --check-calibration: every N poses the calibration's check poses are measured,
     each check joins the calibration's history with the run it was made in, and the run goes
@@ -482,6 +494,7 @@ def test_a_periodic_check_inside_a_long_run(demo, tmp_path):
     assert not (tmp_path / "b").exists()
 
 
+@pytest.mark.slow
 def test_goto_and_evaluate_pick_the_device_of_the_calibration_entry(demo, tmp_path):
     """On a rig of several devices, --manipulator picks both the calibration's entry and the
     rig's device: m2 goes where m2's calibration sends it (m1's entry would not take it

@@ -49,6 +49,7 @@ def calibrated(tmp_path_factory):
     return cal, out, views, platform("thesis", seed=4).camera_models
 
 
+@pytest.mark.slow
 def test_the_cameras_project_points_of_the_travel_as_the_true_ones_do(calibrated):
     _, out, _, truth = calibrated
     models = load_cameras(out)
@@ -60,6 +61,7 @@ def test_the_cameras_project_points_of_the_travel_as_the_true_ones_do(calibrated
         assert np.sqrt(np.mean(error**2)) < 0.1, (name, np.sqrt(np.mean(error**2)))
 
 
+@pytest.mark.slow
 def test_every_view_is_kept_and_the_calibration_repeats_exactly_from_the_files(
     calibrated, tmp_path
 ):

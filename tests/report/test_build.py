@@ -23,6 +23,7 @@ CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CONDITIONS = {"uncalibrated", "matrix", "optimal"}
 
 
+@pytest.mark.slow
 def test_report_numbers_equal_the_result_files(quick_demo):
     out, _ = quick_demo
     checked = check_number_cells(out, out / "report.html")
@@ -42,6 +43,7 @@ def test_report_numbers_equal_the_result_files(quick_demo):
     assert all(src.startswith("data:image/png;base64,") for src in parsed.images)
 
 
+@pytest.mark.slow
 def test_report_recomputes_the_validation_errors_it_plots(quick_demo):
     out, _ = quick_demo
     errors = load_run(out).model_errors()
@@ -52,6 +54,7 @@ def test_report_recomputes_the_validation_errors_it_plots(quick_demo):
         assert e.errors_um.max() == pytest.approx(e.validation["max_um"], abs=1e-5)
 
 
+@pytest.mark.slow
 def test_report_command_rebuilds_the_same_report(quick_demo, tmp_path):
     out, _ = quick_demo
     result = runner.invoke(app, ["report", str(out), "--out", str(tmp_path / "again.html")])
@@ -59,6 +62,7 @@ def test_report_command_rebuilds_the_same_report(quick_demo, tmp_path):
     assert cells(tmp_path / "again.html").cells == cells(out / "report.html").cells
 
 
+@pytest.mark.slow
 def test_report_of_a_run_that_is_only_acquired(quick_demo, tmp_path):
     out, _ = quick_demo
     part = tmp_path / "part"
@@ -118,6 +122,7 @@ CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic
                   "--disable-component-update", "--disable-sync", "--hide-scrollbars"]  # fmt: skip
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(
     CHROMIUM is None, reason="needs Debian's chromium package (.ci/run installs it)"
 )

@@ -117,6 +117,7 @@ def _run_on(quick_demo, tmp_path: Path, rig: dict | None, *, manifest: bool = Tr
     return run
 
 
+@pytest.mark.slow
 def test_a_thesis_preset_run_is_compared_with_the_thesis(quick_demo, tmp_path):
     out, _ = quick_demo
     rig = json.loads((out / "run.json").read_text())["rig"]
@@ -131,6 +132,7 @@ def test_a_thesis_preset_run_is_compared_with_the_thesis(quick_demo, tmp_path):
     assert "Rig:" not in html
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("rig", "manifest", "rig_line"),
     [

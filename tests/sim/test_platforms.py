@@ -131,6 +131,7 @@ def test_injected_faults_raise_device_errors():
         plat.manipulator.position_um()
 
 
+@pytest.mark.slow
 def test_fault_rates_are_seeded_rates():
     plat = sim.platform(
         "thesis",

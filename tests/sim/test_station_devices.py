@@ -137,6 +137,7 @@ def test_rig_files_name_further_devices(tmp_path: Path):
     assert "manipulators" not in load_rig(str(path)).to_dict()
 
 
+@pytest.mark.slow
 def test_acquire_moves_the_device_asked_for_and_resumes_only_on_it(tmp_path: Path):
     rig = tmp_path / "platform.toml"
     rig.write_text('driver = "sim"\npreset = "thesis-platform"\n', encoding="utf-8")
@@ -203,6 +204,7 @@ def _true_stations(plat, names, shift_um=None):
     return stations
 
 
+@pytest.mark.slow
 def test_two_tools_meet_and_a_wrong_calibration_shows_in_the_gap():
     plat = platform("thesis-platform", seed=2)
     first, second = _true_stations(plat, ["m1", "m2"])
@@ -254,6 +256,7 @@ def test_a_tool_goes_to_an_offset_from_a_point_on_the_sample():
         tool.move_relative_um(tool)
 
 
+@pytest.mark.slow
 def test_the_station_demo_writes_every_device_in_one_frame(tmp_path: Path):
     import time
 
@@ -373,6 +376,7 @@ def test_each_device_has_its_own_check_history():
     assert of_device(history, "m2", single=False) == [history[1]]
 
 
+@pytest.mark.slow
 def test_the_x_y_positioner_goes_to_the_nearest_point_of_its_surface_open_and_closed():
     plat = platform("thesis-platform", seed=5)
     (stage,) = _true_stations(plat, ["p1"])

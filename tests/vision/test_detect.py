@@ -128,6 +128,7 @@ def test_boards_too_small_for_the_finders_are_refused_at_the_spec(spec):
         parse_target(spec)
 
 
+@pytest.mark.slow
 def test_a_spec_smaller_than_the_board_is_never_found():
     """A 3x3 spec on the thesis's 4x3 board: the finders find parts of it (or lattices in the
     noise); each is refused with the reason, while the right spec finds every view."""

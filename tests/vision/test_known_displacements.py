@@ -9,6 +9,7 @@ import pytest
 from microcal.vision.targets import parse_target
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mistake", ["steps in mm", "steps out of order"])
 def test_known_displacements_that_fit_no_camera_are_a_clear_error(mistake):
     from microcal.errors import DegenerateDataError

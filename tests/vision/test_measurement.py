@@ -46,6 +46,7 @@ def known_calibration():
     return plat, calibrate_on_platform(plat, GRID, STEPS_UM, FRAMES_PER_VIEW)
 
 
+@pytest.mark.slow
 def test_known_displacements_calibration(known_calibration):
     plat, cal = known_calibration
     pts = workspace_points()
@@ -57,6 +58,7 @@ def test_known_displacements_calibration(known_calibration):
         assert truth_reprojection_px(c.model, plat.cameras[name].model, pts, pts) <= 0.1
 
 
+@pytest.mark.slow
 def test_unknown_poses_calibration():
     plat = sim.platform("thesis", seed=22)
     plat.scene.show_board = False
@@ -91,6 +93,7 @@ def test_unknown_poses_calibration():
         assert truth_reprojection_px(c.model, plat.cameras[name].model, pts_v, pts_g) <= 2.0
 
 
+@pytest.mark.slow
 def test_3d_measurement_of_100_poses(known_calibration):
     _, cal = known_calibration
     plat = sim.platform("thesis", seed=23)
@@ -124,6 +127,7 @@ def test_3d_measurement_of_100_poses(known_calibration):
     np.testing.assert_array_equal([r.cov_um2 for r in again], [r.cov_um2 for r in res])
 
 
+@pytest.mark.slow
 def test_table_4_1_with_the_library_detector():
     plat = sim.platform("thesis", seed=24)
     plat.manipulator.move_to_um([4000, 4000, 2400])
@@ -155,6 +159,7 @@ def test_table_4_1_with_the_library_detector():
     assert np.all(vp <= 1.3 * np.array([0.087, 0.045]))
 
 
+@pytest.mark.slow
 def test_a_failed_view_is_a_status_not_an_exception(known_calibration):
     _, cal = known_calibration
     blank = np.full((1200, 1600), 90, np.uint8)

@@ -70,6 +70,7 @@ def _lose(frames, lost):
     return load
 
 
+@pytest.mark.slow
 def test_three_cameras_measure_and_a_lost_frame_leaves_two(rendered):
     plat, d, frames, truth = rendered
     cams = plat.camera_models
@@ -128,6 +129,7 @@ def test_measurement_needs_two_cameras(rendered):
         measure_poses([0], d[:1], _lose(frames, set()), {"top": plat.camera_models["top"]}, BOARD)
 
 
+@pytest.mark.slow
 def test_a_three_camera_rig_acquires_and_measures_through_the_commands(tmp_path):
     """acquire with the example rig (front camera losing frames), then measure with cameras.json
     of the true cameras: every pose measured, each by the cameras whose frames it has."""

@@ -103,6 +103,7 @@ FAMILIES = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("family", list(FAMILIES))
 def test_lens_model_selection_picks_the_true_family(family):
     target = parse_target("chessboard:9x6:20000")
@@ -204,6 +205,7 @@ def _three_cameras():
     return cams  # fmt: skip
 
 
+@pytest.mark.slow
 def test_three_cameras_in_one_joint_refinement_with_views_each_seen_by_a_subset():
     target = parse_target("chessboard:7x4:25000")
     cams = _three_cameras()

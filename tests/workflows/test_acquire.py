@@ -43,6 +43,7 @@ def check_run_complete(run, n):
     return records
 
 
+@pytest.mark.slow
 def test_crash_safety_kill_and_resume(tmp_path):
     run = tmp_path / "run"
     base = [sys.executable, "-m", "microcal", "acquire", "--rig", "sim", "--poses", "12", "--store", "roi",
@@ -77,6 +78,7 @@ def test_crash_safety_kill_and_resume(tmp_path):
     assert not list(run.rglob("*.tmp"))  # no temporary file left as if it were data
 
 
+@pytest.mark.slow
 def test_faults_are_retried_recorded_and_nothing_is_lost(tmp_path):
     faults = ("[overrides.top.faults]\ndrop_rate = 0.10\nocclusion_rate = 0.05\n"
               "[overrides.side.faults]\ndrop_rate = 0.10\n"
@@ -96,6 +98,7 @@ def test_faults_are_retried_recorded_and_nothing_is_lost(tmp_path):
     assert len(failed) < 6  # retries absorb most transient faults (10 % of frames dropped)
 
 
+@pytest.mark.slow
 def test_resume_refuses_another_rig_or_edited_files(tmp_path):
     run = tmp_path / "run"
     assert invoke_microcal("acquire", "--rig", "sim", "--design", "sobol", "--poses", "12", "--frames", "1", "--store", "roi",
@@ -135,6 +138,7 @@ def test_bad_designs_exit_2_and_move_nothing(tmp_path, rows, message):
     assert not (tmp_path / "run").exists()  # nothing created, nothing moved
 
 
+@pytest.mark.slow
 def test_acquire_then_measure(tmp_path):
     run = tmp_path / "run"
     assert invoke_microcal("acquire", "--rig", "sim", "--poses", "12", "--frames", "2", "--store", "roi",
@@ -150,6 +154,7 @@ def test_acquire_then_measure(tmp_path):
     assert "measured 12 of 12 poses" in out.stdout
 
 
+@pytest.mark.slow
 def test_sigterm_stops_cleanly_and_resume_finishes(tmp_path):
     run = tmp_path / "run"
     proc = subprocess.Popen([sys.executable, "-m", "microcal", "acquire", "--rig", "sim", "--poses", "40",
@@ -199,6 +204,7 @@ def _rows(path):
         return list(csv.DictReader(fh))
 
 
+@pytest.mark.slow
 def test_designs_follow_the_rigs_limits(tmp_path):
     # A rig whose travel is smaller than the thesis's workspace: the design covers its own
     # limits (the old code drew over 0-8000 µm and refused every such rig).
@@ -268,6 +274,7 @@ def test_a_new_run_never_goes_among_a_users_files(tmp_path):
     assert file_hashes(folder) == before
 
 
+@pytest.mark.slow
 def test_a_resume_needs_no_option_and_keeps_the_first_parts(tmp_path):
     """Begun with --frames 3 --store roi --settle fixed:0.5 and stopped: `--resume` alone
     goes on as begun; an option given again must agree."""

@@ -17,6 +17,7 @@ runner = CliRunner()
 CONDITIONS = {"uncalibrated", "matrix", "optimal"}
 
 
+@pytest.mark.slow
 def test_demo_prints_each_step_and_the_thesis_figures(quick_demo):
     _, output = quick_demo
     for text in ("Stereo calibration", "Measured 40 of 40 poses", "3D error vs ground truth",
@@ -25,6 +26,7 @@ def test_demo_prints_each_step_and_the_thesis_figures(quick_demo):
         assert text in output
 
 
+@pytest.mark.slow
 def test_demo_writes_the_run_directory(quick_demo):
     out, _ = quick_demo
     manifest = json.loads((out / "run.json").read_text())
@@ -45,6 +47,7 @@ def test_demo_writes_the_run_directory(quick_demo):
     assert not list(out.rglob("*.tmp"))
 
 
+@pytest.mark.slow
 def test_demo_files_hold_the_keys_other_tools_read(quick_demo):
     """Every key docs/formats.md lists as read by other tools."""
     out, _ = quick_demo
@@ -111,6 +114,7 @@ def test_demo_replaces_only_an_earlier_demo(tmp_path):
     assert (mixed / "notes.txt").read_text() == "mine"
 
 
+@pytest.mark.slow
 def test_the_demos_manifest_reproduces_its_commands(quick_demo):
     # run.json's design, drawn again by make_design, gives commands.csv (written to 4 decimals).
     from microcal.formats.run_directory import RunDirectory

@@ -76,6 +76,7 @@ def test_edited_commands_are_refused_by_measure(run, cameras, edit):
     assert not (run / "measurements.csv").exists()
 
 
+@pytest.mark.slow
 def test_a_worse_measurement_never_replaces_a_better_one(run, cameras):
     assert invoke_microcal("measure", run, "--cameras", cameras).returncode == 0
     good = (run / "measurements.csv").read_bytes()
@@ -90,6 +91,7 @@ def test_a_worse_measurement_never_replaces_a_better_one(run, cameras):
     assert _measurements_status(run).count("ok") == 4
 
 
+@pytest.mark.slow
 def test_measure_that_measures_nothing_writes_nothing(run, cameras):
     out = invoke_microcal("measure", run, "--cameras", cameras, "--target", "chessboard:5x4:400")
     fails_cleanly(out, "no pose measured, all 12 failed", "check --cameras and --target")
@@ -101,6 +103,7 @@ def _rows(path):
         return list(csv.DictReader(fh))
 
 
+@pytest.mark.slow
 def test_temperature_flows_from_acquisition_through_measure_to_fit(tmp_path):
     # A simulated room that warms by 20 °C/h: the journal records the temperature of every
     # pose, measure carries it to measurements.csv, and fit --temperature uses it.

@@ -77,6 +77,7 @@ def microscope_files(tmp_path_factory):
     return root, np.array(truth)
 
 
+@pytest.mark.slow
 def test_stereo_calibrate_then_measure(microscope_files):
     root, truth = microscope_files
     cams = root / "cameras.json"
@@ -106,6 +107,7 @@ def test_stereo_calibrate_then_measure(microscope_files):
     assert np.sqrt(np.mean(np.sum((p - truth) ** 2, axis=1))) < 3.0
 
 
+@pytest.mark.slow
 def test_measure_marks_broken_poses_and_goes_on(microscope_files, tmp_path):
     root, _ = microscope_files
     cams = root / "cameras.json"
@@ -174,6 +176,7 @@ def test_ordinary_photographs_any_format(tmp_path):
     assert data["stereo"]["baseline_um"] == pytest.approx(60_000, rel=0.05)
 
 
+@pytest.mark.slow
 def test_three_cameras_from_tilted_views(tmp_path):
     cams = wide_angle_stereo_pair()
     R, _ = cv2.Rodrigues(np.deg2rad([3.0, -5.0, 0.0]).reshape(3, 1))
