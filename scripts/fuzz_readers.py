@@ -2,13 +2,13 @@
 
     python scripts/fuzz_readers.py [--count N] [--seed S] [--reader NAME] [--shrink]
 
-Runs the generators of ``tests/test_fuzz_readers.py`` (valid files of each kind, mutated) for
-``N`` inputs per reader, in this process, and prints per reader: inputs tried, how many were
-read, refused with a MicrocalError, raised another exception (grouped by type and the line of
-microcal that raised it, with the first few inputs) or hung (no answer within 5 s), and the
-time taken. MicrocalError messages that do not name the file or span several lines are
-counted too (a note, not a failure). ``--shrink`` then lets Hypothesis reduce each distinct
-failure to a minimal input.
+Runs the generators of ``tests/formats/test_fuzz_readers.py`` (valid files of each kind,
+mutated) for ``N`` inputs per reader, in this process, and prints per reader: inputs tried,
+how many were read, refused with a MicrocalError, raised another exception (grouped by type
+and the line of microcal that raised it, with the first few inputs) or hung (no answer
+within 5 s), and the time taken. MicrocalError messages that do not name the file or span
+several lines are counted too (a note, not a failure). ``--shrink`` then lets Hypothesis
+reduce each distinct failure to a minimal input.
 
 Exit code 0 when every input was read or refused with a MicrocalError, 1 when any raised
 another exception or hung.
@@ -29,7 +29,7 @@ from pathlib import Path
 import hypothesis
 from hypothesis import HealthCheck, Phase, given, settings
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "formats"))
 
 from test_fuzz_readers import (  # the generators live with their tests
     HANG_SECONDS,

@@ -5,14 +5,17 @@ It reuses the helpers of the test suite, so the figures are those the tests chec
 """
 
 import sys
+from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(__import__("pathlib").Path(__file__).resolve().parents[1] / "tests"))
-import test_sim_rendering as rendering_tests
-import test_stepwise as stepwise_tests
 from microcal import sim, stepwise_fit
 from microcal.metrics import decoupling_metrics, pose_accuracy
+
+TESTS = Path(__file__).resolve().parents[1] / "tests"
+sys.path[:0] = [str(TESTS / "sim"), str(TESTS / "kinematics"), str(TESTS / "vision")]
+import test_render as rendering_tests  # noqa: E402
+import test_stepwise as stepwise_tests  # noqa: E402
 
 # issue 3: noise-free detection over 50 poses
 plat = sim.platform("thesis", seed=1)
@@ -100,7 +103,8 @@ for seed in range(100):
 print("stepwise exact selections", exact, "/100; within 3 se", round(np.mean(w3) * 100, 1), "%")
 
 # Issue 4: calibration (method a) then 100 poses x 5 frames measured, against ground truth.
-import test_vision_measurement as vision_tests  # noqa: E402
+import test_measurement as vision_tests  # noqa: E402
+
 from microcal.vision.detect import detect  # noqa: E402
 from microcal.vision.measurement import measure_poses  # noqa: E402
 from microcal.vision.virtual_point import virtual_point  # noqa: E402

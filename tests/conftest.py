@@ -1,4 +1,5 @@
-"""Shared fixtures: seeded generators and camera pairs."""
+"""Shared fixtures: seeded generators, camera pairs, and the runs a session makes once (a
+12-pose acquisition, the quick demo) for all its workers."""
 
 from __future__ import annotations
 
@@ -27,16 +28,54 @@ def thesis_pair():
     return thesis_cameras()
 
 
-def run_microcal(*args: object, cwd=None) -> subprocess.CompletedProcess[str]:
-    """Run ``python -m microcal ARGS`` as a user would: no standard input, output captured."""
-    return subprocess.run([sys.executable, "-m", "microcal", *map(str, args)], capture_output=True,
-                          text=True, check=False, stdin=subprocess.DEVNULL, cwd=cwd)  # fmt: skip
+@pytest.fixture(scope="session")
+def acquired_run(tmp_path_factory) -> tuple[Path, Path]:
+    """A complete simulated run of 12 poses (2 frames, regions) and the simulator's true
+    cameras.json, made once per session and shared by its workers: (run directory,
+    cameras.json). A test that changes the run works on a copy of it."""
+    from support.cli import invoke_microcal
+    from support.runs import write_true_cameras
+    from support.shared import made_once
+
+    def make(root: Path) -> None:
+        out = invoke_microcal("acquire", "--rig", "sim", "--poses", 12, "--frames", "2",
+                              "--store", "roi", "--out", root / "run")  # fmt: skip
+        assert out.returncode == 0, out.stderr
+        write_true_cameras(root / "cameras.json")
+
+    root = made_once(tmp_path_factory, "acquired-run", make)
+    return root / "run", root / "cameras.json"
+
+
+#: The demo every test of a demo's files shares (``microcal demo`` with these options).
+QUICK_DEMO = ("demo", "--quick", "--seed", "0")
+
+
+@pytest.fixture(scope="session")
+def quick_demo(tmp_path_factory) -> tuple[Path, str]:
+    """One ``microcal demo --quick --seed 0`` for the whole session, shared by its workers:
+    (run directory, terminal output at 200 columns). A test that changes the run directory
+    works on a copy of it."""
+    from typer.testing import CliRunner
+
+    from microcal.cli import app
+    from support.shared import made_once
+
+    def make(root: Path) -> None:
+        result = CliRunner().invoke(
+            app, [*QUICK_DEMO, "--out", str(root / "run")], env={"COLUMNS": "200"}
+        )
+        assert result.exit_code == 0, result.output
+        (root / "output.txt").write_text(result.output, encoding="utf-8")
+
+    root = made_once(tmp_path_factory, "quick-demo", make)
+    return root / "run", (root / "output.txt").read_text(encoding="utf-8")
 
 
 @pytest.fixture
 def netns():
-    """The test runs in its own network namespace with only loopback (see tests/netns.py)."""
-    from netns import own_network_namespace, unavailable_reason
+    """The test runs in its own network namespace with only loopback (see tests/support/netns.py)."""
+    from support.netns import own_network_namespace, unavailable_reason
 
     reason = unavailable_reason()
     if reason:
@@ -48,7 +87,7 @@ def netns():
 @pytest.fixture
 def fake_mcs2(netns):
     """A fake MCS2 controller on 127.0.0.1:55551 inside the test's network namespace."""
-    from fake_mcs2 import FakeMCS2
+    from support.fake_mcs2 import FakeMCS2
 
     with FakeMCS2(port=55551) as fake:
         yield fake
@@ -87,7 +126,7 @@ def gige_cameras(netns):
             pytest.importorskip(
                 "viva_genicam.testing", reason="needs viva-genicam (pip install viva-genicam)"
             )
-            peer = Path(__file__).with_name("viva_peer.py")
+            peer = Path(__file__).parent / "support" / "viva_peer.py"
             proc = subprocess.Popen([sys.executable, str(peer), str(viva[0]), str(viva[1]), address],
                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)  # fmt: skip
             procs.append(proc)
@@ -119,10 +158,10 @@ def gige_cameras(netns):
 @pytest.fixture
 def mm_core():
     """A Micro-Manager core (pymmcore-plus UniMMCore) with the pure-Python devices of
-    tests/mm_devices.py."""
+    tests/support/mm_devices.py."""
     pytest.importorskip("pymmcore_plus", reason="needs pymmcore-plus (pip install 'microcal[mm]')")
     from microcal.devices.micromanager import open_core
 
-    core = open_core(python_devices="mm_devices:load")
+    core = open_core(python_devices="support.mm_devices:load")
     yield core
     core.unloadAllDevices()

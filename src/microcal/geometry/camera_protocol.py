@@ -5,8 +5,8 @@ procedures use a camera only through the members listed in :class:`CameraModelPr
 a new kind of camera (an affine, telecentric one, say) implements these members and is then
 measured and triangulated like the pinhole :class:`~microcal.geometry.camera_model.CameraModel`.
 
-The contract every camera model keeps (``tests/test_camera_protocol.py`` checks it for each
-kind):
+The contract every camera model keeps (``tests/geometry/test_camera_protocol.py`` checks it
+for each kind):
 
 - ``project`` includes the lens distortion; ``undistort_px`` removes it, giving the pixels of
   the ideal camera whose linear projection matrix is ``P``:
