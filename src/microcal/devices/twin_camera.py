@@ -32,7 +32,6 @@ from .twin_protocol import (
     FRAMES_PORT,
     GRAB,
     INFO,
-    MAX_FRAME_BYTES,
     MAX_HEADER_BYTES,
     OK,
     decode_error,
@@ -40,18 +39,28 @@ from .twin_protocol import (
     decode_info,
     error_of_kind,
     exposure_request,
-    frame_nbytes,
+    frame_size_problem,
     grab_request,
     info_camera,
+    parse_frame_header,
 )
 
 __all__ = ["FRAMES_PORT", "FrameClient", "TwinCamera", "load"]
 
 
+class _RefusedError(Exception):
+    """An answer refused unread: its connection is dropped and the request not sent again."""
+
+
 class FrameClient:
     """One connection to the twin's frame server, shared by its cameras (thread-safe).
 
-    A connection that breaks is opened again once per request.
+    A connection that breaks is opened again once per request. Nothing the server says is
+    trusted: an answer line longer than :data:`MAX_HEADER_BYTES` drops the connection, and a
+    frame's header is checked before a byte of the frame is read
+    (:func:`~microcal.devices.twin_protocol.parse_frame_header`: at most
+    :data:`~microcal.devices.twin_protocol.MAX_FRAME_BYTES`, exactly height x width pixels of
+    a known type), so no more memory is taken than the one frame the protocol allows.
 
     Parameters
     ----------
@@ -66,7 +75,7 @@ class FrameClient:
     def __init__(self, address: str, port: int, timeout_s: float = 10.0) -> None:
         self.address, self.port, self.timeout_s = address, int(port), float(timeout_s)
         self._sock: socket.socket | None = None
-        self._buffer = b""
+        self._buffer = bytearray()
         self._lock = threading.Lock()
 
     def _where(self) -> str:
@@ -91,47 +100,69 @@ class FrameClient:
     def _drop(self) -> None:
         if self._sock is not None:
             self._sock.close()
-        self._sock, self._buffer = None, b""
+        self._sock, self._buffer = None, bytearray()
 
-    def _read_until(self, n: int | None, deadline: float) -> bytes:
-        """The next line (``n`` None, without its end) or the next ``n`` bytes."""
+    def _recv_into(self, view: memoryview, deadline: float) -> int:
+        """Bytes received into ``view`` (at least one)."""
         assert self._sock is not None
-        while (b"\n" not in self._buffer) if n is None else (len(self._buffer) < n):
-            if time.monotonic() > deadline:
-                raise TimeoutError
-            if n is None and len(self._buffer) > MAX_HEADER_BYTES:
+        if time.monotonic() > deadline:
+            raise TimeoutError
+        n = self._sock.recv_into(view)
+        if not n:
+            raise ConnectionError("closed by the twin")
+        return n
+
+    def _read_line(self, deadline: float) -> bytes:
+        """The next answer line, without its end (at most :data:`MAX_HEADER_BYTES`)."""
+        chunk = bytearray(1 << 16)
+        searched = 0
+        while (end := self._buffer.find(b"\n", searched)) < 0:
+            if len(self._buffer) > MAX_HEADER_BYTES:
                 raise ConnectionError("an answer line too long: not a microcal twin")
-            chunk = self._sock.recv(1 << 20)
-            if not chunk:
-                raise ConnectionError("closed by the twin")
-            self._buffer += chunk
-        if n is None:
-            line, _, self._buffer = self._buffer.partition(b"\n")
-            return line.rstrip(b"\r")
-        data, self._buffer = self._buffer[:n], self._buffer[n:]
+            searched = len(self._buffer)
+            n = self._recv_into(memoryview(chunk), deadline)
+            self._buffer += chunk[:n]
+        line = bytes(self._buffer[:end])
+        del self._buffer[: end + 1]
+        return line.rstrip(b"\r")
+
+    def _read_exactly(self, n: int, deadline: float) -> bytearray:
+        """The next ``n`` bytes (``n`` checked against the protocol's limit), in one buffer."""
+        data = bytearray(n)
+        have = min(n, len(self._buffer))
+        data[:have] = self._buffer[:have]
+        del self._buffer[:have]
+        view = memoryview(data)
+        while have < n:
+            have += self._recv_into(view[have:], deadline)
         return data
 
-    def _exchange(self, request: str) -> tuple[str, bytes]:
-        """Send one request; its answer line and, after ``OK h w dtype n``, the n bytes."""
+    def _exchange(self, request: str) -> tuple[str, bytearray | None]:
+        """Send one request; its answer line and, after a GRAB's checked header, the frame."""
         if self._sock is None:
             self._sock = self._open()
         self._sock.sendall(request.encode("ascii") + EOL)
         deadline = time.monotonic() + self.timeout_s
-        line = self._read_until(None, deadline).decode("ascii", errors="replace")
-        nbytes = frame_nbytes(line) if request.startswith(f"{GRAB} ") else None
-        if nbytes is not None:
-            if not 0 <= nbytes <= MAX_FRAME_BYTES:
-                raise ConnectionError(f"a frame of {nbytes} bytes announced")
-            return line, self._read_until(nbytes, deadline)
-        return line, b""
+        line = self._read_line(deadline).decode("ascii", errors="replace")
+        if not request.startswith(f"{GRAB} "):
+            return line, None
+        try:
+            header = parse_frame_header(line)
+        except ValueError as exc:
+            raise _RefusedError(str(exc)) from None
+        if header is None:
+            return line, None
+        return line, self._read_exactly(header.nbytes, deadline)
 
-    def request(self, request: str) -> tuple[str, bytes]:
-        """Send one request and read its answer (the line, and a frame's bytes).
+    def request(self, request: str) -> tuple[str, bytearray | None]:
+        """Send one request and read its answer: the line, and a GRAB's frame bytes (None for
+        any other answer).
 
         Raises
         ------
         DeviceError
-            The twin cannot be reached, or the connection broke twice.
+            The twin cannot be reached, the connection broke twice, or the answer is refused
+            unread (a frame above the protocol's limit, or not of its header's shape).
         DeviceTimeoutError
             No answer within ``timeout_s``.
         """
@@ -145,6 +176,12 @@ class FrameClient:
                         f"twin at {self._where()}: no answer to {request!r} within "
                         f"{self.timeout_s:g} s"
                     ) from None
+                except _RefusedError as exc:
+                    self._drop()  # the frame's bytes, unread, would pair with the next
+                    raise DeviceError(
+                        f"twin at {self._where()}: the answer to {request!r} {exc}; refused "
+                        "unread (is this a microcal twin's frame server?)"
+                    ) from None
                 except (ConnectionError, OSError, ValueError) as exc:
                     self._drop()
                     if attempt == 1:
@@ -157,6 +194,9 @@ class FrameClient:
     def info(self) -> dict[str, Any]:
         """The twin's INFO: its cameras (name, width, height, dtype, exposure_ms ...)."""
         line, _ = self.request(INFO)
+        error = decode_error(line)
+        if error is not None:  # busy, say
+            raise error_of_kind(error[0])(f"twin at {self._where()}: {error[0]}: {error[1]}")
         try:
             return decode_info(line)
         except (ValueError, KeyError, TypeError):
@@ -176,9 +216,9 @@ class FrameClient:
             Any other failure.
         """
         line, data = self.request(grab_request(camera))
-        frame = decode_frame(line, data)
-        if frame is not None:
-            return frame
+        header = parse_frame_header(line)  # checked already when the bytes were read
+        if header is not None and data is not None:
+            return decode_frame(header, data)
         error = decode_error(line)  # neither a frame nor an error: said below
         if error is not None:
             kind, message = error
@@ -236,8 +276,21 @@ class TwinCamera(SimpleCameraDevice):  # type: ignore[misc, unused-ignore]  # An
         return self._dtype
 
     def snap(self, buffer: NDArray[Any]) -> Mapping[str, Any]:
-        """Fill ``buffer`` (height, width) with one frame from the twin."""
-        buffer[:] = self._client.grab(self._name)
+        """Fill ``buffer`` (height, width) with one frame from the twin.
+
+        Raises
+        ------
+        DeviceError
+            A frame of another shape or pixel type than the camera's (never broadcast).
+        """
+        frame = self._client.grab(self._name)
+        if frame.shape != self._shape_px or frame.dtype != self._dtype:
+            (h, w), (sh, sw) = frame.shape, self._shape_px
+            raise DeviceError(
+                f"twin: a {h} x {w} {frame.dtype.name} frame from camera {self._name!r} of "
+                f"{sh} x {sw} {self._dtype.name}; is the twin the one its rig was loaded from?"
+            )
+        buffer[:] = frame
         return {}
 
 
@@ -257,7 +310,8 @@ def load(core: Any, address: str = "127.0.0.1", port: int = FRAMES_PORT,
     ------
     DeviceError
         No twin there (``no digital twin at ADDR:PORT; start it with microcal twin ...``),
-        or it does not answer as one.
+        or it does not answer as one (a camera whose frames would exceed the protocol's
+        limit, say).
     """
     client = FrameClient(str(address), int(port), float(timeout_s))
     for cam in client.info()["cameras"]:
@@ -265,6 +319,12 @@ def load(core: Any, address: str = "127.0.0.1", port: int = FRAMES_PORT,
             args = info_camera(cam)
         except (KeyError, TypeError, ValueError):
             raise DeviceError(f"twin at {address}:{port}: a camera described as {cam!r}") from None
-        if args[2] not in DTYPES:
-            raise DeviceError(f"twin at {address}:{port}: camera pixel type {args[2]!r}")
-        core.loadPyDevice(args[0], TwinCamera(client, *args))
+        name, (h, w), dtype, _ = args
+        if dtype not in DTYPES:
+            raise DeviceError(f"twin at {address}:{port}: camera pixel type {dtype!r}")
+        problem = frame_size_problem(h, w, dtype)
+        if problem is not None:  # never a sensor the protocol cannot carry a frame of
+            raise DeviceError(
+                f"twin at {address}:{port}: camera {name!r} of {h} x {w} {dtype}: {problem}"
+            )
+        core.loadPyDevice(name, TwinCamera(client, *args))

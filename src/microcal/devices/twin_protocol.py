@@ -23,7 +23,17 @@ per connection, on ``frames_port`` (:data:`FRAMES_PORT` by default):
 ==========================  ===============================================================
 
 ``<kind>`` is ``frame`` (a dropped frame, grab again), ``timeout`` (no frame in time, grab
-again), ``device`` (any other device error) or ``input`` (a request it does not take).
+again; also the answer to any request that took longer than the server's request timeout),
+``device`` (any other device error), ``input`` (a request it does not take) or ``busy`` (the
+first line of a connection beyond the server's clients at once, which it then closes).
+
+Limits. Neither side trusts the other: the server (:mod:`microcal.sim.line_server`, whose
+docstring gives its defaults) drops a request line longer than its limit, closes a connection
+idle for its idle timeout, refuses connections beyond its clients at once and answers
+``ERR timeout`` to a request that takes longer than its request timeout; a client reads an
+answer line of at most :data:`MAX_HEADER_BYTES` and checks a frame's header before reading a
+byte of the frame (:func:`parse_frame_header`): at most :data:`MAX_FRAME_BYTES`, and exactly
+``height * width`` pixels of a known type.
 """
 
 from __future__ import annotations
@@ -48,6 +58,7 @@ __all__ = [
     "GRAB",
     "INFO",
     "INFO_FORMAT",
+    "KIND_BUSY",
     "KIND_DEVICE",
     "KIND_FRAME",
     "KIND_INPUT",
@@ -57,6 +68,7 @@ __all__ = [
     "OK",
     "TRUTH",
     "CameraInfo",
+    "FrameHeader",
     "ascii_message",
     "decode_error",
     "decode_frame",
@@ -67,9 +79,10 @@ __all__ = [
     "encode_ok",
     "error_of_kind",
     "exposure_request",
-    "frame_nbytes",
+    "frame_size_problem",
     "grab_request",
     "info_camera",
+    "parse_frame_header",
 ]
 
 #: The frame server's default port (``microcal twin --frames-port``).
@@ -92,6 +105,7 @@ KIND_FRAME = "frame"
 KIND_TIMEOUT = "timeout"
 KIND_DEVICE = "device"
 KIND_INPUT = "input"
+KIND_BUSY = "busy"
 
 #: The pixel types of a frame, by their name in a GRAB header and in INFO.
 DTYPES: dict[str, np.dtype[Any]] = {"uint8": np.dtype(np.uint8), "uint16": np.dtype("<u2")}
@@ -168,28 +182,73 @@ def encode_frame(frame: NDArray[Any]) -> bytes:
 
 
 # --- answers (the client) ------------------------------------------------------------------
-def frame_nbytes(line: str) -> int | None:
-    """The byte count a GRAB header ``OK h w dtype n`` announces (None: not such a line).
+@dataclass(frozen=True)
+class FrameHeader:
+    """A GRAB answer's header ``OK <height> <width> <dtype> <nbytes>``, checked
+    (:func:`parse_frame_header`): ``nbytes == height * width * itemsize <= MAX_FRAME_BYTES``."""
+
+    height: int
+    width: int
+    dtype: str
+    nbytes: int
+
+
+def frame_size_problem(height: int, width: int, dtype: str) -> str | None:
+    """What makes a frame of this shape and pixel type one the protocol does not carry (a
+    phrase), or None: a known pixel type, at least one pixel, at most :data:`MAX_FRAME_BYTES`."""
+    if dtype not in DTYPES:
+        return f"pixel type {dtype!r} (expected {' or '.join(DTYPES)})"
+    if height < 1 or width < 1:
+        return f"a frame of {height} x {width} pixels"
+    nbytes = height * width * DTYPES[dtype].itemsize
+    if nbytes > MAX_FRAME_BYTES:
+        return f"frames of {nbytes} bytes, above the protocol's limit of {MAX_FRAME_BYTES} bytes"
+    return None
+
+
+def parse_frame_header(line: str) -> FrameHeader | None:
+    """The header of a GRAB answer, checked before a byte of the frame is read (None: the
+    line is not ``OK`` and four words, an ERR line say).
 
     Raises
     ------
     ValueError
-        A count that is not an integer.
+        A header of a frame this protocol does not carry; the message is a phrase saying
+        why (``declares 1000 bytes for a 2 x 2 uint8 frame of 4 bytes``, ``announces a frame
+        of ... bytes, above the protocol's limit of ... bytes``).
     """
     words = line.split()
-    return int(words[4]) if len(words) == 5 and words[0] == OK else None
+    if len(words) != 5 or words[0] != OK:
+        return None
+    try:
+        height, width, nbytes = int(words[1]), int(words[2]), int(words[4])
+    except ValueError:
+        raise ValueError(
+            f"has a height, width or size that are not integers ({line[:60]!r})"
+        ) from None
+    dtype = words[3]
+    if nbytes > MAX_FRAME_BYTES:
+        raise ValueError(
+            f"announces a frame of {nbytes} bytes, above the protocol's limit of "
+            f"{MAX_FRAME_BYTES} bytes"
+        )
+    if dtype not in DTYPES:
+        raise ValueError(f"announces pixel type {dtype!r} (expected {' or '.join(DTYPES)})")
+    if height < 1 or width < 1:
+        raise ValueError(f"announces a frame of {height} x {width} pixels")
+    expected = height * width * DTYPES[dtype].itemsize
+    if nbytes != expected:
+        raise ValueError(
+            f"declares {nbytes} bytes for a {height} x {width} {dtype} frame of {expected} bytes"
+        )
+    return FrameHeader(height, width, dtype, nbytes)
 
 
-def decode_frame(line: str, data: bytes) -> NDArray[np.unsignedinteger] | None:
-    """The frame, (height, width), of a GRAB header and its bytes; None if the line is no
-    header of a known pixel type or the bytes do not make its size."""
-    words = line.split()
-    if len(words) == 5 and words[0] == OK and words[3] in DTYPES:
-        try:
-            return np.frombuffer(data, DTYPES[words[3]]).reshape(int(words[1]), int(words[2]))
-        except ValueError:
-            return None
-    return None
+def decode_frame(header: FrameHeader, data: bytes | bytearray) -> NDArray[np.unsignedinteger]:
+    """The frame, (height, width), of a checked header and its ``header.nbytes`` bytes (a
+    view of ``data``, which it keeps)."""
+    frame = np.frombuffer(data, DTYPES[header.dtype], count=header.height * header.width)
+    return frame.reshape(header.height, header.width)
 
 
 def decode_error(line: str) -> tuple[str, str] | None:

@@ -7,12 +7,22 @@ other side by the twin's cameras (:mod:`microcal.devices.twin_camera`).
 What the cameras see follows the simulator's scene (:mod:`microcal.sim.stage`): the
 calibration target on the target stage while the stage was moved more recently than the
 manipulator, the end-effector's board otherwise.
+
+A GRAB holds the platform's lock only while the frame is rendered: its exposure and readout
+are then waited out without it (:meth:`~microcal.sim.scaled_clock.ScaledClock.deferred_waits`),
+so a long exposure holds up neither the MCS2 peer nor the other cameras, and the frames are
+those the camera renders when its lock is held throughout. The wait ends at the request's
+deadline (the answer is then ``ERR timeout ...``) or when the twin closes. The server's
+bounds (clients, idle time, request time, line length) are :mod:`microcal.sim.line_server`'s;
+beyond its clients a connection is told ``ERR busy ...``.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
+import time
 from typing import Any
 
 import numpy as np
@@ -22,6 +32,7 @@ from ..devices.twin_protocol import (
     GRAB,
     INFO,
     INFO_FORMAT,
+    KIND_BUSY,
     KIND_DEVICE,
     KIND_FRAME,
     KIND_INPUT,
@@ -35,7 +46,9 @@ from ..devices.twin_protocol import (
 )
 from ..errors import DeviceTimeoutError, FrameError, MicrocalError
 from .camera import SimCamera
+from .line_server import RequestTimeoutError, held
 from .platforms import SimPlatform
+from .scaled_clock import DeferredWait, ScaledClock
 
 __all__ = ["FramePeer"]
 
@@ -47,17 +60,21 @@ class FramePeer:
     ----------
     plat : SimPlatform
     lock : threading.Lock
-        Held for every access to the platform.
+        Held for every access to the platform (not while an exposure is waited out, when the
+        platform's clock is a :class:`ScaledClock`).
     preset, seed, time_scale :
         The twin's, told in the INFO answer.
+    stop : threading.Event, optional
+        The twin's: set, it ends an exposure's wait.
     """
 
     def __init__(
         self, plat: SimPlatform, lock: threading.Lock, *, preset: str, seed: int,
-        time_scale: float,
+        time_scale: float, stop: threading.Event | None = None,
     ) -> None:  # fmt: skip
         self.plat = plat
         self.lock = lock
+        self.stop = stop if stop is not None else threading.Event()
         self.info: dict[str, Any] = {
             "format": INFO_FORMAT,
             "preset": preset,
@@ -65,23 +82,60 @@ class FramePeer:
             "time_scale": time_scale,
         }
 
-    def handle(self, line: bytes) -> bytes | None:
+    def handle(self, line: bytes, deadline: float = math.inf) -> bytes | None:
+        """The answer to one request line (None for an empty line).
+
+        Raises
+        ------
+        RequestTimeoutError
+            ``deadline`` (``time.monotonic()``) passed waiting for the lock or an exposure.
+        """
         words = line.decode("ascii", errors="replace").split()
         if not words:
             return None
+        with held(self.lock, deadline), self._deferred_waits() as owed:
+            answer = self._answer(words)
+        if owed.wall_s > 0:  # the exposure and readout, the lock released
+            left = deadline - time.monotonic()
+            self.stop.wait(min(owed.wall_s, max(0.0, left)))
+            if owed.wall_s > left:
+                raise RequestTimeoutError
+        return answer
+
+    def _deferred_waits(self) -> contextlib.AbstractContextManager[DeferredWait]:
+        clock = self.plat.clock
+        if isinstance(clock, ScaledClock):
+            return clock.deferred_waits()
+        return contextlib.nullcontext(DeferredWait())  # waits under the lock, as they come
+
+    def _answer(self, words: list[str]) -> bytes:
         request, args = words[0].upper(), words[1:]
-        with self.lock:
-            if request == INFO and not args:
-                return encode_json(self.describe())
-            if request == TRUTH and not args:
-                return encode_json(self.truth())
-            if request == GRAB and len(args) == 1:
-                return self._grab(args[0])
-            if request == EXPOSURE and len(args) == 2:
-                return self._exposure(*args)
+        if request == INFO and not args:
+            return encode_json(self.describe())
+        if request == TRUTH and not args:
+            return encode_json(self.truth())
+        if request == GRAB and len(args) == 1:
+            return self._grab(args[0])
+        if request == EXPOSURE and len(args) == 2:
+            return self._exposure(*args)
         asked = " ".join(words)[:60]
         expected = f"{INFO}, {GRAB} <camera>, {EXPOSURE} <camera> <ms> or {TRUTH}"
         return encode_error(KIND_INPUT, f"unknown request {asked!r}; expected {expected}")
+
+    def busy_answer(self, max_clients: int) -> bytes:
+        """``ERR busy ...``: the line a connection beyond ``max_clients`` gets."""
+        return encode_error(
+            KIND_BUSY,
+            f"the frame server serves {max_clients} clients at once (max_clients); try "
+            "again when one has closed",
+        )
+
+    def timeout_answer(self, line: bytes, timeout_s: float) -> bytes:
+        """``ERR timeout ...``: the answer to a request longer than the request timeout."""
+        asked = line.decode("ascii", errors="replace")[:60]
+        return encode_error(
+            KIND_TIMEOUT, f"no answer to {asked!r} within the request timeout of {timeout_s:g} s"
+        )
 
     def describe(self) -> dict[str, Any]:
         """The INFO answer: the twin and its cameras."""

@@ -29,6 +29,12 @@ value that is not a number, -221 a channel that does not exist, -222 a move outs
 simulated device's limits (the driver refuses those before sending), -1015 a move the
 simulated device refuses (a fault), -300 any other device error. A simulated timeout (a
 fault) is silence: that line gets no answer.
+
+The server's bounds (clients, idle time, request time, line length) are
+:mod:`microcal.sim.line_server`'s. The controller's protocol has no line for them: a
+connection beyond the clients at once is closed without one, and a request that cannot be
+done within the request timeout (the platform's lock held that long) is silence, as a
+controller that does not answer, which the driver reports as a timeout.
 """
 
 from __future__ import annotations
@@ -42,6 +48,7 @@ from typing import Any
 from ..devices.smaract_mcs2 import PM_PER_UM, STATE_BITS
 from ..devices.twin_protocol import ascii_message
 from ..errors import DeviceTimeoutError, LimitError, MicrocalError, MoveError
+from .line_server import held
 from .manipulator import SimManipulator
 from .platforms import SimPlatform
 from .stage import SimStage
@@ -92,11 +99,17 @@ class MCS2Peer:
         self.log: deque[str] = deque(maxlen=1000)  # the last commands received (for tests)
         self.clock = plat.clock
 
-    def handle(self, line: bytes) -> bytes | None:
-        """The answer line to one line of ``;``-chained commands (None: no answer)."""
+    def handle(self, line: bytes, deadline: float = math.inf) -> bytes | None:
+        """The answer line to one line of ``;``-chained commands (None: no answer).
+
+        Raises
+        ------
+        RequestTimeoutError
+            The platform's lock was not free by ``deadline`` (``time.monotonic()``).
+        """
         text = line.decode("ascii", errors="replace")
         answers = []
-        with self.lock:
+        with held(self.lock, deadline):
             try:
                 for part in text.split(";")[:MAX_COMMANDS_PER_LINE]:
                     command = part.strip()
@@ -108,6 +121,14 @@ class MCS2Peer:
             except _NoAnswerError:
                 return None
         return (";".join(answers) + "\r\n").encode("ascii") if answers else None
+
+    def busy_answer(self, max_clients: int) -> None:
+        """None: a connection beyond the clients at once is closed without a line."""
+        return None
+
+    def timeout_answer(self, line: bytes, timeout_s: float) -> None:
+        """None: a request beyond the request timeout is not answered (the driver times out)."""
+        return None
 
     def _channel(self, text: str) -> tuple[SimDevice, int, int] | None:
         """(device, joint, device index) of a channel number, or None (error queued)."""

@@ -22,8 +22,13 @@ It serves two peers, each a line protocol on a server of its own
   :mod:`microcal.sim.frame_server`, speaking :mod:`microcal.devices.twin_protocol` (its
   docstring has the protocol table).
 
-Every access to the platform holds one lock; each connection has its own thread. Every
-loop is bounded: the servers end with :meth:`Twin.close` or after ``max_lifetime_s``.
+Every access to the platform holds one lock, except a frame's exposure, waited out after
+the frame is rendered (:mod:`microcal.sim.frame_server`): a long exposure holds up no other
+device. Each connection has its own thread. No client is trusted: each server bounds a
+request line's length (4096 bytes), its clients at once (``max_clients``, 64), a
+connection's idle time (``idle_timeout_s``, 30 s) and a request's time
+(``request_timeout_s``, 30 s); :mod:`microcal.sim.line_server` says what happens beyond each.
+Every loop is bounded: the servers end with :meth:`Twin.close` or after ``max_lifetime_s``.
 """
 
 from __future__ import annotations
@@ -40,7 +45,14 @@ from ..devices.smaract_mcs2 import MCS2_PORT
 from ..devices.twin_protocol import FRAMES_PORT
 from ..errors import InputError
 from .frame_server import FramePeer
-from .line_server import LineServer
+from .line_server import (
+    IDLE_TIMEOUT_S,
+    MAX_CLIENTS,
+    REQUEST_TIMEOUT_S,
+    LinePeer,
+    LineServer,
+    ServerLimits,
+)
 from .mcs2_peer import MCS2Peer
 from .platforms import platform
 from .scaled_clock import ScaledClock
@@ -80,8 +92,14 @@ class Twin:
         TCP ports of the MCS2 peer and the frame server (0: any free port).
     time_scale : float
         Simulated seconds per wall second (:class:`ScaledClock`).
-    max_connections : int
-        Connections each server holds at once; more are closed at once.
+    max_clients : int
+        Connections each server holds at once (64); a further one is refused at once (told
+        ``ERR busy ...`` by the frame server) and closed.
+    idle_timeout_s : float
+        A connection that sends no request for this long is closed (30 s).
+    request_timeout_s : float
+        A request taking longer gets the timeout answer (30 s): ``ERR timeout ...`` from the
+        frame server, none from the MCS2 peer.
     max_lifetime_s : float
         The servers stop by themselves after this long, s.
 
@@ -91,6 +109,14 @@ class Twin:
         The simulated platform (its ``truth_*`` for tests).
     serial : str
         The MCS2 peer's serial number, ``MCS2-TWIN-<seed>``.
+    limits : ServerLimits
+        The servers' bounds (``max_clients``, ``idle_timeout_s``, ``request_timeout_s``).
+
+    Raises
+    ------
+    InputError
+        A host that is not loopback, a ``max_clients`` that is not a whole number >= 1, or
+        a timeout that is not a finite number > 0.
     """
 
     def __init__(
@@ -103,23 +129,25 @@ class Twin:
         mcs2_port: int = MCS2_PORT,
         frames_port: int = FRAMES_PORT,
         time_scale: float = 1.0,
-        max_connections: int = 8,
+        max_clients: int = MAX_CLIENTS,
+        idle_timeout_s: float = IDLE_TIMEOUT_S,
+        request_timeout_s: float = REQUEST_TIMEOUT_S,
         max_lifetime_s: float = MAX_LIFETIME_S,
     ) -> None:
         self.host = _check_host(host)
+        self.limits = ServerLimits(max_clients, idle_timeout_s, request_timeout_s)
         self.preset, self.seed = preset, int(seed)
         self.clock = ScaledClock(time_scale)
         self.time_scale = self.clock.time_scale
         self.platform = platform(preset, self.seed, dict(overrides or {}), clock=self.clock)
         self.serial = f"MCS2-TWIN-{self.seed}"
         self.mcs2_port, self.frames_port = int(mcs2_port), int(frames_port)
-        self._max_connections = int(max_connections)
         self._max_lifetime_s = float(max_lifetime_s)
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self.mcs2 = MCS2Peer(self.platform, self._lock, self.serial)
         self.frames = FramePeer(self.platform, self._lock, preset=preset, seed=self.seed,
-                                time_scale=self.time_scale)  # fmt: skip
+                                time_scale=self.time_scale, stop=self._stop)  # fmt: skip
         self._servers: list[LineServer] = []
         self._started = False
 
@@ -136,11 +164,12 @@ class Twin:
             return self
         self._started = True
         deadline = time.monotonic() + self._max_lifetime_s
-        peers = (("MCS2 peer", self.mcs2_port, self.mcs2.handle),
-                 ("frame server", self.frames_port, self.frames.handle))  # fmt: skip
+        peers: tuple[tuple[str, int, LinePeer], ...] = (
+            ("MCS2 peer", self.mcs2_port, self.mcs2),
+            ("frame server", self.frames_port, self.frames),
+        )
         for what, port, peer in peers:
-            server = LineServer(what, self.host, port, peer, self._stop, deadline,
-                                 self._max_connections)  # fmt: skip
+            server = LineServer(what, self.host, port, peer, self._stop, deadline, self.limits)
             try:
                 server.start()
             except BaseException:
