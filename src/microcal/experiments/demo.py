@@ -66,7 +66,6 @@ def demo_family(preset: str) -> str:
     return "auto" if preset == "population" else "quadratic"
 
 
-
 @dataclass
 class DemoResult:
     """Everything the demo measured; ``truth_*`` from the simulator's ground truth."""
