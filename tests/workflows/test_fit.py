@@ -171,3 +171,13 @@ def test_fit_warns_with_the_pose_number_and_excludes_when_asked(tmp_path):
     assert out.returncode == 0, out.stderr
     assert "warning: pose 18 is " in out.stdout
     assert "left out of the fit" in out.stdout
+
+
+@pytest.mark.parametrize("mat", ["calibration.json", "./calibration.json", "alias.mat"])
+def test_the_mat_export_may_not_be_the_calibration_under_another_name(run_dir, tmp_path, mat):
+    (tmp_path / "alias.mat").symlink_to(tmp_path / "calibration.json")  # a link not yet live
+    out = invoke_microcal("fit", run_dir, "--out", "calibration.json", "--mat", mat, cwd=tmp_path)
+    assert out.returncode == 2, out.stdout
+    assert out.stderr.strip() == (f"microcal: error: --mat {mat.removeprefix('./')}: is --out too; "
+                                  "give the .mat file its own name")  # fmt: skip
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["alias.mat"]

@@ -17,6 +17,7 @@ from typing import Any
 
 from ..errors import FormatError
 from .atomic import write_text_atomic
+from .file_lock import locked_update
 from .hashing import sha256_file
 
 __all__ = [
@@ -64,8 +65,11 @@ def of_device(history: list[dict[str, Any]], name: str, single: bool) -> list[di
 
 
 def append_history(path: Path, entry: dict[str, Any]) -> None:
-    """Add one entry to a history file (rewritten whole, atomically)."""
-    old = path.read_text(encoding="utf-8") if path.is_file() else ""
-    if old and not old.endswith("\n"):
-        old += "\n"
-    write_text_atomic(path, old + json.dumps(entry, allow_nan=False) + "\n")
+    """Add one entry to a history file (rewritten whole, atomically, under its lock: two
+    checks adding at once both land)."""
+    line = json.dumps(entry, allow_nan=False) + "\n"
+    with locked_update(path):
+        old = path.read_text(encoding="utf-8") if path.is_file() else ""
+        if old and not old.endswith("\n"):
+            old += "\n"
+        write_text_atomic(path, old + line)

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from .atomic import write_text_atomic
+from .file_lock import locked_update
 from .json_file import parse_schema, read_versioned_json
 from .records import RESULTS_FORMAT, RESULTS_FORMATS, Results
 
@@ -56,20 +57,23 @@ def load_results(path: str | os.PathLike[str]) -> dict[str, Any]:
 
 
 def update_results(path: str | os.PathLike[str], parts: dict[str, Any]) -> Path:
-    """Merge ``parts`` into results.json (one level deep per source), atomically.
+    """Merge ``parts`` into results.json (one level deep per source), atomically, under the
+    file's lock (two merges at once both land).
 
     NaN becomes null: JSON has no NaN.
     """
     p = Path(path)
-    data: dict[str, Any] = load_results(p) if p.exists() else {"format": RESULTS_FORMAT}
-    for key, value in _plain(parts).items():
-        current = data.get(key)
-        if isinstance(value, dict) and isinstance(current, dict):
-            for source, sub in value.items():
-                if isinstance(sub, dict) and isinstance(current.get(source), dict):
-                    current[source].update(sub)
-                else:
-                    current[source] = sub
-        else:
-            data[key] = value
-    return write_text_atomic(p, json.dumps(data, indent=1, allow_nan=False) + "\n")
+    plain = _plain(parts)
+    with locked_update(p):
+        data: dict[str, Any] = load_results(p) if p.exists() else {"format": RESULTS_FORMAT}
+        for key, value in plain.items():
+            current = data.get(key)
+            if isinstance(value, dict) and isinstance(current, dict):
+                for source, sub in value.items():
+                    if isinstance(sub, dict) and isinstance(current.get(source), dict):
+                        current[source].update(sub)
+                    else:
+                        current[source] = sub
+            else:
+                data[key] = value
+        return write_text_atomic(p, json.dumps(data, indent=1, allow_nan=False) + "\n")

@@ -7,8 +7,14 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
-from ..formats.calibration_file import Calibration, load_calibration, write_calibration
+from ..formats.calibration_file import (
+    Calibration,
+    export_mat,
+    load_calibration,
+    write_calibration,
+)
 from ..formats.cameras_file import read_cameras
+from ..formats.file_lock import locked_update
 from ..formats.provenance import provenance
 from ..formats.records import RunManifest
 from ..geometry import AnyCamera
@@ -51,27 +57,35 @@ def add_manipulator(
     inputs: dict[str, Any],
     model: str,
     manifest: RunManifest | None = None,
+    mat: Path | None = None,
 ) -> Calibration:
     """Write ``out`` with ``entry`` added (or replaced); returns what was written.
 
     An existing file keeps its other manipulators and its cameras, unless ``cameras`` (a
     cameras.json) gives new ones. ``inputs`` are the files the calibration was made from;
-    ``manifest`` the run they were measured in (its device is recorded with the entry).
+    ``manifest`` the run they were measured in (its device is recorded with the entry);
+    ``mat`` a .mat file to export the written calibration to as well.
+
+    ``out`` is read and written under its lock (:func:`~microcal.formats.file_lock.locked_update`,
+    the .mat export too): two fits into one file at once keep both entries.
     """
     if manifest is not None and manifest.device and "device" not in entry.extra:
         entry = dataclasses.replace(entry, extra={**entry.extra, "device": manifest.device})
-    existing = load_calibration(out) if out.exists() else None
-    camera_data = existing.cameras if existing else {}
-    if cameras is not None:
-        camera_data = read_cameras(cameras)[0]
-    manipulators = dict(existing.manipulators) if existing else {}
-    manipulators[entry.name] = entry
-    calibration = Calibration(
-        manipulators,
-        cameras=camera_data,
-        provenance=provenance(inputs, command="fit", model=model),
-    )
-    write_calibration(out, calibration)
+    with locked_update(out):
+        existing = load_calibration(out) if out.exists() else None
+        camera_data = existing.cameras if existing else {}
+        if cameras is not None:
+            camera_data = read_cameras(cameras)[0]
+        manipulators = dict(existing.manipulators) if existing else {}
+        manipulators[entry.name] = entry
+        calibration = Calibration(
+            manipulators,
+            cameras=camera_data,
+            provenance=provenance(inputs, command="fit", model=model),
+        )
+        write_calibration(out, calibration)
+        if mat is not None:
+            export_mat(mat, calibration)
     return calibration
 
 

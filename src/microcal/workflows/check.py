@@ -95,11 +95,7 @@ def check_calibration(
         check.json's object (with ``flag`` and, after an update, ``update``).
     """
     cfg = config or CheckConfig()
-    out_path = check_json_output(out, CHECK_FORMAT, "check.json")
-    if update is not None:
-        check_json_output(update, CALIBRATION_FORMAT, "calibration-updated.json", "--update")
-        if Path(update).resolve() == Path(calibration).resolve():
-            raise InputError("--update: write the updated calibration to a new file")
+    out_path = _check_outputs(calibration, out, update)
     cal = load_calibration(calibration)
     name = cal.manipulator(manipulator).name  # each device of a calibration has its history
     history = of_device(read_history(calibration), name, len(cal.manipulators) == 1)
@@ -123,6 +119,35 @@ def check_calibration(
               "software": f"microcal {__version__}"}  # fmt: skip
     append_history(history_path(calibration), entry)
     return data
+
+
+def _check_outputs(
+    calibration: str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    update: str | os.PathLike[str] | None,
+) -> Path:
+    """Refuse, before the check, outputs that are not ours to replace or that name one file
+    twice (check.json, the updated calibration, the calibration and its history); check.json's
+    path."""
+    out_path = check_json_output(out, CHECK_FORMAT, "check.json")
+    history = history_path(calibration).resolve()
+    if out_path.resolve() == history:
+        raise InputError(f"--out {out}: is the calibration's history; give check.json its own name")
+    if update is not None:
+        check_json_output(update, CALIBRATION_FORMAT, "calibration-updated.json", "--update")
+        target = Path(update).resolve()
+        if target == Path(calibration).resolve():
+            raise InputError("--update: write the updated calibration to a new file")
+        if target == out_path.resolve():
+            raise InputError(
+                f"--update {update}: is --out too; give the updated calibration its own name"
+            )
+        if target == history:
+            raise InputError(
+                f"--update {update}: is the calibration's history; give the updated "
+                f"calibration its own name"
+            )
+    return out_path
 
 
 def _update(

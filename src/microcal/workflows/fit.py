@@ -9,7 +9,7 @@ from typing import Literal
 
 import numpy as np
 
-from ..formats.calibration_file import Calibration, export_mat, load_calibration
+from ..formats.calibration_file import Calibration, load_calibration
 from ..formats.measurements import read_measurements
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..procedures.compensation import Solution, solve_position
@@ -108,12 +108,9 @@ def fit(request: FitRequest) -> FitResult:
         seed=r.seed, extra_inputs=inputs, exclude_outliers=r.exclude_outliers, held_um=held,
     )  # fmt: skip
     calibration = update.add_manipulator(
-        r.out, entry, r.cameras, {"measurements": path}, r.model, manifest
+        r.out, entry, r.cameras, {"measurements": path}, r.model, manifest, mat=r.mat
     )
-    written = [r.out]
-    if r.mat is not None:
-        export_mat(r.mat, calibration)
-        written.append(r.mat)
+    written = [r.out] if r.mat is None else [r.out, r.mat]
     return FitResult(path, calibration.manipulators[entry.name], fits[r.model], meas.pose,
                      meas.n_failed, calibration, tuple(written))  # fmt: skip
 
