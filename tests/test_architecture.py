@@ -36,6 +36,8 @@ LAYERS = {
     "_validation": 0,
     "_parallel": 0,
     "_version": 0,
+    "json_value": 0,
+    "journal_record": 0,
     "thesis": 0,
     "thesis.figures": 0,
     "thesis.experiment": 0,

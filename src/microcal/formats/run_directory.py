@@ -37,10 +37,11 @@ from .json_file import parse_schema, read_versioned_json
 from .records import RUN_FORMAT, RUN_FORMATS, ImageRecord, JournalLine, RoiRecord, RunManifest
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Mapping, Sequence
 
     from numpy.typing import NDArray
 
+    from ..journal_record import JournalRecord
     from ..vision.measurement import PoseMeasurement
 
 __all__ = [
@@ -529,25 +530,31 @@ class RunWriter:
                     self.repairs.append(f"removed {tmp}, left by a stop while it was written")
 
     # --- writing -------------------------------------------------------------------------
-    def store(self, pose: int, frames: dict[str, list[Any]], record: dict[str, Any]) -> None:
+    def store(
+        self, pose: int, frames: Mapping[str, Sequence[NDArray[np.generic]]], record: JournalRecord
+    ) -> None:
         """Write a pose's images, then append its journal line (synced).
 
-        ``record`` is the journal line without its images; its ``roi_px`` (per camera
-        ``[x0, y0, w, h]`` or a :class:`RoiRecord`: the region's offset and the full frame's
-        size) is taken out of it and recorded with each image instead.
+        The line is ``record``'s (:meth:`~microcal.journal_record.JournalRecord.to_json`) with
+        its images; the region each camera's frames hold (``record.roi_px``: the region's
+        offset and the full frame's size) is recorded with that camera's image.
         """
         from .images import write_tiff
 
-        rois = record.pop("roi_px", {})
         images: dict[str, ImageRecord] = {}
         for cam, cam_frames in frames.items():
             rel = f"{IMAGES}/{cam}_{pose:04d}.tiff"
-            write_tiff(self.run_dir / rel, cam_frames)
-            roi = RoiRecord.from_roi_px(rois[cam]) if cam in rois else None
+            write_tiff(self.run_dir / rel, list(cam_frames))
+            roi = record.roi_px.get(cam)
             images[cam] = ImageRecord(
-                file=rel, sha256=sha256_file(self.run_dir / rel), frames=len(cam_frames), roi=roi
+                file=rel,
+                sha256=sha256_file(self.run_dir / rel),
+                frames=len(cam_frames),
+                roi=None if roi is None else RoiRecord.from_roi_px(roi),
             )
-        data = {**record, "images": {cam: image.to_json() for cam, image in images.items()}}
+        data = record.to_json() | {
+            "images": {cam: image.to_json() for cam, image in images.items()}
+        }
         line = json.dumps(data, allow_nan=False)
         journal_line = parse_schema(JournalLine, data, f"journal line of pose {pose}")
         with open(self.run_dir / JOURNAL, "a", encoding="utf-8") as fh:
