@@ -100,8 +100,8 @@ def test_known_form_terms_and_bad_inputs():
 def test_a_study_seed_reports_the_prior_on_the_population_only():
     config = StudyConfig(poses=80, cycles=1, prior=True)
     run = run_seed("population", 2, config)
-    ap = run["ap_truth_mean_um"]
+    ap = run.ap_truth_mean_um
     assert ap["oracle"] < ap["prior"] < ap["quadratic"]
-    assert run["validation_mean_um"]["prior"] < run["validation_mean_um"]["quadratic"]
+    assert run.validation_mean_um["prior"] < run.validation_mean_um["quadratic"]
     with pytest.raises(InputError, match="only the population preset"):
         run_seed("thesis", 2, StudyConfig(poses=60, cycles=1, prior=True))

@@ -139,12 +139,13 @@ class JournalLine(FileSchema):
         """The acquisition of this pose failed (nothing to measure)."""
         return self.status == "failed"
 
-    def get(self, key: str) -> object:
-        """A key of the line, typed or extra (None when absent or null)."""
+    def get(self, key: str, default: object = None) -> object:
+        """A key of the line, typed or extra (``default`` when absent or null)."""
         if key in type(self).model_fields:
             value: object = getattr(self, key)
-            return value
-        return (self.model_extra or {}).get(key)
+        else:
+            value = (self.model_extra or {}).get(key)
+        return default if value is None else value
 
     def to_json(self) -> dict[str, JsonValue]:
         """The journal's object (the keys the line was read with)."""
