@@ -143,11 +143,14 @@ class FrameClient:
                         ) from None
         raise AssertionError("unreachable")
 
-    def info(self) -> dict[str, Any]:
-        """The twin's INFO: its cameras (name, width, height, dtype, exposure_ms ...)."""
+    def info(self) -> dict[str, object]:
+        """The twin's INFO as it answered (its cameras under ``cameras``, a list of objects
+        with name, width, height, dtype, exposure_ms ...; checked by their reader)."""
         line, _ = self.request("INFO")
         try:
             info = json.loads(line)
+            if not isinstance(info, dict):
+                raise TypeError("not an object")
             cameras = list(info["cameras"])
         except (ValueError, KeyError, TypeError):
             raise DeviceError(
@@ -254,8 +257,11 @@ def load(core: Any, address: str = "127.0.0.1", port: int = FRAMES_PORT,
         or it does not answer as one.
     """
     client = FrameClient(str(address), int(port), float(timeout_s))
-    for cam in client.info()["cameras"]:
+    cameras = client.info()["cameras"]
+    for cam in cameras if isinstance(cameras, list) else []:
         try:
+            if not isinstance(cam, dict):
+                raise TypeError("not an object")
             shape = (int(cam["height"]), int(cam["width"]))
             args = (str(cam["name"]), shape, str(cam["dtype"]), float(cam["exposure_ms"]))
         except (KeyError, TypeError, ValueError):

@@ -24,7 +24,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -119,14 +119,14 @@ class RunDirectory:
     def create(
         cls,
         path: str | os.PathLike[str],
-        manifest: RunManifest | dict[str, Any],
+        manifest: RunManifest | Mapping[str, object],
         d_um: FloatArray,
     ) -> RunWriter:
         """Start a new run: writes commands.csv and run.json (see :meth:`RunWriter.create`)."""
         return RunWriter.create(path, manifest, d_um)
 
     @classmethod
-    def resume(cls, path: str | os.PathLike[str], rig: dict[str, Any]) -> RunWriter:
+    def resume(cls, path: str | os.PathLike[str], rig: Mapping[str, object]) -> RunWriter:
         """Continue a run made with ``rig`` (see :meth:`RunWriter.resume`)."""
         return RunWriter.resume(path, rig)
 
@@ -447,10 +447,13 @@ class RunWriter:
     def create(
         cls,
         run_dir: str | os.PathLike[str],
-        manifest: RunManifest | dict[str, Any],
+        manifest: RunManifest | Mapping[str, object],
         d_um: FloatArray,
     ) -> RunWriter:
         """A new run: writes commands.csv, then run.json with the commands' SHA-256.
+
+        ``manifest`` is run.json's object (without ``format`` and ``commands_sha256``, which
+        the writer adds), validated before anything is written.
 
         Raises
         ------
@@ -460,7 +463,9 @@ class RunWriter:
         path = Path(run_dir)
         if holds_run(path):
             raise FormatError(f"{path}: {HOLDS_A_RUN}")
-        body = manifest.to_json() if isinstance(manifest, RunManifest) else dict(manifest)
+        body: dict[str, object] = dict(
+            manifest.to_json() if isinstance(manifest, RunManifest) else manifest
+        )
         body.pop("format", None)
         body.pop("commands_sha256", None)
         parse_schema(RunManifest, {"format": RUN_FORMAT, **body}, f"{path / MANIFEST} (manifest)")
@@ -471,8 +476,9 @@ class RunWriter:
         return cls(path, RunManifest.model_validate(full))
 
     @classmethod
-    def resume(cls, run_dir: str | os.PathLike[str], rig: dict[str, Any]) -> RunWriter:
-        """Continue a run: it must come from the same rig and be unedited.
+    def resume(cls, run_dir: str | os.PathLike[str], rig: Mapping[str, object]) -> RunWriter:
+        """Continue a run: it must come from the same rig (``rig``: its record, a spec's
+        ``to_dict()``) and be unedited.
 
         Raises
         ------

@@ -578,10 +578,9 @@ def station_summary(result: StationDemoResult) -> list[TextTable | str]:
         first_left=True,
     )
     for mode, m in result.meet.items():
-        d = m.as_dict()
-        cells = [
-            "-" if d.get(s, {}).get(k) is None else f"{d[s][k]:.2f}"
-            for s in ("vision", "truth") for k in ("mean_um", "max_um")
-        ]  # fmt: skip
+        cells = []
+        for source in ("vision", "truth"):
+            s = m.gap_summary(source)
+            cells += ["-", "-"] if s is None else [f"{s.mean:.2f}", f"{s.max:.2f}"]
         meet.rows.append([mode, str(len(m.targets_um)), *cells])
     return [devices, meet]

@@ -99,6 +99,7 @@ from ..errors import (
     MicrocalError,
     MoveError,
 )
+from ..json_value import JsonValue
 from .camera import SimCamera
 from .manipulator import SimManipulator
 from .platforms import SimPlatform, platform
@@ -360,9 +361,9 @@ class _FramePeer:
     def _json(value: object) -> bytes:
         return json.dumps(value).encode("ascii") + b"\r\n"
 
-    def describe(self) -> dict[str, Any]:
+    def describe(self) -> dict[str, JsonValue]:
         """The INFO answer: the twin and its cameras."""
-        cameras = [
+        cameras: list[JsonValue] = [
             {
                 "name": name,
                 "width": cam.sensor_size_px[0],
@@ -376,7 +377,7 @@ class _FramePeer:
         ]
         return {**self.info, "cameras": cameras}
 
-    def truth(self) -> dict[str, Any]:
+    def truth(self) -> dict[str, JsonValue]:
         """The TRUTH answer: the true end-effector position and stage joints now, µm."""
         t = self.plat.clock.now_s()
         stage = self.plat.target_stage
