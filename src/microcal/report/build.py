@@ -221,10 +221,9 @@ class AcquisitionSection:
 def _acquisition(data: RunData) -> AcquisitionSection | None:
     if data.commands_um is None and not data.journal:
         return None
-    n_fit = None
-    for entry in data.calibration.manipulators.values() if data.calibration else []:
-        validation = entry.validation.get("n_fit")
-        n_fit = validation if isinstance(validation, int) else None
+    models = data.models()  # the last device's own model last
+    last = models[-1].validation if models else None
+    n_fit = last.n_fit if last is not None else None
     settle = np.array([float(r.settle_s) for r in data.journal if r.settle_s is not None])
     failed = [FailedRow(r.pose, "acquisition", r.reason or "")
               for r in data.journal if r.status != "ok"]  # fmt: skip
