@@ -1,13 +1,15 @@
-"""Typed records of what crosses modules through files: run.json, a journal line, results.json.
+"""Typed records of what crosses modules through files: run.json, a journal line, results.json
+(with a model's validation figures), a check of the calibration's history.
 
 Each is a :class:`~microcal.formats.json_file.FileSchema`: the keys microcal reads are typed
 and validated (a malformed key is reported by its path), any other key is kept and written
 back, so files written by a newer microcal (or with keys added by hand) load and round-trip.
 
 The region of interest of a stored image is one record, :class:`RoiRecord`, whatever carries
-it: acquisition hands the run writer ``[x0, y0, w, h]`` (the region's offset and the size of
-the full frame), the journal stores ``offset_px`` and ``full_size_px`` beside the image's
-file, and the reader pastes the region back into a full frame from it.
+it: acquisition hands the run writer ``(x0, y0, w, h)`` (the region's offset and the size of
+the full frame, in its journal record's ``roi_px``), the journal stores ``offset_px`` and
+``full_size_px`` beside the image's file, and the reader pastes the region back into a full
+frame from it.
 """
 
 from __future__ import annotations
