@@ -38,6 +38,8 @@ LAYERS = {
     "_validation": 0,
     "_parallel": 0,
     "_version": 0,
+    "json_value": 0,
+    "journal_record": 0,
     "geometry": 1,
     "kinematics": 1,
     "metrics": 1,

@@ -17,21 +17,27 @@ from microcal.kinematics.families import FAMILIES
 
 def test_one_seed_of_a_study_measures_models_against_the_oracle():
     run = run_seed("population", 5, StudyConfig(poses=80, cycles=1, closed_loop=True))
-    val = run["validation_mean_um"]
+    val = run.validation_mean_um
     assert val["oracle"] < val["quadratic"]
     assert val["oracle"] < val["matrix"]
-    ap = run["ap_truth_mean_um"]
+    ap = run.ap_truth_mean_um
     assert ap["oracle"] < ap["matrix"] < ap["uncalibrated"]
-    assert set(run["coverage_95"]) == {"quadratic", "smooth", "auto"}
-    assert run["failed"] == {}
-    assert run["family"] in FAMILIES
+    assert set(run.coverage_95) == {"quadratic", "smooth", "auto"}
+    assert run.failed == {}
+    assert run.family in FAMILIES
     # the loop closes on the fast probe: better than the open loop it starts from, and it
     # says how it ended at each target (home and the eight poses of one cycle)
     assert ap["closed_loop"] < ap["auto"]
-    loop = run["closed_loop"]
-    assert loop["targets"] == 9
-    assert sum(loop["status"].values()) == 9
-    assert 1 <= loop["iterations_mean"] <= 6
+    loop = run.closed_loop
+    assert loop is not None
+    assert loop.targets == 9
+    assert sum(loop.status.values()) == 9
+    assert 1 <= loop.iterations_mean <= 6
+    assert list(run.to_json()) == [
+        "seed", "uncalibrated_ap_truth_mean_um", "validation_mean_um", "ap_truth_mean_um",
+        "ap_truth_max_um", "ap_vision_mean_um", "vap_truth_mean_um", "coverage_95", "family",
+        "closed_loop", "failed", "n_poses", "render", "wall_s",
+    ]  # fmt: skip
 
 
 def test_study_command_writes_and_refuses_a_foreign_file(tmp_path):
@@ -101,8 +107,8 @@ def test_an_interrupted_study_says_so_in_one_line_and_writes_nothing(tmp_path, m
 def test_a_study_seed_reports_the_prior_on_the_population_only():
     config = StudyConfig(poses=80, cycles=1, prior=True)
     run = run_seed("population", 2, config)
-    ap = run["ap_truth_mean_um"]
+    ap = run.ap_truth_mean_um
     assert ap["oracle"] < ap["prior"] < ap["quadratic"]
-    assert run["validation_mean_um"]["prior"] < run["validation_mean_um"]["quadratic"]
+    assert run.validation_mean_um["prior"] < run.validation_mean_um["quadratic"]
     with pytest.raises(InputError, match="only the population preset"):
         run_seed("thesis", 2, StudyConfig(poses=60, cycles=1, prior=True))

@@ -49,6 +49,7 @@ from microcal.formats.commands_csv import read_joint_csv
 from microcal.formats.measurements import read_measurements, write_measurements
 from microcal.formats.rig_file import load_rig
 from microcal.formats.run_directory import RunDirectory
+from microcal.journal_record import JournalRecord, PoseStatus
 
 __all__ = [
     "EXAMPLES",
@@ -182,18 +183,21 @@ def build_seed_files(directory: Path) -> SeedFiles:
     def frames(shape: tuple[int, int]) -> list[Any]:
         return [rng.integers(0, 4096, shape, dtype=np.uint16) for _ in range(2)]
 
-    def record(pose: int, status: str = "ok", **extra: object) -> dict[str, Any]:
-        return {"pose": pose, "commanded_um": _D_UM[pose - 1].tolist(), "status": status,
-                "reported_um": _D_UM[pose - 1].tolist(), "time": 1700000000.5 + pose,
-                "settle_s": 1.5 * pose, **extra}  # fmt: skip
+    def record(pose: int, status: PoseStatus = "ok", reason: str | None = None,
+               **extra: Any) -> JournalRecord:  # fmt: skip
+        return JournalRecord(pose=pose, commanded_um=_D_UM[pose - 1].tolist(), approach={},
+                             status=status, wall_time_s=1700000000.5 + pose, sim_time_s=0.0,
+                             move_s=0.0, settle_s=1.5 * pose, residual_px=None,
+                             reported_um=_D_UM[pose - 1].tolist() if status == "ok" else None,
+                             reason=reason, **extra)  # fmt: skip
 
     writer.store(
         1,
         {"top": frames((8, 12)), "side": frames((4, 6))},
-        record(1, temperature_c=21.5, roi_px={"side": [3, 2, 12, 8]}),
+        record(1, readings={"temperature_c": 21.5}, roi_px={"side": (3, 2, 12, 8)}),
     )
     writer.store(2, {}, record(2, "failed", reason="move timed out"))
-    writer.store(3, {"top": frames((8, 12)), "side": frames((8, 12))}, record(3, residual_px=None))
+    writer.store(3, {"top": frames((8, 12)), "side": frames((8, 12))}, record(3))
 
     measurements = write_measurements(
         directory / "measurements.csv",

@@ -96,6 +96,7 @@ def test_results_round_trip_and_keep_future_keys(tmp_path):
                                                "poses": [], "vap_um": 0.5},
                                     "closed_loop": {"mean_ap_p_um": 0.3, "iterations_mean": 2.0}}},
         "devices": {"m2": {"timing": {}}},
+        "future_section": {"figure": 1.0},
     })  # fmt: skip
     update_results(path, {"pose_accuracy": {"truth": {"optimal": {"mean_ap_p_um": 1.0}}}})
     results = read_results(path)
@@ -106,8 +107,13 @@ def test_results_round_trip_and_keep_future_keys(tmp_path):
     truth = results.pose_accuracy["truth"]
     assert set(truth) == {"matrix", "closed_loop", "optimal"}
     assert truth["matrix"].mean_ap_p_um is None  # NaN is written as null
-    assert truth["matrix"].model_extra == {"vap_um": 0.5}
-    assert results.model_extra == {"devices": {"m2": {"timing": {}}}}
+    assert truth["matrix"].vap_um == 0.5
+    assert truth["matrix"].has_vap
+    assert not truth["optimal"].has_vap
+    assert truth["closed_loop"].model_extra == {"iterations_mean": 2.0}  # kept, not typed
+    assert results.devices is not None
+    assert results.devices["m2"].timing == {}
+    assert results.model_extra == {"future_section": {"figure": 1.0}}
     assert results.to_json() == json.loads(path.read_text()) == load_results(path)
 
 

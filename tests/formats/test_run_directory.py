@@ -13,6 +13,7 @@ from microcal import FormatError, InputError
 from microcal.formats.commands_csv import read_joint_csv
 from microcal.formats.records import JournalLine, RoiRecord, RunManifest
 from microcal.formats.run_directory import RunDirectory, RunWriter, read_commands
+from microcal.journal_record import JournalRecord, PoseStatus
 from microcal.vision.measurement import PoseMeasurement
 
 RIG = {"driver": "sim", "preset": "thesis", "seed": 0, "overrides": {}}
@@ -38,9 +39,18 @@ def _frames(seed: int, shape: tuple[int, int]) -> list[np.ndarray]:
     return [rng.integers(0, 4096, shape, dtype=np.uint16) for _ in range(2)]
 
 
-def _record(pose: int, status: str = "ok", **extra: object) -> dict[str, object]:
-    return {"pose": pose, "commanded_um": D_UM[pose - 1].tolist(), "status": status,
-            "settle_s": 1.5 * pose, **extra}  # fmt: skip
+def _record(
+    pose: int,
+    status: PoseStatus = "ok",
+    *,
+    reason: str | None = None,
+    readings: dict[str, float] | None = None,
+    roi_px: dict[str, tuple[int, int, int, int]] | None = None,
+) -> JournalRecord:
+    return JournalRecord(pose=pose, commanded_um=D_UM[pose - 1].tolist(), approach={},
+                         status=status, wall_time_s=1700000000.0 + pose, sim_time_s=10.0 * pose,
+                         move_s=0.5, settle_s=1.5 * pose, residual_px=None, reason=reason,
+                         roi_px=roi_px or {}, readings=readings or {})  # fmt: skip
 
 
 @pytest.fixture
@@ -50,9 +60,8 @@ def run(tmp_path: Path) -> tuple[Path, dict[str, list[np.ndarray]]]:
     out = tmp_path / "run"
     writer = RunDirectory.create(out, _manifest(), D_UM)
     frames = {"top": _frames(1, (FULL_H, FULL_W)), "side": _frames(2, (12, 20))}
-    record = _record(1, temperature_c=21.5, roi_px={"side": [10, 5, FULL_W, FULL_H]})
+    record = _record(1, readings={"temperature_c": 21.5}, roi_px={"side": (10, 5, FULL_W, FULL_H)})
     writer.store(1, {k: list(v) for k, v in frames.items()}, record)
-    assert "roi_px" not in record  # recorded with the image instead
     writer.store(2, {}, _record(2, "failed", reason="move timed out"))
     return out, frames
 
@@ -95,7 +104,10 @@ def test_the_journal_keeps_its_keys(run):
     assert len(side["sha256"]) == 64
     assert "offset_px" not in line["images"]["top"]
     assert line["temperature_c"] == 21.5
-    assert "roi_px" not in line
+    assert "roi_px" not in line  # recorded with the image instead
+    # the record's keys in the acquisition's order, then the images
+    assert list(line) == ["pose", "commanded_um", "status", "time", "sim_time_s", "move_s",
+                          "settle_s", "residual_px", "temperature_c", "images"]  # fmt: skip
 
 
 def test_frames_of_a_full_frame_and_of_a_stored_region(run):

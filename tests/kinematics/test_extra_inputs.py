@@ -51,7 +51,7 @@ def _journal(approach_um, poses=8):
                             approach_um=approach_um, approach_seed=9)  # fmt: skip
     acquire(plat.manipulator, plat.cameras, plat.clock, d, list(range(1, poses + 1)),
             plat.scene.board, lambda p, f, r: records.append(r), config=cfg)  # fmt: skip
-    signs = np.array([[r[n] for n in APPROACH_INPUTS] for r in records])
+    signs = np.array([[r.approach[n] for n in APPROACH_INPUTS] for r in records])
     return plat, d, cfg, signs
 
 
@@ -146,10 +146,10 @@ def test_vap_by_truth_falls_with_direction_terms():
                                 settle_s=5.0, truth=plat.truth_position_um)["truth"]  # fmt: skip
     h = np.linalg.norm(plat.manipulator.truth.hysteresis_um)
     # Metric: mean vAP over the Table 5-2 poses, µm, against the reversal error's size.
-    assert out["plain"]["vap_um"] > 0.8 * h
-    assert out["direction"]["vap_um"] < 0.3
-    assert out["direction"]["max_vap_um"] >= out["direction"]["vap_um"]
-    assert len(out["direction"]["poses"]) == 8
+    assert out["plain"].vap_um > 0.8 * h
+    assert out["direction"].vap_um < 0.3
+    assert out["direction"].max_vap_um >= out["direction"].vap_um
+    assert len(out["direction"].poses) == 8
 
 
 def test_solving_one_position_assumes_the_fixed_approach_and_says_so():

@@ -21,7 +21,7 @@ def settle_figures(settle: str, poses: int) -> tuple[np.ndarray, np.ndarray]:
     def store(pose, frames, record):
         t = plat.clock.now_s()
         residual = plat.manipulator.true_position_um(t) - plat.manipulator.true_position_um(t + 1e4)
-        out.append((record["settle_s"], np.linalg.norm(residual)))
+        out.append((record.settle_s, np.linalg.norm(residual)))
 
     cfg = AcquisitionConfig(settle=settle, fixed_s=30.0)
     acquire(plat.manipulator, plat.cameras, plat.clock, d, list(range(1, poses + 1)), plat.scene.board,

@@ -49,9 +49,10 @@ def test_report_recomputes_the_validation_errors_it_plots(quick_demo):
     errors = load_run(out).model_errors()
     assert [e.kind for e in errors] == ["matrix", "polynomial"]
     for e in errors:  # measurements.csv holds positions to 1e-6 µm
-        assert len(e.errors_um) == e.validation["n_validate"]
-        assert e.errors_um.mean() == pytest.approx(e.validation["mean_um"], abs=1e-5)
-        assert e.errors_um.max() == pytest.approx(e.validation["max_um"], abs=1e-5)
+        assert e.validation is not None
+        assert len(e.errors_um) == e.validation.n_validate
+        assert e.errors_um.mean() == pytest.approx(e.validation.mean_um, abs=1e-5)
+        assert e.errors_um.max() == pytest.approx(e.validation.max_um, abs=1e-5)
 
 
 @pytest.mark.slow

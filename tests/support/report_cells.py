@@ -60,7 +60,7 @@ def check_number_cells(out: Path, page: Path) -> set[str]:
         "results": json.loads((out / "results.json").read_text()),
         "cameras": json.loads((out / "cameras.json").read_text())["cameras"],
         "calibration": {
-            e.model.kind: e.validation
+            e.model.kind: e.validation.model_dump() if e.validation is not None else {}
             for e in load_run(out).model_errors()  # matrix and polynomial, each its own
         },
     }

@@ -62,5 +62,5 @@ def evaluate(
     with staged_progress() as progress:
         done = run(request, progress)
     thesis = is_thesis_rig(done.rig_record) and poses == PoseChoice.table
-    tables = evaluation_tables(done.parts, poses.value, thesis=thesis)
+    tables = evaluation_tables(done.evaluation, poses.value, thesis=thesis)
     print_parts(Console(), [*tables, f"wrote {done.out}"])

@@ -36,13 +36,13 @@ def study(
     (or --rig my-sim-rig.toml: a lab's own noise and travel, the seeds as given here)
     """
     from ..report.study_page import study_table
-    from ..workflows.study import StudyConfig
+    from ..workflows.study import SeedRun, StudyConfig
     from ..workflows.study import study as run
 
     console = Console()
 
-    def tick(done: int, total: int, run: dict[str, object]) -> None:
-        console.print(f"seed {run['seed']}: done ({done}/{total}, {run['wall_s']:.1f} s)")
+    def tick(done: int, total: int, run: SeedRun) -> None:
+        console.print(f"seed {run.seed}: done ({done}/{total}, {run.wall_s:.1f} s)")
 
     config = StudyConfig(poses=poses, render=render, design=design, closed_loop=closed_loop,
                          tolerance_um=tolerance_um, prior=prior)  # fmt: skip

@@ -10,6 +10,7 @@ is kept in :attr:`ClosedLoop.results`.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -17,17 +18,72 @@ from numpy.typing import ArrayLike
 from .._validation import FloatArray, check_limits
 from ..devices.base import Clock, Manipulator
 from ..errors import DetectionError
+from ..json_value import JsonValue
 from ..kinematics.models import KinematicModel
 from .feedforward import FeedForward
 from .visual_servo import ServoConfig, ServoResult, ServoStep, reachable_error, servo
 
-__all__ = ["CHI2_3_95", "ClosedLoop"]
+__all__ = ["CHI2_3_95", "STATUSES", "ClosedLoop", "ClosedLoopSummary"]
 
 #: The 95 % quantile of the chi-square distribution with 3 degrees of freedom.
 CHI2_3_95 = 7.814727903251178
 
 #: measure(joints, frames) -> (position (3,), covariance (3, 3)); NaN when not found.
 Measure = Callable[[FloatArray, int], tuple[FloatArray, FloatArray]]
+
+
+#: How a closed loop can end (:class:`~microcal.control.visual_servo.ServoResult`'s ``status``).
+STATUSES = ("tolerance", "resolution", "iterations")
+
+
+@dataclass(frozen=True)
+class ClosedLoopSummary:
+    """How the closed loop went over the targets it was sent to (results.json's
+    ``closed_loop``).
+
+    Attributes
+    ----------
+    tolerance_um, confidence : float
+        What the loop aimed at (:class:`~microcal.control.visual_servo.ServoConfig`).
+    targets : int
+    iterations_mean, frames_mean : float
+        Corrections and frames per camera per target, on average.
+    iterations_max, frames_max : int
+    status : dict of str -> int
+        Targets per way the loop ended (:data:`STATUSES`).
+    truth_within_tolerance, truth_in_measured_95 : float or None
+        On the simulator: the share of targets whose true error is within the tolerance, and
+        inside the last measurement's 95 % region; None without ground truth.
+    """
+
+    tolerance_um: float
+    confidence: float
+    targets: int
+    iterations_mean: float
+    iterations_max: int
+    frames_mean: float
+    frames_max: int
+    status: dict[str, int]
+    truth_within_tolerance: float | None = None
+    truth_in_measured_95: float | None = None
+
+    def to_json(self) -> dict[str, JsonValue]:
+        """The ``closed_loop`` object (the ground truth's shares only where known)."""
+        out: dict[str, JsonValue] = {
+            "tolerance_um": self.tolerance_um,
+            "confidence": self.confidence,
+            "targets": self.targets,
+            "iterations_mean": self.iterations_mean,
+            "iterations_max": self.iterations_max,
+            "frames_mean": self.frames_mean,
+            "frames_max": self.frames_max,
+            "status": self.status,
+        }
+        if self.truth_within_tolerance is not None:
+            out["truth_within_tolerance"] = self.truth_within_tolerance
+        if self.truth_in_measured_95 is not None:
+            out["truth_in_measured_95"] = self.truth_in_measured_95
+        return out
 
 
 class ClosedLoop(FeedForward):
@@ -130,22 +186,12 @@ class ClosedLoop(FeedForward):
             self.truth_um.append(np.asarray(self.truth(), dtype=np.float64))
         return result.d_um
 
-    def summary(self) -> dict[str, object]:
+    def summary(self) -> ClosedLoopSummary:
         """The ``closed_loop`` object of results.json: iterations, frames and how the loops
         ended, and on the simulator how often the true error was within the tolerance and
         within the last measurement's 95 % region."""
         r = self.results
-        out: dict[str, object] = {
-            "tolerance_um": self.config.tolerance_um,
-            "confidence": self.config.confidence,
-            "targets": len(r),
-            "iterations_mean": float(np.mean([x.iterations for x in r])) if r else 0.0,
-            "iterations_max": max((x.iterations for x in r), default=0),
-            "frames_mean": float(np.mean([x.frames for x in r])) if r else 0.0,
-            "frames_max": max((x.frames for x in r), default=0),
-            "status": {s: sum(x.status == s for x in r) for s in ("tolerance", "resolution",
-                                                                   "iterations")},
-        }  # fmt: skip
+        within = in_95 = None
         if self.truth_um and len(self.truth_um) == len(r):
             e = np.array([t - x.target_um for t, x in zip(self.truth_um, r, strict=True)])
             m2 = [float(v @ np.linalg.solve(x.cov_um2, v))
@@ -154,8 +200,17 @@ class ClosedLoop(FeedForward):
             if self.model.held_um:  # a surface: the error along it is what the loop removes
                 e = np.array([reachable_error(self._jacobian(x.d_um), v)
                               for v, x in zip(e, r, strict=True)])  # fmt: skip
-            out["truth_within_tolerance"] = float(
-                np.mean(np.linalg.norm(e, axis=1) <= self.config.tolerance_um)
-            )
-            out["truth_in_measured_95"] = float(np.mean(np.array(m2) <= CHI2_3_95))
-        return out
+            within = float(np.mean(np.linalg.norm(e, axis=1) <= self.config.tolerance_um))
+            in_95 = float(np.mean(np.array(m2) <= CHI2_3_95))
+        return ClosedLoopSummary(
+            tolerance_um=self.config.tolerance_um,
+            confidence=self.config.confidence,
+            targets=len(r),
+            iterations_mean=float(np.mean([x.iterations for x in r])) if r else 0.0,
+            iterations_max=max((x.iterations for x in r), default=0),
+            frames_mean=float(np.mean([x.frames for x in r])) if r else 0.0,
+            frames_max=max((x.frames for x in r), default=0),
+            status={s: sum(x.status == s for x in r) for s in STATUSES},
+            truth_within_tolerance=within,
+            truth_in_measured_95=in_95,
+        )

@@ -59,7 +59,9 @@ def open_core(
         return _load_core(config, python_devices, dict(options or {}))
 
 
-def _load_core(config: str | None, python_devices: str | None, options: dict[str, Any]) -> Any:
+def _load_core(
+    config: str | None, python_devices: str | None, options: Mapping[str, object]
+) -> Any:
     try:
         if config is not None:
             from pymmcore_plus import CMMCorePlus

@@ -20,6 +20,7 @@ import numpy as np
 
 from .._validation import FloatArray
 from ..errors import InputError
+from ..json_value import JsonValue
 from .aravis_camera import PIXEL_FORMATS  # the driver's module loads Aravis only when opened
 from .held_axes import axes_in_order
 from .smaract_mcs2 import MCS2_PORT
@@ -48,8 +49,12 @@ ARAVIS_DEFAULT_EXPOSURE_MS = 10.0
 
 # Settings that run.json records held before the specs were typed, for devices they do not
 # apply to (their defaults then); written again so that those runs can still be resumed.
-LEGACY_MM_STAGE_RECORD = {"port": MCS2_PORT, "timeout_s": 2.0, "reconnects": 2}
-LEGACY_MM_CAMERA_RECORD = {"pixel_format": "Mono8", "timeout_s": 2.0}
+LEGACY_MM_STAGE_RECORD: dict[str, JsonValue] = {
+    "port": MCS2_PORT,
+    "timeout_s": 2.0,
+    "reconnects": 2,
+}
+LEGACY_MM_CAMERA_RECORD: dict[str, JsonValue] = {"pixel_format": "Mono8", "timeout_s": 2.0}
 
 
 def _positive(name: str, value: object) -> float:
@@ -104,14 +109,14 @@ class SimRigSpec:
         Seed of every random stream of the platform.
     overrides : mapping of str to value
         Settings of ``microcal.sim.PlatformConfig`` by dotted name,
-        e.g. ``{"top.faults.drop_rate": 0.1}``.
+        e.g. ``{"top.faults.drop_rate": 0.1}`` (checked when the platform is built).
     """
 
     driver: ClassVar[str] = "sim"
 
     preset: str = "thesis"
     seed: int = 0
-    overrides: Mapping[str, Any] = field(default_factory=dict)
+    overrides: Mapping[str, object] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "preset", str(self.preset))
@@ -123,8 +128,8 @@ class SimRigSpec:
         """The devices the preset has (``m1``; ``m1, m2, p1`` for ``thesis-platform``)."""
         return ("m1", "m2", "p1") if self.preset == "thesis-platform" else ("m1",)
 
-    def to_dict(self) -> dict[str, Any]:
-        """The rig's record (JSON types), as stored in ``run.json``."""
+    def to_dict(self) -> dict[str, object]:
+        """The rig's record (JSON types; the overrides as given), as stored in ``run.json``."""
         return {
             "driver": self.driver,
             "preset": self.preset,
@@ -192,9 +197,9 @@ class MCS2Spec:
         """The soft limits in joint order, (n_axes, 2) µm."""
         return np.array([self.limits_um[a] for a in self.axes], dtype=np.float64)
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, JsonValue]:
         """The manipulator's record (JSON types)."""
-        out: dict[str, Any] = {
+        out: dict[str, JsonValue] = {
             "kind": self.kind,
             "limits_um": _limits_record(self.limits_um),
             "address": self.address,
@@ -246,7 +251,7 @@ class MMStageSpec:
         """The soft limits in joint order, (n_axes, 2) µm."""
         return np.array([self.limits_um[a] for a in self.axes], dtype=np.float64)
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, JsonValue]:
         """The manipulator's record (JSON types)."""
         return {
             "kind": self.kind,
@@ -311,9 +316,9 @@ class AravisCameraSpec:
         ms = ARAVIS_DEFAULT_EXPOSURE_MS if self.exposure_ms is None else self.exposure_ms
         return ms / 1e3
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, JsonValue]:
         """The camera's record (JSON types)."""
-        out: dict[str, Any] = {"kind": self.kind, "address": self.address}
+        out: dict[str, JsonValue] = {"kind": self.kind, "address": self.address}
         if self.exposure_ms is not None:
             out["exposure_ms"] = self.exposure_ms
         out["pixel_format"] = self.pixel_format
@@ -353,9 +358,9 @@ class MMCameraSpec:
         """The exposure to set, s (None: keep the camera's own)."""
         return None if self.exposure_ms is None else self.exposure_ms / 1e3
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, JsonValue]:
         """The camera's record (JSON types)."""
-        out: dict[str, Any] = {"kind": self.kind, "device": self.device}
+        out: dict[str, JsonValue] = {"kind": self.kind, "device": self.device}
         if self.exposure_ms is not None:
             out["exposure_ms"] = self.exposure_ms
         return out | LEGACY_MM_CAMERA_RECORD | {"pixel_size_um": self.pixel_size_um}
@@ -390,11 +395,11 @@ class MicroManagerSpec:
         if self.options and self.python_devices is None:
             raise InputError("micromanager.options: only 'python_devices' takes options")
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, JsonValue]:
         """The core's record (JSON types)."""
         if self.config is not None:
             return {"config": self.config}
-        out: dict[str, Any] = {"python_devices": self.python_devices}
+        out: dict[str, JsonValue] = {"python_devices": self.python_devices}
         return out | ({"options": dict(self.options)} if self.options else {})
 
 
@@ -485,9 +490,9 @@ class HardwareRigSpec:
             isinstance(c, MMCameraSpec) for c in self.cameras.values()
         )
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, JsonValue]:
         """The rig's record (JSON types), as stored in ``run.json``."""
-        out: dict[str, Any] = {
+        out: dict[str, JsonValue] = {
             "driver": self.driver,
             "board": self.board,
             "manipulator": self.manipulator.to_dict(),

@@ -14,9 +14,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,18 +25,21 @@ from .._validation import FloatArray
 from ..control.conditions import open_loop_conditions
 from ..control.feedforward import extra_inputs_reader
 from ..errors import FormatError, InputError
+from ..journal_record import JournalRecord
 from ..kinematics.designs import make_design
-from ..kinematics.extra_inputs import APPROACH_INPUTS
+from ..kinematics.extra_inputs import APPROACH_INPUTS, extra_input
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..kinematics.models import held_from_limits
 from ..metrics.error_summary import summarize_errors
 from ..procedures.acquisition import AcquisitionConfig, Store, acquire
 from ..procedures.evaluation import (
+    RunOptions,
     iso_cube_poses,
     run_decoupling,
     run_multi_directional,
     run_pose_accuracy,
 )
+from ..procedures.evaluation_figures import Evaluation
 from ..procedures.identification import Identification, calibrate_manipulator, default_train
 from ..procedures.rig_stereo import CALIBRATION_STEPS_UM
 from ..sim import SimPlatform, platform
@@ -79,8 +82,8 @@ class DemoResult:
     models: dict[str, Identification] = field(default_factory=dict)  # matrix, polynomial
     manipulator: ManipulatorCalibration | None = None  # what calibration.json holds
     oracle: dict[str, float] = field(default_factory=dict)
-    evaluation: dict[str, Any] = field(default_factory=dict)  # pose_accuracy, decoupling
-    records: list[dict[str, Any]] = field(default_factory=list)  # the acquisition's journal
+    evaluation: Evaluation = field(default_factory=Evaluation)  # pose_accuracy, decoupling
+    records: list[JournalRecord] = field(default_factory=list)  # the acquisition's journal
     sim_time_s: float = 0.0
 
     @property
@@ -204,6 +207,12 @@ def calibrate_on_platform(
     )
 
 
+def _journaled(records: list[JournalRecord], column: str) -> FloatArray:
+    """An extra input's journal column over the records, (N,): NaN where one has none."""
+    values = [r.journaled(column) for r in records]
+    return np.array([np.nan if v is None else v for v in values], dtype=np.float64)
+
+
 def run_demo(
     seed: int = 0,
     poses: int = 170,
@@ -286,13 +295,13 @@ def run_demo(
     d = demo_design(seed, poses, workspace)
     board = plat.scene.board
     sensors = {"temperature": lambda: m.temperature_at(plat.clock.now_s())}
-    kept: dict[int, tuple[dict[str, list[NDArray[np.generic]]], dict[str, Any]]] = {}
+    kept: dict[int, tuple[dict[str, list[NDArray[np.generic]]], JournalRecord]] = {}
     truth = np.full((poses, 3), np.nan)
 
     def keep(
-        pose: int, frames: dict[str, list[NDArray[np.generic]]], record: dict[str, Any]
+        pose: int, frames: dict[str, list[NDArray[np.generic]]], record: JournalRecord
     ) -> None:
-        kept[pose] = (frames, dict(record))
+        kept[pose] = (frames, record)
         truth[pose - 1] = m.true_position_um()
         if store is not None:
             store(pose, frames, record)
@@ -324,11 +333,11 @@ def run_demo(
 
     def load(pose: int, name: str) -> list[NDArray[np.generic]]:
         frames, record = kept[pose]
-        if record["status"] != "ok":
-            raise FormatError(f"acquisition failed: {record.get('reason', '')}")
+        if record.status != "ok":
+            raise FormatError(f"acquisition failed: {record.reason or ''}")
         if name not in frames:
             raise FormatError("no image")
-        roi = record.get("roi_px", {}).get(name)
+        roi = record.roi_px.get(name)
         if roi is None:
             return frames[name]
         return frames_from_region(frames[name], roi[:2], roi[2:])
@@ -356,12 +365,10 @@ def run_demo(
     p = np.array([m.p_um for m in measurements])[ok]
     d_ok = d[ok]
     n_fit = default_train(len(d_ok))
-    approach = {
-        name: np.array([np.nan if r.get(name) is None else r[name] for r in result.records])[ok]
-        for name in APPROACH_INPUTS
-    }
+    approach = {name: _journaled(result.records, extra_input(name).column)[ok]
+                for name in APPROACH_INPUTS}  # fmt: skip
     extra = dict(approach) if direction_terms else {}
-    temps = np.array([r.get("temperature_c", np.nan) for r in result.records], float)[ok]
+    temps = _journaled(result.records, extra_input("temperature").column)[ok]
     if family != "quadratic" and np.all(np.isfinite(temps)) and np.ptp(temps) > 0:
         extra["temperature"] = temps
     result.manipulator, result.models = calibrate_manipulator(
@@ -385,25 +392,23 @@ def run_demo(
             clock=plat.clock,
         )
         probe = VisionProbe(plat.cameras, cal.models(), board, frames=frames_per_pose)
-        kwargs: dict[str, Any] = {
-            "settle_s": settle_s,
-            "truth": m.true_position_um,
-            "progress": progress,
-        }
+        options = RunOptions(settle_s=settle_s, truth=m.true_position_um, progress=progress)
         poses_um = TABLE_5_2_POSES_UM if thesis_sized else iso_cube_poses(*workspace)
-        result.evaluation["pose_accuracy"] = run_pose_accuracy(
-            m, plat.clock, probe, conditions, poses_um=poses_um, cycles=cycles, **kwargs
+        pa = run_pose_accuracy(
+            m, plat.clock, probe, conditions, poses_um=poses_um, cycles=cycles, **options
         )
         vap = run_multi_directional(
-            m, plat.clock, None, conditions, poses_um=poses_um, cycles=cycles, **kwargs
+            m, plat.clock, None, conditions, poses_um=poses_um, cycles=cycles, **options
         )
         for source, by_condition in vap.items():
             for condition, figures in by_condition.items():
-                entry = result.evaluation["pose_accuracy"][source][condition]
-                entry |= {"vap_um": figures["vap_um"], "max_vap_um": figures["max_vap_um"]}
+                pa[source][condition] = dataclasses.replace(
+                    pa[source][condition], vap_um=figures.vap_um, max_vap_um=figures.max_vap_um
+                )
+        result.evaluation.pose_accuracy = pa
         if thesis_sized:
-            result.evaluation["decoupling"] = run_decoupling(
-                m, plat.clock, probe, conditions, samples_per_axis=decoupling_samples, **kwargs
+            result.evaluation.decoupling = run_decoupling(
+                m, plat.clock, probe, conditions, samples_per_axis=decoupling_samples, **options
             )
         result.sim_time_s = plat.clock.now_s()
     return result

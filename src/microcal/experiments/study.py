@@ -36,7 +36,7 @@ from __future__ import annotations
 import functools
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from multiprocessing import get_context
 from typing import Any
@@ -46,19 +46,25 @@ import scipy.stats
 
 from .._parallel import can_fork, ignore_interrupts
 from .._validation import FloatArray
-from ..control.closed_loop import ClosedLoop, Measure
+from ..control.closed_loop import ClosedLoop, ClosedLoopSummary, Measure
 from ..control.conditions import closed_loop_condition
 from ..control.feedforward import APPROACH_UM, FeedForward, extra_inputs_reader
 from ..control.visual_servo import ServoConfig
 from ..devices.base import Clock
 from ..errors import DegenerateDataError, DeviceError, InputError, LimitError
 from ..kinematics.designs import DESIGNS, make_design
-from ..kinematics.extra_inputs import APPROACH_INPUTS
+from ..kinematics.extra_inputs import APPROACH_INPUTS, extra_input
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..kinematics.models import KinematicModel, fit_model
 from ..kinematics.terms import JOINTS
 from ..procedures.acquisition import AcquisitionConfig, approach_start_um
-from ..procedures.evaluation import PositionProbe, run_multi_directional, run_pose_accuracy
+from ..procedures.evaluation import (
+    PositionProbe,
+    RunOptions,
+    run_multi_directional,
+    run_pose_accuracy,
+)
+from ..procedures.evaluation_figures import BySource, MultiDirectionalFigures, PoseAccuracyFigures
 from ..procedures.identification import calibrate_manipulator, default_train
 from ..sim import SimPlatform, platform
 from ..sim.kinematics import TrueKinematics, invert_map
@@ -68,6 +74,7 @@ from ..sim.population_prior import PriorEstimator, fit_prior_estimator, known_fo
 from ..sim.synthetic_run import ProjectedProbe
 from ..thesis.experiment import TABLE_5_2_POSES_UM, WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
 from .demo import demo_design_seed
+from .study_figures import Coverage, FigureSummary, SeedRun, Study
 
 __all__ = ["MODELS", "StudyConfig", "run_seed", "run_study", "summarize_runs"]
 
@@ -92,7 +99,7 @@ class StudyConfig:
     """Evaluate the ``closed_loop`` condition as well: the ``auto`` model's move, then visual
     servoing with the probe (:mod:`microcal.control.visual_servo`) to ``tolerance_um``."""
     tolerance_um: float = 0.5
-    overrides: dict[str, Any] = field(default_factory=dict)
+    overrides: Mapping[str, object] = field(default_factory=dict)
     """Simulator settings (a rig file's ``overrides``) applied to every seed's platform."""
     prior: bool = False
     """On ``population`` platforms, add the ``prior`` figures: the Bayes estimator under the
@@ -280,7 +287,7 @@ def _coverage(
     lack_um2: FloatArray,
     meas_cov_um2: FloatArray,
     poses_um: FloatArray,
-) -> dict[str, float]:
+) -> Coverage:
     """How often the true error of a compensated position lies in its predicted 95 % region.
 
     For each test pose (absolute: the model's base plus the pose), the compensator's joints,
@@ -304,16 +311,16 @@ def _coverage(
         c = np.diag(var) + meas_cov_um2
         inside_vision += float(e @ np.linalg.solve(c, e)) <= limit
     n = len(poses_um)
-    return {"truth": inside_truth / n, "vision": inside_vision / n, "mean_sq": float(np.mean(sq))}
+    return Coverage(truth=inside_truth / n, vision=inside_vision / n, mean_sq=float(np.mean(sq)))
 
 
-def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[str, Any]:
+def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> SeedRun:
     """One seed of a study: acquisition, identification, evaluation (the module docstring).
 
     Returns
     -------
-    dict
-        One entry of study.json's ``runs``.
+    SeedRun
+        Its figures (``to_json()``: one entry of study.json's ``runs``).
     """
     config = config or StudyConfig()
     t0 = time.perf_counter()
@@ -338,8 +345,9 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[
         p = np.array([mm.p_um for mm in demo.measurements])[ok]
         cov = np.array([mm.cov_um2 for mm in demo.measurements])[ok]
         rec = [r for r, keep in zip(demo.records, ok, strict=True) if keep]
-        signs = np.array([[r[a] for a in APPROACH_INPUTS] for r in rec], dtype=float)
-        temps = np.array([r["temperature_c"] for r in rec], dtype=float)
+        signs = np.array([[r.journaled(extra_input(a).column) for a in APPROACH_INPUTS]
+                          for r in rec], dtype=float)  # fmt: skip
+        temps = np.array([r.readings[extra_input("temperature").column] for r in rec], dtype=float)
         rendered = VisionProbe(plat.cameras, demo.calibration.models(), plat.scene.board,
                                frames=config.frames_per_pose)  # fmt: skip
         probe, servo_measure = rendered, rendered.measure_with_covariance
@@ -393,13 +401,12 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[
             extra_inputs_reader(auto, sensors), ServoConfig(tolerance_um=config.tolerance_um),
             settle_s=config.settle_s, truth=plat.truth_position_um,
         )  # fmt: skip
-    loop_summary: dict[str, Any] = {}
-    kwargs: dict[str, Any] = {"settle_s": config.settle_s, "truth": plat.truth_position_um,
-                              "cycles": config.cycles}  # fmt: skip
-    pa: dict[str, dict[str, Any]] = {"truth": {}, "vision": {}}
-    vap: dict[str, dict[str, Any]] = {"truth": {}}
+    loop_summary: ClosedLoopSummary | None = None
+    options = RunOptions(settle_s=config.settle_s, truth=plat.truth_position_um, progress=None)
+    pa: BySource[PoseAccuracyFigures] = {"truth": {}, "vision": {}}
+    vap: BySource[MultiDirectionalFigures] = {"truth": {}}
     failed: dict[str, str] = {}
-    nan = {"mean_ap_p_um": float("nan"), "max_ap_p_um": float("nan"), "vap_um": float("nan")}
+    nan = float("nan")
     chosen = families["auto"]
     for name, ff in conditions.items():  # a condition that cannot reach a pose is reported
         one = {name: ff}
@@ -412,15 +419,15 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[
                 failed["auto"] = failed[chosen]
             continue
         try:
-            got = run_pose_accuracy(sim, plat.clock, probe, one, **kwargs)
+            got = run_pose_accuracy(sim, plat.clock, probe, one, cycles=config.cycles, **options)
             if isinstance(ff, ClosedLoop):
                 loop_summary = ff.summary()
             # by truth, which has no noise, one cycle of the multi-directional test tells all
-            got_v = run_multi_directional(sim, plat.clock, None, one, **(kwargs | {"cycles": 1}))
+            got_v = run_multi_directional(sim, plat.clock, None, one, cycles=1, **options)
         except (LimitError, DegenerateDataError, DeviceError) as exc:
             failed[name] = str(exc)
-            got = {"truth": {name: nan}, "vision": {name: nan}}
-            got_v = {"truth": {name: nan}}
+            got = {s: {name: PoseAccuracyFigures(nan, nan)} for s in ("truth", "vision")}
+            got_v = {"truth": {name: MultiDirectionalFigures(nan, nan)}}
         for source in pa:
             pa[source] |= got[source]
         vap["truth"] |= got_v["truth"]
@@ -440,35 +447,37 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> dict[
         try:
             coverage[name] = _coverage(model, ff, sim, lack, meas_cov, TABLE_5_2_POSES_UM)
         except (LimitError, DegenerateDataError):
-            coverage[name] = {"truth": float("nan"), "vision": float("nan"),
-                              "mean_sq": float("nan")}  # fmt: skip
+            coverage[name] = Coverage(nan, nan, nan)
     truth, vision = pa["truth"], pa["vision"]
-    return {
-        "seed": seed,
-        "uncalibrated_ap_truth_mean_um": truth["uncalibrated"]["mean_ap_p_um"],
-        "validation_mean_um": validation,
-        "ap_truth_mean_um": {k: v["mean_ap_p_um"] for k, v in truth.items()},
-        "ap_truth_max_um": {k: v["max_ap_p_um"] for k, v in truth.items()},
-        "ap_vision_mean_um": {k: v["mean_ap_p_um"] for k, v in vision.items()},
-        "vap_truth_mean_um": {k: v["vap_um"] for k, v in vap["truth"].items()},
-        "coverage_95": coverage,
-        "family": families["auto"],
-        **({"closed_loop": loop_summary} if config.closed_loop else {}),
-        "failed": failed,
-        "n_poses": len(d),
-        "render": config.render,
-        "wall_s": time.perf_counter() - t0,
-    }
+    return SeedRun(
+        seed=seed,
+        uncalibrated_ap_truth_mean_um=truth["uncalibrated"].mean_ap_p_um,
+        validation_mean_um=validation,
+        ap_truth_mean_um={k: v.mean_ap_p_um for k, v in truth.items()},
+        ap_truth_max_um={k: v.max_ap_p_um for k, v in truth.items()},
+        ap_vision_mean_um={k: v.mean_ap_p_um for k, v in vision.items()},
+        vap_truth_mean_um={k: v.vap_um for k, v in vap["truth"].items()},
+        coverage_95=coverage,
+        family=families["auto"],
+        closed_loop=loop_summary if config.closed_loop else None,
+        failed=failed,
+        n_poses=len(d),
+        render=config.render,
+        wall_s=time.perf_counter() - t0,
+    )
 
 
-def _flatten(run: dict[str, Any]) -> dict[str, float]:
+def _flatten(run: SeedRun) -> dict[str, float]:
+    """Every number of a run's object by its dotted name, down to two levels (``seed``,
+    booleans at the top and text left out)."""
     out: dict[str, float] = {}
-    for key, value in run.items():
-        if isinstance(value, dict):
+    for key, value in run.to_json().items():
+        if isinstance(value, Mapping):
             for sub, v in value.items():
-                if isinstance(v, dict):
+                if isinstance(v, Mapping):
                     for k2, v2 in v.items():
-                        out[f"{key}.{sub}.{k2}"] = float(v2)
+                        if isinstance(v2, int | float):
+                            out[f"{key}.{sub}.{k2}"] = float(v2)
                 elif isinstance(v, int | float):
                     out[f"{key}.{sub}"] = float(v)
         elif isinstance(value, int | float) and not isinstance(value, bool) and key != "seed":
@@ -476,39 +485,36 @@ def _flatten(run: dict[str, Any]) -> dict[str, float]:
     return out
 
 
-def summarize_runs(runs: Sequence[dict[str, Any]]) -> dict[str, dict[str, float]]:
+def _summary(v: FloatArray) -> FigureSummary:
+    ok = v[np.isfinite(v)]  # a condition that failed on a seed is counted, not averaged
+    if not ok.size:
+        nan = float("nan")
+        return FigureSummary(nan, nan, nan, nan, failed=int(v.size))
+    return FigureSummary(median=float(np.median(ok)), p90=float(np.percentile(ok, 90)),
+                         min=float(ok.min()), max=float(ok.max()),
+                         failed=int(v.size - ok.size))  # fmt: skip
+
+
+def summarize_runs(runs: Sequence[SeedRun]) -> dict[str, FigureSummary]:
     """Median and 90th percentile of every figure over the runs (``summary`` of study.json),
     and the ratios to the oracle that the accuracy claims are made in."""
     flat = [_flatten(r) for r in runs]
     for f, r in zip(flat, runs, strict=True):
+        validation, ap = r.validation_mean_um, r.ap_truth_mean_um
         for name in ("matrix", *MODELS):
-            f[f"validation_over_oracle.{name}"] = (
-                r["validation_mean_um"][name] / r["validation_mean_um"]["oracle"]
-            )
-        for name in r["ap_truth_mean_um"]:
+            f[f"validation_over_oracle.{name}"] = validation[name] / validation["oracle"]
+        for name in ap:
             if name not in ("uncalibrated", "oracle"):
-                f[f"ap_truth_over_oracle.{name}"] = (
-                    r["ap_truth_mean_um"][name] / r["ap_truth_mean_um"]["oracle"]
-                )
+                f[f"ap_truth_over_oracle.{name}"] = ap[name] / ap["oracle"]
     keys = sorted({k for f in flat for k in f})
-    out: dict[str, dict[str, float]] = {}
-    for k in keys:
-        v = np.array([f[k] for f in flat if k in f])
-        ok = v[np.isfinite(v)]  # a condition that failed on a seed is counted, not averaged
-        if not ok.size:
-            out[k] = {"median": float("nan"), "p90": float("nan"), "min": float("nan"),
-                      "max": float("nan"), "failed": int(v.size)}  # fmt: skip
-            continue
-        out[k] = {"median": float(np.median(ok)), "p90": float(np.percentile(ok, 90)),
-                  "min": float(ok.min()), "max": float(ok.max()),
-                  "failed": int(v.size - ok.size)}  # fmt: skip
+    out = {k: _summary(np.array([f[k] for f in flat if k in f])) for k in keys}
     for name in MODELS:  # every seed has as many test poses: the pooled rate is the mean
-        cov = np.array([r["coverage_95"][name]["truth"] for r in runs], dtype=float)
+        cov = np.array([r.coverage_95[name].truth for r in runs], dtype=float)
         ok = cov[np.isfinite(cov)]
         pooled = float(ok.mean()) if ok.size else float("nan")
-        out[f"coverage_95.{name}.truth.pooled"] = {"median": pooled, "p90": pooled,
-                                                    "min": pooled, "max": pooled,
-                                                    "failed": int(cov.size - ok.size)}  # fmt: skip
+        out[f"coverage_95.{name}.truth.pooled"] = FigureSummary(
+            pooled, pooled, pooled, pooled, failed=int(cov.size - ok.size)
+        )
     return out
 
 
@@ -517,8 +523,8 @@ def run_study(
     seeds: Sequence[int],
     config: StudyConfig | None = None,
     workers: int | None = None,
-    progress: Callable[[int, int, dict[str, Any]], None] | None = None,
-) -> dict[str, Any]:
+    progress: Callable[[int, int, SeedRun], None] | None = None,
+) -> Study:
     """Run :func:`run_seed` for every seed, each in its own process.
 
     Parameters
@@ -530,9 +536,9 @@ def run_study(
 
     Returns
     -------
-    dict
-        study.json's content (without ``format``): preset, seeds, runs (in seed order),
-        summary.
+    Study
+        Preset, seeds, runs (in seed order), summary (``to_json()``: study.json's content
+        without ``format``).
     """
     if preset not in PRESETS:
         raise InputError(f"preset: expected one of {list(PRESETS)}, got {preset!r}")
@@ -543,7 +549,7 @@ def run_study(
     if config.prior and preset != "population":
         raise InputError(_PRIOR_ONLY.format(preset=preset))
     workers = min(workers or os.cpu_count() or 1, len(seeds))
-    runs: dict[int, dict[str, Any]] = {}
+    runs: dict[int, SeedRun] = {}
     if workers == 1:
         for seed in seeds:
             runs[seed] = run_seed(preset, seed, config)
@@ -560,7 +566,7 @@ def run_study(
             with get_context(method).Pool(workers, initializer=ignore_interrupts) as pool:
                 one = functools.partial(run_seed, preset, config=config)
                 for run in pool.imap_unordered(one, seeds):
-                    runs[run["seed"]] = run
+                    runs[run.seed] = run
                     if progress:
                         progress(len(runs), len(seeds), run)
         finally:
@@ -570,7 +576,7 @@ def run_study(
                 else:
                     os.environ[k] = v
     ordered = [runs[s] for s in seeds]
-    return {"preset": preset, "seeds": seeds, "runs": ordered, "summary": summarize_runs(ordered)}
+    return Study(preset, seeds, ordered, summarize_runs(ordered))
 
 
 _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")

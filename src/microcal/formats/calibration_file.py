@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from pydantic import Field
+from pydantic import JsonValue as AnyJson
 
 from ..errors import FormatError, InputError
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
@@ -66,18 +68,22 @@ class _ManipulatorSchema(FileSchema):
 
 class _CalibrationSchema(FileSchema):
     format: Literal["microcal.calibration/1"]
-    cameras: dict[str, Any] = Field(default_factory=dict)
+    cameras: dict[str, AnyJson] = Field(default_factory=dict)
     manipulators: dict[str, _ManipulatorSchema]
-    provenance: dict[str, Any] = Field(default_factory=dict)
+    provenance: dict[str, AnyJson] = Field(default_factory=dict)
 
 
 @dataclass(frozen=True)
 class Calibration:
-    """A whole calibration file: cameras, manipulators and provenance."""
+    """A whole calibration file: cameras, manipulators and provenance.
+
+    ``cameras`` are the cameras' JSON objects (as cameras.json holds them; validated by
+    :meth:`camera_models`), ``provenance`` the file's provenance object.
+    """
 
     manipulators: dict[str, ManipulatorCalibration]
-    cameras: dict[str, Any] = field(default_factory=dict)
-    provenance: dict[str, Any] = field(default_factory=dict)
+    cameras: Mapping[str, object] = field(default_factory=dict)
+    provenance: Mapping[str, object] = field(default_factory=dict)
     path: Path | None = None
 
     def camera_models(self) -> dict[str, AnyCamera]:
@@ -105,7 +111,7 @@ class Calibration:
                 f"manipulator {name!r} is not calibrated{where}; it has {sorted(self.manipulators)}"
             ) from None
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, object]:
         """The JSON object of calibration.json."""
         return {
             "format": CALIBRATION_FORMAT,
@@ -142,9 +148,12 @@ def load_calibration(path: str | os.PathLike[str]) -> Calibration:
     p = Path(path)
     raw = read_versioned_json(p, CALIBRATION_FORMATS)
     schema = parse_schema(_CalibrationSchema, raw, p)
+    section = raw["manipulators"]  # an object of objects: the schema has checked it
     manipulators = {}
     for name in schema.manipulators:
-        data = raw["manipulators"][name]
+        data = section[name] if isinstance(section, dict) else None
+        if not isinstance(data, dict):
+            raise FormatError(f"{p}: manipulators.{name}: expected an object")
         try:
             model = KinematicModel.from_dict(data["model"])
         except FormatError as exc:
@@ -152,7 +161,7 @@ def load_calibration(path: str | os.PathLike[str]) -> Calibration:
         extra = {k: v for k, v in data.items() if k not in ("model", "validation")}
         validation = data.get("validation") or {}
         manipulators[name] = ManipulatorCalibration(name, model, validation, extra)
-    calibration = Calibration(manipulators, raw.get("cameras", {}), raw.get("provenance", {}), p)
+    calibration = Calibration(manipulators, schema.cameras, schema.provenance, p)
     calibration.camera_models()  # a malformed camera fails here, naming the file
     return calibration
 
@@ -166,7 +175,7 @@ def export_mat(path: str | os.PathLike[str], calibration: Calibration) -> Path:
     """
     import scipy.io
 
-    data: dict[str, Any] = {}
+    data: dict[str, dict[str, object]] = {}
     for name, m in calibration.manipulators.items():
         key = (
             name if name.isidentifier() else "m_" + "".join(c if c.isalnum() else "_" for c in name)

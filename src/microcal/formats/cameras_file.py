@@ -12,15 +12,17 @@ import json
 import os
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
-from pydantic import ValidationError
+from pydantic import Field, ValidationError
+from pydantic import JsonValue as AnyJson
 
 from ..errors import FormatError, InputError
 from ..geometry.affine_camera import AffineCamera
 from ..geometry.camera_kinds import AnyCamera
 from ..geometry.camera_model import CameraModel
+from ..json_value import JsonValue, checked_json
 from ..vision.calibration_diagnostics import CameraDiagnostics
 from ..vision.stereo_calibration import StereoCalibration
 from .atomic import write_text_atomic
@@ -31,6 +33,9 @@ __all__ = [
     "CAMERA_LOADERS",
     "DEFAULT_CAMERA_MODEL",
     "CameraLoader",
+    "CameraRecord",
+    "CamerasJson",
+    "CamerasRecord",
     "cameras_to_dict",
     "load_cameras",
     "models_from_dict",
@@ -45,7 +50,7 @@ DEFAULT_CAMERA_MODEL = "pinhole"
 
 #: Builds a camera model from its JSON object and its name. Raises pydantic's
 #: ``ValidationError`` for a malformed object or ``InputError`` for invalid values.
-CameraLoader = Callable[[Mapping[str, Any], str], AnyCamera]
+CameraLoader = Callable[[Mapping[str, object], str], AnyCamera]
 
 
 class _PinholeCamera(FileSchema):
@@ -59,16 +64,16 @@ class _PinholeCamera(FileSchema):
 
 class _Cameras(FileSchema):
     format: str
-    cameras: dict[str, dict[str, Any]]
+    cameras: dict[str, dict[str, AnyJson]]
 
 
-def _load_pinhole(cam: Mapping[str, Any], name: str) -> CameraModel:
+def _load_pinhole(cam: Mapping[str, object], name: str) -> CameraModel:
     c = _PinholeCamera.model_validate(cam)
     K, dist, R, t_um = (np.array(v) for v in (c.K, c.dist, c.R, c.t_um))
     return CameraModel(K, dist, R, t_um, c.image_size_px, name, c.projection_sigma_px)
 
 
-def _load_affine(cam: Mapping[str, Any], name: str) -> AffineCamera:
+def _load_affine(cam: Mapping[str, object], name: str) -> AffineCamera:
     """An affine camera has the pinhole's keys: K holds the magnification in px/µm (see
     :class:`~microcal.geometry.affine_camera.AffineCamera`)."""
     c = _PinholeCamera.model_validate(cam)
@@ -80,9 +85,18 @@ def _load_affine(cam: Mapping[str, Any], name: str) -> AffineCamera:
 CAMERA_LOADERS: dict[str, CameraLoader] = {"pinhole": _load_pinhole, "affine": _load_affine}
 
 
-def cameras_to_dict(cal: StereoCalibration, provenance: dict[str, Any]) -> dict[str, Any]:
+class CamerasJson(TypedDict):
+    """The JSON object of cameras.json as microcal writes it."""
+
+    format: str
+    cameras: dict[str, dict[str, JsonValue]]
+    stereo: dict[str, JsonValue]
+    provenance: Mapping[str, JsonValue]
+
+
+def cameras_to_dict(cal: StereoCalibration, provenance: Mapping[str, JsonValue]) -> CamerasJson:
     """The JSON object of cameras.json."""
-    cameras = {}
+    cameras: dict[str, dict[str, JsonValue]] = {}
     for name, c in cal.cameras.items():
         m = c.model
         cameras[name] = {
@@ -95,15 +109,15 @@ def cameras_to_dict(cal: StereoCalibration, provenance: dict[str, Any]) -> dict[
             "projection_sigma_px": m.projection_sigma_px,
             "rms_px": c.rms_px,
             "views_used": c.views_used,
-            "views_rejected": c.views_rejected,
+            "views_rejected": checked_json(c.views_rejected),
             "per_view_rms_px": c.per_view_rms_px,
             "std": c.std,
             "residuals_px": {view: np.round(r, 4).tolist() for view, r in c.residuals_px.items()},
         }
         if c.lens_model:
-            cameras[name]["lens_model"] = c.lens_model
+            cameras[name]["lens_model"] = checked_json(c.lens_model, "lens_model")
         if c.model_choice:
-            cameras[name]["model_choice"] = c.model_choice
+            cameras[name]["model_choice"] = checked_json(c.model_choice, "model_choice")
         if c.diagnostics is not None:
             cameras[name]["diagnostics"] = _diagnostics_to_dict(c.diagnostics)
     return {
@@ -114,8 +128,8 @@ def cameras_to_dict(cal: StereoCalibration, provenance: dict[str, Any]) -> dict[
             "rms_px": cal.rms_px,
             "baseline_um": _finite(cal.baseline_um),
             "angle_deg": cal.angle_deg,
-            "turned_views": cal.turned_views,
-            "views_rejected": cal.views_rejected,
+            "turned_views": checked_json(cal.turned_views, "turned_views"),
+            "views_rejected": checked_json(cal.views_rejected, "views_rejected"),
             "notes": cal.notes,
         },
         "provenance": provenance,
@@ -126,7 +140,7 @@ def _finite(value: float) -> float | None:
     return float(value) if np.isfinite(value) else None
 
 
-def _diagnostics_to_dict(d: CameraDiagnostics) -> dict[str, Any]:
+def _diagnostics_to_dict(d: CameraDiagnostics) -> dict[str, JsonValue]:
     half = d.split_half
     return {
         "std_intrinsics": {k: _finite(v) for k, v in d.std_intrinsics.items()},
@@ -144,12 +158,12 @@ def _diagnostics_to_dict(d: CameraDiagnostics) -> dict[str, Any]:
             "ratio": _finite(half.ratio),
             "flags": half.flags,
         },
-        "coverage": d.coverage,
+        "coverage": checked_json(d.coverage, "coverage"),
         "verdict": d.verdict,
     }
 
 
-def write_cameras(path: str | os.PathLike[str], data: dict[str, Any]) -> Path:
+def write_cameras(path: str | os.PathLike[str], data: CamerasJson) -> Path:
     """Write cameras.json atomically."""
     return write_text_atomic(path, json.dumps(data, indent=1, allow_nan=False) + "\n")
 
@@ -171,7 +185,7 @@ def save_stereo_calibration(
     return write_cameras(path, cameras_to_dict(cal, prov))
 
 
-def models_from_dict(data: dict[str, Any], where: str = "cameras") -> dict[str, AnyCamera]:
+def models_from_dict(data: Mapping[str, object], where: str = "cameras") -> dict[str, AnyCamera]:
     """Camera models from a cameras.json object (or the ``cameras`` part of calibration.json).
 
     Each camera's ``"model"`` (``"pinhole"`` when absent) picks its loader in
@@ -184,10 +198,17 @@ def models_from_dict(data: dict[str, Any], where: str = "cameras") -> dict[str, 
         :data:`CAMERA_LOADERS`, or its values do not make a camera; the message names
         ``where`` and the camera.
     """
+    return _models(_parse(data, where), where)
+
+
+def _parse(data: Mapping[str, object], where: str) -> _Cameras:
     try:
-        parsed = _Cameras.model_validate(data)
+        return _Cameras.model_validate(data)
     except ValidationError as exc:
         raise FormatError(f"{where}: {validation_message(exc)}") from None
+
+
+def _models(parsed: _Cameras, where: str) -> dict[str, AnyCamera]:
     models: dict[str, AnyCamera] = {}
     for name, cam in parsed.cameras.items():
         kind = cam.get("model", DEFAULT_CAMERA_MODEL)
@@ -238,7 +259,9 @@ def _check_usable(models: dict[str, AnyCamera], where: str) -> None:
         )
 
 
-def read_cameras(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, AnyCamera]]:
+def read_cameras(
+    path: str | os.PathLike[str],
+) -> tuple[dict[str, dict[str, AnyJson]], dict[str, AnyCamera]]:
     """The ``cameras`` object of cameras.json (or of a calibration.json) and its models.
 
     Raises
@@ -252,10 +275,106 @@ def read_cameras(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str
     )
     if not raw.get("cameras"):
         raise FormatError(f"{p}: holds no cameras")
-    section: dict[str, Any] = raw["cameras"]
-    return section, models_from_dict({"format": CAMERAS_FORMAT, "cameras": section}, str(p))
+    parsed = _parse({"format": CAMERAS_FORMAT, "cameras": raw["cameras"]}, str(p))
+    return parsed.cameras, _models(parsed, str(p))
 
 
 def load_cameras(path: str | os.PathLike[str]) -> dict[str, AnyCamera]:
     """Read cameras.json (or a calibration.json that holds cameras)."""
     return read_cameras(path)[1]
+
+
+# --- what the report reads of cameras.json ------------------------------------------------
+class RejectedView(FileSchema):
+    """A view a calibration left out: its image and why."""
+
+    image: str = ""
+    reason: str = ""
+
+
+class LensCandidate(FileSchema):
+    """A lens model a calibration tried: its free terms and training and held-out RMS."""
+
+    name: str = ""
+    n_free: int | None = None
+    train_rms_px: float | None = None
+    held_out_rms_px: float | None = None
+
+
+class LensModelRecord(FileSchema):
+    """``cameras.NAME.lens_model``: the lens model chosen, why, and the candidates."""
+
+    name: str = ""
+    reason: str = ""
+    candidates: list[LensCandidate] = Field(default_factory=list)
+
+
+class SplitHalfRecord(FileSchema):
+    """``diagnostics.split_half``: how far the calibrations of two halves of the views
+    disagree over the image, px."""
+
+    rms_diff_px: float | None = None
+    max_diff_px: float | None = None
+    observed_rms_diff_px: float | None = None
+    predicted_px: float | None = None
+    ratio: float | None = None
+
+
+class DiagnosticsRecord(FileSchema):
+    """``cameras.NAME.diagnostics``: the projection's uncertainty and what limits it."""
+
+    uncertainty_px: dict[str, float | None] = Field(default_factory=dict)
+    uncertainty_map_px: list[list[float | None]] = Field(default_factory=list)
+    split_half: SplitHalfRecord | None = None
+    verdict: list[str] = Field(default_factory=list)
+
+
+class CameraRecord(FileSchema):
+    """One camera of cameras.json (or of calibration.json's ``cameras``) with its figures."""
+
+    image_size_px: tuple[int, int]
+    K: list[list[float]]
+    dist: list[float] = Field(default_factory=lambda: [0.0] * 5)
+    rms_px: float | None = None
+    views_used: int | None = None
+    views_rejected: list[RejectedView] = Field(default_factory=list)
+    per_view_rms_px: dict[str, float] = Field(default_factory=dict)
+    residuals_px: dict[str, list[list[float]]] = Field(default_factory=dict)
+    lens_model: LensModelRecord | None = None
+    diagnostics: DiagnosticsRecord | None = None
+
+
+class TurnedView(FileSchema):
+    """``stereo.turned_views[i]``: an image whose corner numbering was turned."""
+
+    camera: str = ""
+    image: str = ""
+    turn_deg: float | None = None
+
+
+class RejectedPair(FileSchema):
+    """``stereo.views_rejected[i]``: a view left out of the cameras' joint refinement."""
+
+    view: str = ""
+    reason: str = ""
+
+
+class StereoRecord(FileSchema):
+    """``stereo``: how the cameras were calibrated together."""
+
+    method: str = ""
+    rms_px: float | None = None
+    baseline_um: float | None = None
+    angle_deg: float | None = None
+    turned_views: list[TurnedView] = Field(default_factory=list)
+    views_rejected: list[RejectedPair] = Field(default_factory=list)
+    notes: list[str] = Field(default_factory=list)
+
+
+class CamerasRecord(FileSchema):
+    """cameras.json as the report reads it: the cameras and their figures, the stereo
+    calibration's and the provenance (any other key kept)."""
+
+    cameras: dict[str, CameraRecord]
+    stereo: StereoRecord = Field(default_factory=StereoRecord)
+    provenance: dict[str, AnyJson] | None = None

@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TypeVar
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
@@ -59,8 +59,8 @@ def parse_schema(schema: type[S], raw: object, where: str | os.PathLike[str]) ->
         raise FormatError(f"{where}: {validation_message(exc)}") from None
 
 
-def read_json_object(path: str | os.PathLike[str], missing_hint: str = "") -> dict[str, Any]:
-    """A file's JSON object.
+def read_json_object(path: str | os.PathLike[str], missing_hint: str = "") -> dict[str, object]:
+    """A file's JSON object, as parsed (its values to be validated by the reader).
 
     Raises
     ------
@@ -78,7 +78,8 @@ def read_json_object(path: str | os.PathLike[str], missing_hint: str = "") -> di
         raise FormatError(f"{p}: not a JSON file microcal reads ({type(exc).__name__})") from None
     if not isinstance(raw, dict):
         raise FormatError(f"{p}: expected a JSON object, got {type(raw).__name__}")
-    return raw
+    out: dict[str, object] = raw
+    return out
 
 
 def _name_and_version(fmt: str) -> tuple[str, str]:
@@ -109,8 +110,9 @@ def check_format(path: str | os.PathLike[str], found: object, formats: tuple[str
 
 def read_versioned_json(
     path: str | os.PathLike[str], formats: tuple[str, ...], missing_hint: str = ""
-) -> dict[str, Any]:
-    """A JSON object whose ``format`` is one of ``formats`` (the versions this microcal reads).
+) -> dict[str, object]:
+    """A JSON object whose ``format`` is one of ``formats`` (the versions this microcal reads),
+    as parsed.
 
     Raises
     ------

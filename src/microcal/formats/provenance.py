@@ -5,18 +5,18 @@ from __future__ import annotations
 import datetime as _dt
 import os
 from collections.abc import Mapping
-from typing import Any
 
 from .._version import __version__
+from ..json_value import JsonValue
 from .hashing import sha256_file
 
 __all__ = ["provenance"]
 
 
 def provenance(
-    inputs: Mapping[str, str | os.PathLike[str]] | None = None, **extra: Any
-) -> dict[str, Any]:
-    """Software version, UTC time and the SHA-256 of each input file."""
+    inputs: Mapping[str, str | os.PathLike[str]] | None = None, **extra: JsonValue
+) -> dict[str, JsonValue]:
+    """Software version, UTC time and the SHA-256 of each input file (and ``extra``)."""
     return {
         "software": f"microcal {__version__}",
         "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),

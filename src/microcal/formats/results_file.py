@@ -8,20 +8,29 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from ..json_value import JsonRecord, JsonValue
 from .atomic import write_text_atomic
 from .file_lock import locked_update
 from .json_file import parse_schema, read_versioned_json
 from .records import RESULTS_FORMAT, RESULTS_FORMATS, Results
 
-__all__ = ["RESULTS_FORMAT", "Results", "load_results", "read_results", "update_results"]
+__all__ = [
+    "RESULTS_FORMAT",
+    "Results",
+    "load_results",
+    "read_results",
+    "update_results",
+]
 
 
-def _plain(value: Any) -> Any:
+def _plain(value: object) -> JsonValue:
+    """``value`` as JSON values: numpy arrays and numbers as lists and numbers, NaN and
+    infinity as null (JSON has neither), keys as text."""
     if isinstance(value, dict):
         return {str(k): _plain(v) for k, v in value.items()}
     if isinstance(value, list | tuple):
@@ -33,7 +42,13 @@ def _plain(value: Any) -> Any:
         return f if np.isfinite(f) else None
     if isinstance(value, np.integer):
         return int(value)
-    return value
+    if value is None or isinstance(value, str | int):
+        return value
+    raise TypeError(f"results: {type(value).__name__} is not a JSON value")
+
+
+def _plain_object(value: Mapping[str, object]) -> dict[str, JsonValue]:
+    return {str(k): _plain(v) for k, v in value.items()}
 
 
 def read_results(path: str | os.PathLike[str]) -> Results:
@@ -49,23 +64,26 @@ def read_results(path: str | os.PathLike[str]) -> Results:
     return parse_schema(Results, raw, Path(path))
 
 
-def load_results(path: str | os.PathLike[str]) -> dict[str, Any]:
+def load_results(path: str | os.PathLike[str]) -> dict[str, object]:
     """Read results.json, validated, as the JSON object; FormatError if it is not one."""
     raw = read_versioned_json(path, RESULTS_FORMATS)
     parse_schema(Results, raw, Path(path))
     return raw
 
 
-def update_results(path: str | os.PathLike[str], parts: dict[str, Any]) -> Path:
+def update_results(path: str | os.PathLike[str], parts: Mapping[str, object] | JsonRecord) -> Path:
     """Merge ``parts`` into results.json (one level deep per source), atomically, under the
     file's lock (two merges at once both land).
 
+    ``parts`` are sections by name (JSON-like values, numpy arrays and numbers among them),
+    or a record of them (an :class:`~microcal.procedures.evaluation_figures.Evaluation`).
     NaN becomes null: JSON has no NaN.
     """
     p = Path(path)
-    plain = _plain(parts)
+    sections = parts if isinstance(parts, Mapping) else parts.to_json()
+    plain = _plain_object(sections)
     with locked_update(p):
-        data: dict[str, Any] = load_results(p) if p.exists() else {"format": RESULTS_FORMAT}
+        data: dict[str, object] = load_results(p) if p.exists() else {"format": RESULTS_FORMAT}
         for key, value in plain.items():
             current = data.get(key)
             if isinstance(value, dict) and isinstance(current, dict):

@@ -37,8 +37,9 @@ from __future__ import annotations
 import copy
 import dataclasses
 import tomllib
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
 
@@ -63,7 +64,10 @@ from .json_file import validation_message
 __all__ = ["load_rig", "rig_from_record"]
 
 
-def _flatten(prefix: str, node: dict[str, Any], out: dict[str, Any]) -> None:
+T = TypeVar("T")
+
+
+def _flatten(prefix: str, node: Mapping[str, object], out: dict[str, object]) -> None:
     for key, value in node.items():
         name = f"{prefix}.{key}" if prefix else key
         if isinstance(value, dict):
@@ -127,34 +131,34 @@ def rig_from_record(record: object, where: str) -> RigSpec:
     return _from_data(Path(where), _unflatten(record))
 
 
-def _unflatten(record: dict[str, Any]) -> dict[str, Any]:
+def _unflatten(record: Mapping[str, object]) -> dict[str, object]:
     """A recorded rig's ``overrides`` are dotted names; the file's are tables."""
-    out = copy.deepcopy(record)
+    out = dict(copy.deepcopy(record))
     further = out.get("manipulators")
     stages = [out.get("manipulator"), out.get("target_stage")]
     stages += list(further.values()) if isinstance(further, dict) else []
     for stage in stages:
         _drop_legacy(stage, LEGACY_MM_STAGE_RECORD)
-    for camera in (
-        (out.get("cameras") or {}).values() if isinstance(out.get("cameras"), dict) else ()
-    ):
+    cameras = out.get("cameras")
+    for camera in cameras.values() if isinstance(cameras, dict) else ():
         _drop_legacy(camera, LEGACY_MM_CAMERA_RECORD)
     flat = out.get("overrides")
     if isinstance(flat, dict):
-        nested: dict[str, Any] = {}
+        nested: dict[str, object] = {}
         for key, value in flat.items():
             node = nested
             *parents, leaf = str(key).split(".")
             for part in parents:
-                node = node.setdefault(part, {})
-                if not isinstance(node, dict):
+                child = node.setdefault(part, {})
+                if not isinstance(child, dict):
                     raise FormatError(f"overrides: {key} is both a value and a table")
+                node = child
             node[leaf] = value
         out["overrides"] = nested
     return out
 
 
-def _drop_legacy(device: object, legacy: dict[str, Any]) -> None:
+def _drop_legacy(device: object, legacy: Mapping[str, object]) -> None:
     """A Micro-Manager device's record repeats settings it has not (see ``rig_spec``)."""
     if isinstance(device, dict) and device.get("kind") == "micromanager":
         for key, value in legacy.items():
@@ -162,7 +166,8 @@ def _drop_legacy(device: object, legacy: dict[str, Any]) -> None:
                 del device[key]
 
 
-def _from_data(path: Path, data: dict[str, Any]) -> RigSpec:
+def _from_data(path: Path, data: Mapping[str, object]) -> RigSpec:
+    """The spec of a rig's settings: a rig file's tables as parsed, or a recorded rig."""
     driver = data.get("driver")
     if driver == "hardware":
         return _hardware(path, data)
@@ -181,7 +186,7 @@ class _Sim(_Strict):
     driver: str
     preset: str | None = None
     seed: int | None = None
-    overrides: dict[str, Any] | None = None
+    overrides: dict[str, object] | None = None
 
 
 class _Manipulator(_Strict):
@@ -250,12 +255,20 @@ _MANIPULATORS: dict[str, type[ManipulatorSpec]] = {
 _CAMERAS: dict[str, type[CameraSpec]] = {"aravis": AravisCameraSpec, "micromanager": MMCameraSpec}
 
 
-def _given(model: BaseModel) -> dict[str, Any]:
-    """The keys the file sets (TOML has no null: unset and absent are the same)."""
-    return model.model_dump(exclude_unset=True)
+def _given(model: BaseModel) -> dict[str, object]:
+    """The keys the file sets (TOML has no null: unset and absent are the same), of the
+    types the file's schema checked."""
+    given: dict[str, object] = model.model_dump(exclude_unset=True)
+    return given
 
 
-def _build(path: Path, where: str, cls: type[Any], given: dict[str, Any]) -> Any:
+def _spec(cls: Callable[..., T], given: Mapping[str, object]) -> T:
+    """A spec from the settings a file gives (their types checked by the file's schema, their
+    values by the spec itself); a setting it leaves out takes the spec's default."""
+    return cls(**given)
+
+
+def _build(path: Path, where: str, cls: type[Any], given: dict[str, object]) -> Any:
     """``cls(**given)`` for the table ``where`` (a kind's spec class and the keys the file
     sets), with one-line errors naming the table and the key."""
     kind = given.pop("kind", None)
@@ -277,7 +290,7 @@ def _build(path: Path, where: str, cls: type[Any], given: dict[str, Any]) -> Any
         needs = " and ".join(repr(name) for name in missing)
         raise FormatError(f"{path}: {where}: {kind} needs {needs}")
     try:
-        return cls(**given)
+        return _spec(cls, given)
     except InputError as exc:
         raise FormatError(f"{path}: {where}.{exc}") from None
 
@@ -295,7 +308,7 @@ def _check_keys(path: Path, where: str, table: object, model: type[BaseModel]) -
             )
 
 
-def _sim(path: Path, data: dict[str, Any]) -> SimRigSpec:
+def _sim(path: Path, data: Mapping[str, object]) -> SimRigSpec:
     from ..sim.platforms import PRESETS, check_overrides
 
     _check_keys(path, "", data, _Sim)
@@ -305,16 +318,17 @@ def _sim(path: Path, data: dict[str, Any]) -> SimRigSpec:
         raise FormatError(f"{path}: {validation_message(exc)}") from None
     given = _given(rig)
     given.pop("driver")
-    overrides: dict[str, Any] = {}
-    _flatten("", given.pop("overrides", {}), overrides)
-    preset = given.get("preset", "thesis")
+    given.pop("overrides", None)
+    overrides: dict[str, object] = {}
+    _flatten("", rig.overrides or {}, overrides)
+    preset = "thesis" if rig.preset is None else rig.preset
     if preset not in PRESETS:
         near = did_you_mean(preset, PRESETS).strip()
         hint = f" ({near})" if near else ""
         raise FormatError(f"{path}: preset: expected one of {list(PRESETS)}, got {preset!r}{hint}")
     try:
         check_overrides(overrides, preset)
-        return SimRigSpec(**given, overrides=overrides)
+        return _spec(SimRigSpec, {**given, "overrides": overrides})
     except InputError as exc:
         raise FormatError(f"{path}: {exc}") from None
 
@@ -328,7 +342,7 @@ def _check_target(path: Path, key: str, spec: str) -> None:
         raise FormatError(f"{path}: {key}: {exc}") from None
 
 
-def _hardware(path: Path, data: dict[str, Any]) -> HardwareRigSpec:
+def _hardware(path: Path, data: Mapping[str, object]) -> HardwareRigSpec:
     _check_keys(path, "", data, _Hardware)
     _check_keys(path, "manipulator.", data.get("manipulator"), _Manipulator)
     _check_keys(path, "micromanager.", data.get("micromanager"), _MicroManager)
@@ -357,34 +371,39 @@ def _hardware(path: Path, data: dict[str, Any]) -> HardwareRigSpec:
     micromanager = None
     if rig.micromanager is not None:
         mm = _given(rig.micromanager)
-        if "\0" in str(mm.get("config") or ""):
+        config = rig.micromanager.config
+        if "\0" in (config or ""):
             raise FormatError(f"{path}: micromanager.config: a file name cannot hold a NUL")
-        if mm.get("config") is not None and not Path(mm["config"]).is_absolute():
-            mm["config"] = str((path.parent / mm["config"]).resolve())
+        if config is not None and not Path(config).is_absolute():
+            mm["config"] = str((path.parent / config).resolve())
         try:
-            micromanager = MicroManagerSpec(**mm)
+            micromanager = _spec(MicroManagerSpec, mm)
         except InputError as exc:
             raise FormatError(f"{path}: {exc}") from None
-    given: dict[str, Any] = {}
-    for key in ("board", "calibration_target"):
-        if getattr(rig, key) is not None:
-            given[key] = getattr(rig, key)
-            _check_target(path, key, given[key])
+    given: dict[str, object] = {}
+    for key, target in (("board", rig.board), ("calibration_target", rig.calibration_target)):
+        if target is not None:
+            given[key] = target
+            _check_target(path, key, target)
     if rig.target_stage is not None:
         stage = rig.target_stage
         given["target_stage"] = _build(
             path, "target_stage", _MANIPULATORS[stage.kind], _given(stage)
         )
     if rig.manipulators:
-        given["manipulators"], given["boards"] = {}, {}
+        others: dict[str, ManipulatorSpec] = {}
+        boards: dict[str, str] = {}
         for name, m in rig.manipulators.items():
             keys = _given(m)
-            if "board" in keys:
-                given["boards"][name] = keys.pop("board")
-                _check_target(path, f"manipulators.{name}.board", given["boards"][name])
+            if m.board is not None:
+                keys.pop("board")
+                boards[name] = m.board
+                _check_target(path, f"manipulators.{name}.board", m.board)
             where = f"manipulators.{name}"
-            given["manipulators"][name] = _build(path, where, _MANIPULATORS[m.kind], keys)
+            others[name] = _build(path, where, _MANIPULATORS[m.kind], keys)
+        given |= {"manipulators": others, "boards": boards}
     try:
-        return HardwareRigSpec(manipulator, cameras, micromanager=micromanager, **given)
+        return _spec(HardwareRigSpec, {"manipulator": manipulator, "cameras": cameras,
+                                       "micromanager": micromanager, **given})  # fmt: skip
     except InputError as exc:
         raise FormatError(f"{path}: {exc}") from None

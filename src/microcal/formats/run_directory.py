@@ -24,7 +24,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -37,10 +37,11 @@ from .json_file import parse_schema, read_versioned_json
 from .records import RUN_FORMAT, RUN_FORMATS, ImageRecord, JournalLine, RoiRecord, RunManifest
 
 if TYPE_CHECKING:
-    from collections.abc import Sequence
+    from collections.abc import Mapping, Sequence
 
     from numpy.typing import NDArray
 
+    from ..journal_record import JournalRecord
     from ..vision.measurement import PoseMeasurement
 
 __all__ = [
@@ -118,14 +119,14 @@ class RunDirectory:
     def create(
         cls,
         path: str | os.PathLike[str],
-        manifest: RunManifest | dict[str, Any],
+        manifest: RunManifest | Mapping[str, object],
         d_um: FloatArray,
     ) -> RunWriter:
         """Start a new run: writes commands.csv and run.json (see :meth:`RunWriter.create`)."""
         return RunWriter.create(path, manifest, d_um)
 
     @classmethod
-    def resume(cls, path: str | os.PathLike[str], rig: dict[str, Any]) -> RunWriter:
+    def resume(cls, path: str | os.PathLike[str], rig: Mapping[str, object]) -> RunWriter:
         """Continue a run made with ``rig`` (see :meth:`RunWriter.resume`)."""
         return RunWriter.resume(path, rig)
 
@@ -446,10 +447,13 @@ class RunWriter:
     def create(
         cls,
         run_dir: str | os.PathLike[str],
-        manifest: RunManifest | dict[str, Any],
+        manifest: RunManifest | Mapping[str, object],
         d_um: FloatArray,
     ) -> RunWriter:
         """A new run: writes commands.csv, then run.json with the commands' SHA-256.
+
+        ``manifest`` is run.json's object (without ``format`` and ``commands_sha256``, which
+        the writer adds), validated before anything is written.
 
         Raises
         ------
@@ -459,7 +463,9 @@ class RunWriter:
         path = Path(run_dir)
         if holds_run(path):
             raise FormatError(f"{path}: {HOLDS_A_RUN}")
-        body = manifest.to_json() if isinstance(manifest, RunManifest) else dict(manifest)
+        body: dict[str, object] = dict(
+            manifest.to_json() if isinstance(manifest, RunManifest) else manifest
+        )
         body.pop("format", None)
         body.pop("commands_sha256", None)
         parse_schema(RunManifest, {"format": RUN_FORMAT, **body}, f"{path / MANIFEST} (manifest)")
@@ -470,8 +476,9 @@ class RunWriter:
         return cls(path, RunManifest.model_validate(full))
 
     @classmethod
-    def resume(cls, run_dir: str | os.PathLike[str], rig: dict[str, Any]) -> RunWriter:
-        """Continue a run: it must come from the same rig and be unedited.
+    def resume(cls, run_dir: str | os.PathLike[str], rig: Mapping[str, object]) -> RunWriter:
+        """Continue a run: it must come from the same rig (``rig``: its record, a spec's
+        ``to_dict()``) and be unedited.
 
         Raises
         ------
@@ -529,25 +536,31 @@ class RunWriter:
                     self.repairs.append(f"removed {tmp}, left by a stop while it was written")
 
     # --- writing -------------------------------------------------------------------------
-    def store(self, pose: int, frames: dict[str, list[Any]], record: dict[str, Any]) -> None:
+    def store(
+        self, pose: int, frames: Mapping[str, Sequence[NDArray[np.generic]]], record: JournalRecord
+    ) -> None:
         """Write a pose's images, then append its journal line (synced).
 
-        ``record`` is the journal line without its images; its ``roi_px`` (per camera
-        ``[x0, y0, w, h]`` or a :class:`RoiRecord`: the region's offset and the full frame's
-        size) is taken out of it and recorded with each image instead.
+        The line is ``record``'s (:meth:`~microcal.journal_record.JournalRecord.to_json`) with
+        its images; the region each camera's frames hold (``record.roi_px``: the region's
+        offset and the full frame's size) is recorded with that camera's image.
         """
         from .images import write_tiff
 
-        rois = record.pop("roi_px", {})
         images: dict[str, ImageRecord] = {}
         for cam, cam_frames in frames.items():
             rel = f"{IMAGES}/{cam}_{pose:04d}.tiff"
-            write_tiff(self.run_dir / rel, cam_frames)
-            roi = RoiRecord.from_roi_px(rois[cam]) if cam in rois else None
+            write_tiff(self.run_dir / rel, list(cam_frames))
+            roi = record.roi_px.get(cam)
             images[cam] = ImageRecord(
-                file=rel, sha256=sha256_file(self.run_dir / rel), frames=len(cam_frames), roi=roi
+                file=rel,
+                sha256=sha256_file(self.run_dir / rel),
+                frames=len(cam_frames),
+                roi=None if roi is None else RoiRecord.from_roi_px(roi),
             )
-        data = {**record, "images": {cam: image.to_json() for cam, image in images.items()}}
+        data = record.to_json() | {
+            "images": {cam: image.to_json() for cam, image in images.items()}
+        }
         line = json.dumps(data, allow_nan=False)
         journal_line = parse_schema(JournalLine, data, f"journal line of pose {pose}")
         with open(self.run_dir / JOURNAL, "a", encoding="utf-8") as fh:

@@ -12,9 +12,9 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import Any
 
 from ..errors import InputError
+from ..json_value import JsonRecord, JsonValue
 from .atomic import write_text_atomic
 from .json_file import check_json_output
 from .outputs import check_output
@@ -26,7 +26,7 @@ FORMAT = "microcal.study/1"
 PAGE_MARK = "<!-- microcal study page -->"
 
 
-def _nulls(value: Any) -> Any:
+def _nulls(value: JsonValue) -> JsonValue:
     """NaN (a figure a failed condition has not) as JSON null."""
     if isinstance(value, float) and not math.isfinite(value):
         return None
@@ -37,7 +37,9 @@ def _nulls(value: Any) -> Any:
     return value
 
 
-def study_platform(preset: str, rig: str | os.PathLike[str] | None) -> tuple[str, dict[str, Any]]:
+def study_platform(
+    preset: str, rig: str | os.PathLike[str] | None
+) -> tuple[str, dict[str, object]]:
     """The preset and simulator settings a study runs: ``preset``, or a simulated rig file's
     preset and overrides (its seed is not used: a study's seeds are its own).
 
@@ -78,12 +80,14 @@ def check_study_folder(out: str | os.PathLike[str]) -> Path:
     return folder
 
 
-def write_study(out: str | os.PathLike[str], study: dict[str, Any], page: str) -> Path:
-    """Write study.json and study.html (``page``, the HTML of :func:`report.study_page`) into
-    the folder ``out`` (made if missing); returns the path of study.json."""
+def write_study(out: str | os.PathLike[str], study: JsonRecord, page: str) -> Path:
+    """Write study.json (the study's ``to_json()``, a
+    :class:`~microcal.experiments.study_figures.Study`) and study.html (``page``, the HTML of
+    :func:`report.study_page`) into the folder ``out`` (made if missing); returns the path of
+    study.json."""
     folder = check_study_folder(out)
     folder.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(_nulls({"format": FORMAT, **study}), indent=1, allow_nan=False)
+    text = json.dumps(_nulls({"format": FORMAT, **study.to_json()}), indent=1, allow_nan=False)
     path = write_text_atomic(folder / "study.json", text + "\n")
     write_text_atomic(folder / "study.html", PAGE_MARK + "\n" + page)
     return path

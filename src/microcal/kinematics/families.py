@@ -31,7 +31,6 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -169,7 +168,7 @@ def fit_family(
         premove=2 * family.penter,
         held_um=held,
     )
-    return dataclasses.replace(model, selection=model.selection | {"family": family.name})
+    return dataclasses.replace(model, selection={**model.selection, "family": family.name})
 
 
 def _fit_penalised(
@@ -186,7 +185,7 @@ def _fit_penalised(
     weights = roughness_weights([t.waves[0].harmonic if t.waves else 0 for t in terms])
     m = len(terms)
     coef, cov = np.zeros((3, m)), np.zeros((3, m, m))
-    record: dict[str, Any] = {"method": "penalised", "family": family.name, "n_samples": len(U)}
+    record: dict[str, object] = {"method": "penalised", "family": family.name, "n_samples": len(U)}
     lams, edfs = [], []
     for axis in range(3):
         fit = fit_penalised_axis(X, P[:, axis], weights)
@@ -206,7 +205,7 @@ class FamilyChoice:
     #: Per candidate: mean and standard error of the held-out Euclidean error, µm.
     scores: dict[str, tuple[float, float]]
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> dict[str, object]:
         """For the model's ``selection`` record."""
         return {
             "chosen_by": f"{CHOICE_FOLDS}-fold held-out error, one-standard-error rule",

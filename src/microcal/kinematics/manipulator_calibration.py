@@ -2,15 +2,15 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from .._validation import FloatArray
-from ..errors import DegenerateDataError, InputError
+from ..errors import DegenerateDataError, FormatError, InputError
 from .compensators import Compensator
 from .models import KinematicModel
 
@@ -19,24 +19,39 @@ __all__ = ["ManipulatorCalibration"]
 
 @dataclass(frozen=True)
 class ManipulatorCalibration:
-    """The calibration of one manipulator: its model and the figures that validate it."""
+    """The calibration of one manipulator: its model and the figures that validate it.
+
+    ``validation`` is calibration.json's ``validation`` object of the model; ``extra`` the
+    manipulator's other keys (``joint_range_um``, ``matrix_model``, ``matrix_validation``,
+    ``device`` and any a newer microcal wrote), as JSON values, read by the properties below.
+    """
 
     name: str
     model: KinematicModel
-    validation: dict[str, Any] = field(default_factory=dict)
-    extra: dict[str, Any] = field(default_factory=dict)
+    validation: Mapping[str, object] = field(default_factory=dict)
+    extra: Mapping[str, object] = field(default_factory=dict)
 
     def predict_um(self, u: ArrayLike) -> FloatArray:
         """Position in {G} (µm) for joint values (and further inputs), (N, 3)."""
         return self.model.predict_um(u)
 
-    @property
+    @cached_property
     def matrix_model(self) -> KinematicModel | None:
-        """The matrix model stored beside a polynomial one (for the matrix compensator)."""
+        """The matrix model stored beside a polynomial one (for the matrix compensator;
+        read on first use)."""
         data = self.extra.get("matrix_model")
         if data is None:
             return self.model if self.model.kind == "matrix" else None
+        if not isinstance(data, Mapping):
+            raise FormatError(f"matrix_model: expected a model's object, got {data!r}")
         return KinematicModel.from_dict(data)
+
+    @property
+    def matrix_validation(self) -> Mapping[str, object]:
+        """The validation object of the matrix model kept beside a polynomial one ({} for
+        none)."""
+        value = self.extra.get("matrix_validation")
+        return value if isinstance(value, Mapping) else {}
 
     @cached_property
     def compensator(self) -> Compensator:
@@ -116,6 +131,6 @@ class ManipulatorCalibration:
                 "open the rig it was calibrated on"
             )
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, object]:
         """The manipulator's object in calibration.json."""
         return {**self.extra, "model": self.model.to_dict(), "validation": self.validation}

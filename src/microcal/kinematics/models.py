@@ -9,10 +9,10 @@ constant term.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -177,7 +177,7 @@ class KinematicModel:
     coefficients: FloatArray
     selected: np.ndarray
     covariance: FloatArray
-    selection: dict[str, Any]
+    selection: Mapping[str, object]
     held_um: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -316,7 +316,7 @@ class KinematicModel:
         return np.zeros(3)
 
     # --- serialisation ---------------------------------------------------------------------
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, object]:
         """Plain JSON-ready dict (the ``model`` object of calibration.json)."""
         return {
             "kind": self.kind,
@@ -332,10 +332,10 @@ class KinematicModel:
         }
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> KinematicModel:
+    def from_dict(cls, data: Mapping[str, object]) -> KinematicModel:
         """Inverse of :meth:`to_dict`; raises FormatError naming what is wrong."""
         try:
-            terms = tuple(parse_term(t) for t in data["terms"])
+            terms = tuple(parse_term(t) for t in _names(data["terms"], "terms"))
             m = len(terms)
             coef = np.asarray(data["coefficients"], dtype=np.float64)
             sel = np.asarray(data["selected"], dtype=bool)
@@ -350,15 +350,18 @@ class KinematicModel:
             kind = data["kind"]
             if kind not in ("matrix", "polynomial"):
                 raise FormatError(f"model.kind: expected 'matrix' or 'polynomial', got {kind!r}")
+            selection = data.get("selection", {})
+            if not isinstance(selection, Mapping):
+                raise FormatError(f"model.selection: expected an object, got {selection!r}")
             return cls(
                 kind=kind,
-                inputs=tuple(data["inputs"]),
-                joints=tuple(data["joints"]),
+                inputs=tuple(_names(data["inputs"], "inputs")),
+                joints=tuple(_names(data["joints"], "joints")),
                 terms=terms,
                 coefficients=coef,
                 selected=sel,
                 covariance=cov,
-                selection=dict(data.get("selection", {})),
+                selection=dict(selection),
                 held_um=_held_record(data.get("held_joints_um", {})),
             )
         except KeyError as exc:
@@ -367,6 +370,13 @@ class KinematicModel:
             if isinstance(exc, FormatError):
                 raise
             raise FormatError(f"model: {exc}") from None
+
+
+def _names(value: object, key: str) -> list[str]:
+    """A list of names of a model's record (``terms``, ``inputs``, ``joints``)."""
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise FormatError(f"model.{key}: expected a list of names, got {value!r}")
+    return [str(v) for v in value]
 
 
 def _held_record(value: object) -> dict[str, float]:
@@ -467,7 +477,7 @@ def fit_model(
     coef = np.zeros((3, m))
     selected = np.zeros((3, m), dtype=bool)
     cov = np.zeros((3, m, m))
-    steps: list[list[dict[str, Any]]] = []
+    steps: list[list[dict[str, object]]] = []
     for axis in range(3):
         if select == "stepwise":
             others = [a for a in range(m) if a != const]
@@ -488,7 +498,7 @@ def fit_model(
         coef[axis, chosen] = fit.coef
         selected[axis, chosen] = True
         cov[axis][np.ix_(chosen, chosen)] = fit.covariance
-    selection: dict[str, Any] = {"method": select, "n_samples": n}
+    selection: dict[str, object] = {"method": select, "n_samples": n}
     if select == "stepwise":
         selection |= {"penter": penter, "premove": premove, "history": steps}
     return KinematicModel(kind, inputs, tuple(joints), terms, coef, selected, cov, selection, held)

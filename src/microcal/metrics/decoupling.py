@@ -16,6 +16,7 @@ from numpy.typing import ArrayLike
 
 from .._validation import FloatArray, as_array
 from ..errors import InputError
+from ..json_value import JsonValue
 
 __all__ = ["DecouplingResult", "decoupling_metrics", "integration_index"]
 
@@ -40,7 +41,7 @@ class DecouplingResult:
     ranges_um: dict[str, tuple[float, float]]  # per axis: (min, max)
     omega: dict[str, float]  # per axis: Eq 5.3
 
-    def as_dict(self) -> dict[str, object]:
+    def as_dict(self) -> dict[str, JsonValue]:
         """The per-condition object of results.json."""
         return {
             "undesired_um": {a: list(self.ranges_um[a]) for a in AXES},

@@ -32,6 +32,7 @@ from numpy.typing import ArrayLike
 
 from .._validation import FloatArray, as_array
 from ..errors import InputError
+from ..json_value import JsonValue
 
 __all__ = [
     "DistanceStatistics",
@@ -105,7 +106,7 @@ class PoseStatistics:
     rp_um: float | None  # None with a single attained pose
     n: int
 
-    def as_dict(self) -> dict[str, object]:
+    def as_dict(self) -> dict[str, JsonValue]:
         """The per-pose object of results.json."""
         return {
             "desired_um": self.desired_um.tolist(),
@@ -161,7 +162,7 @@ class DistanceStatistics:
     rd_p_um: float  # RD = 3 S_D
     n: int
 
-    def as_dict(self) -> dict[str, object]:
+    def as_dict(self) -> dict[str, JsonValue]:
         """Plain dict for results.json."""
         return {"commanded_um": self.commanded_um, "mean_um": self.mean_um,
                 "ad_um": self.ad_um.tolist(), "ad_p_um": self.ad_p_um,

@@ -28,6 +28,7 @@ from numpy.typing import NDArray
 from .._validation import FloatArray
 from ..devices.base import Camera, Clock, Manipulator
 from ..errors import DeviceError, DeviceTimeoutError, FrameError, InputError, MicrocalError
+from ..journal_record import CreepFigures, JournalRecord, PoseStatus
 from ..kinematics.extra_inputs import APPROACH_INPUTS, extra_input
 from ..vision.detect import detect
 from ..vision.roi import RoiPredictor, box_around
@@ -38,7 +39,8 @@ __all__ = ["AcquisitionConfig", "RunStoppedError", "acquire", "grab_retrying"]
 Frame = NDArray[np.generic]
 #: How a pose settles: the vision check, or a fixed wait.
 Settle = Literal["vision", "fixed"]
-Store = Callable[[int, dict[str, list[Frame]], dict[str, Any]], None]
+#: Persists one pose: (pose, frames per camera, its journal record).
+Store = Callable[[int, dict[str, list[Frame]], JournalRecord], None]
 
 
 class RunStoppedError(MicrocalError):
@@ -302,7 +304,7 @@ def acquire(
     config: AcquisitionConfig | None = None,
     sensors: Mapping[str, Callable[[], float]] | None = None,
     should_stop: Callable[[], bool] = lambda: False,
-    progress: Callable[[int, int, dict[str, Any]], None] | None = None,
+    progress: Callable[[int, int, JournalRecord], None] | None = None,
     between: Callable[[int], tuple[FloatArray, FloatArray] | None] | None = None,
 ) -> int:
     """Visit the poses, settle, grab and store each; returns the number of poses stored.
@@ -314,7 +316,8 @@ def acquire(
     poses : sequence of int
         The poses still to do (1-based), in order.
     store : callable (pose, frames per camera, record)
-        Persists one pose; the record is the journal line.
+        Persists one pose; the record (a :class:`~microcal.journal_record.JournalRecord`) is
+        its journal line.
     sensors : mapping of name -> callable () -> float, optional
         The rig's sensors of extra inputs (:mod:`microcal.kinematics.extra_inputs`, e.g.
         ``{"temperature": read}``); each pose's journal line records each under its column.
@@ -360,9 +363,11 @@ def acquire(
             raise RunStoppedError(f"pose {pose}: {exc}") from None
         moved_s = clock.now_s() - t0
         signs = _moved(d - previous_d, signs)
-        record: dict[str, Any] = {"pose": pose, "commanded_um": d.tolist()}
-        for name, sign in zip(APPROACH_INPUTS, signs, strict=True):
-            record[extra_input(name).column] = float(sign) if np.isfinite(sign) else None
+        approach = {extra_input(name).column: float(sign) if np.isfinite(sign) else None
+                    for name, sign in zip(APPROACH_INPUTS, signs, strict=True)}  # fmt: skip
+        status: PoseStatus = "ok"
+        reported_um: list[float] | None = None
+        reason: str | None = None
         try:
             if cfg.settle == "fixed":
                 clock.sleep(cfg.fixed_s)
@@ -376,53 +381,56 @@ def acquire(
                 settle_s, change, frames = _settle_vision(
                     cameras, target, clock, cfg, predictors[first].predict(d), creep, step
                 )
-            reported = _retry(manipulator.position_um, cfg.retries)
-            record |= {"status": "ok", "reported_um": np.asarray(reported).tolist()}
+            reported_um = np.asarray(_retry(manipulator.position_um, cfg.retries)).tolist()
         except DeviceError as exc:
             frames = {}
             settle_s, change = clock.now_s() - t0 - moved_s, float("nan")
-            record |= {"status": "failed", "reason": str(exc)}
-        if frames:
-            rois: dict[str, list[int]] = {}
-            for name, cam_frames in frames.items():
-                det = detect(cam_frames[-1], target, roi=predictors[name].predict(d))
-                if not det.found:
-                    continue
-                predictors[name].add(d, det.q_px)  # where the board is, for the next pose
-                if name == first:
-                    vp = det.q_px.mean(axis=0)
-                    if last is not None:
-                        creep.add_scale(
-                            float(np.linalg.norm(d - last[0])), float(np.linalg.norm(vp - last[1]))
-                        )
-                    last = (d, vp)
-                if cfg.store_roi:
-                    h, w = cam_frames[0].shape[:2]
-                    square = float(np.median(np.linalg.norm(np.diff(det.q_px, axis=0), axis=1)))
-                    lo = np.floor(det.q_px.min(axis=0) - cfg.roi_margin_squares * square).astype(
-                        int
+            status, reason = "failed", str(exc)
+        rois: dict[str, tuple[int, int, int, int]] = {}
+        for name, cam_frames in frames.items():
+            det = detect(cam_frames[-1], target, roi=predictors[name].predict(d))
+            if not det.found:
+                continue
+            predictors[name].add(d, det.q_px)  # where the board is, for the next pose
+            if name == first:
+                vp = det.q_px.mean(axis=0)
+                if last is not None:
+                    creep.add_scale(
+                        float(np.linalg.norm(d - last[0])), float(np.linalg.norm(vp - last[1]))
                     )
-                    hi = np.ceil(det.q_px.max(axis=0) + cfg.roi_margin_squares * square).astype(int)
-                    x0, y0 = max(int(lo[0]), 0), max(int(lo[1]), 0)
-                    x1, y1 = min(int(hi[0]), w), min(int(hi[1]), h)
-                    frames[name] = [f[y0:y1, x0:x1] for f in cam_frames]
-                    rois[name] = [x0, y0, w, h]
-            if rois:
-                record["roi_px"] = rois
-        record |= {
-            "time": wall0,
-            "sim_time_s": round(t0, 6),
-            "move_s": round(moved_s, 6),
-            "settle_s": round(settle_s, 6),
-            "residual_px": None if not np.isfinite(change) else round(change, 6),
+                last = (d, vp)
+            if cfg.store_roi:
+                h, w = cam_frames[0].shape[:2]
+                square = float(np.median(np.linalg.norm(np.diff(det.q_px, axis=0), axis=1)))
+                lo = np.floor(det.q_px.min(axis=0) - cfg.roi_margin_squares * square).astype(int)
+                hi = np.ceil(det.q_px.max(axis=0) + cfg.roi_margin_squares * square).astype(int)
+                x0, y0 = max(int(lo[0]), 0), max(int(lo[1]), 0)
+                x1, y1 = min(int(hi[0]), w), min(int(hi[1]), h)
+                frames[name] = [f[y0:y1, x0:x1] for f in cam_frames]
+                rois[name] = (x0, y0, w, h)
+        # the model's extra inputs, by registry
+        readings = {
+            extra_input(name).column: float(read()) for name, read in (sensors or {}).items()
         }
-        for name, read in (sensors or {}).items():  # the model's extra inputs, by registry
-            record[extra_input(name).column] = float(read())
+        creep_model = None
         if creep.tau_s is not None:
-            record["creep_model"] = {
-                "tau_s": round(creep.tau_s, 4),
-                "px_per_um_step": creep.amplitude_px_per_um,
-            }
+            creep_model = CreepFigures(round(creep.tau_s, 4), creep.amplitude_px_per_um)
+        record = JournalRecord(
+            pose=pose,
+            commanded_um=d.tolist(),
+            approach=approach,
+            status=status,
+            wall_time_s=wall0,
+            sim_time_s=round(t0, 6),
+            move_s=round(moved_s, 6),
+            settle_s=round(settle_s, 6),
+            residual_px=None if not np.isfinite(change) else round(change, 6),
+            reported_um=reported_um,
+            reason=reason,
+            roi_px=rois,
+            readings=readings,
+            creep_model=creep_model,
+        )
         store(pose, frames, record)
         previous_d = d
         done += 1
@@ -435,7 +443,7 @@ def acquire(
         if last_leg is not None:
             signs = _moved(last_leg[1] - last_leg[0], _moved(last_leg[1] - previous_d, signs))
             previous_d = np.asarray(last_leg[1], dtype=np.float64)
-        failed_in_a_row = failed_in_a_row + 1 if record["status"] == "failed" else 0
+        failed_in_a_row = failed_in_a_row + 1 if record.failed else 0
         if progress:
             progress(k + 1, len(poses), record)
         if failed_in_a_row >= cfg.max_failed_in_a_row:
@@ -443,6 +451,6 @@ def acquire(
                 manipulator.stop()
             raise RunStoppedError(
                 f"{failed_in_a_row} poses in a row failed, the last ({pose}): "
-                f"{record.get('reason', '')}; check the devices"
+                f"{record.reason or ''}; check the devices"
             )
     return done

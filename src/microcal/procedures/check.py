@@ -23,9 +23,9 @@ that), else ``valid``.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 from scipy import stats
@@ -33,7 +33,8 @@ from scipy import stats
 from .._validation import FloatArray, as_array
 from ..control.feedforward import APPROACH_UM, has_approach_terms
 from ..devices.base import Clock, Manipulator
-from ..errors import DetectionError, InputError
+from ..errors import DetectionError, FormatError, InputError
+from ..json_value import JsonValue
 from ..kinematics.extra_inputs import by_symbol, fixed_approach_values
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..kinematics.models import KinematicModel
@@ -135,13 +136,13 @@ class CheckResult:
     residual_um: FloatArray
     covariance_um2: FloatArray
     reference: bool = False
-    extra: dict[str, Any] = field(default_factory=dict)
+    extra: dict[str, JsonValue] = field(default_factory=dict)
 
     @property
     def n_poses(self) -> int:
         return int(self.d_um.shape[0])
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> dict[str, JsonValue]:
         """check.json's keys (``format`` is the writer's)."""
         return {
             "verdict": self.verdict,
@@ -171,6 +172,15 @@ class CheckResult:
                 )
             ],
         } | self.extra
+
+
+def _rms_um(rms_axis_um: object, axis: str) -> float:
+    """The validation's RMS error along an axis (``validation.rms_axis_um``), µm; 0 when
+    the validation records none."""
+    value = rms_axis_um.get(axis, 0.0) if isinstance(rms_axis_um, Mapping) else 0.0
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise FormatError(f"validation.rms_axis_um.{axis}: expected a number, got {value!r}")
+    return float(value)
 
 
 def _inputs(model: KinematicModel, d_um: FloatArray) -> FloatArray:
@@ -317,8 +327,8 @@ def run_check(
         covs.append(c)
         if progress:
             progress(i + 1, len(d_all))
-    rms = calibration.validation.get("rms_axis_um", {})
-    misfit = np.array([float(rms.get(a, 0.0)) for a in "xyz"])
+    rms = calibration.validation.get("rms_axis_um")
+    misfit = np.array([_rms_um(rms, a) for a in "xyz"])
     result = compare(model, misfit, d_all, np.array(measured), np.array(covs), alpha=cfg.alpha,
                      reference=reference)  # fmt: skip
     result.extra["duration_s"] = clock.now_s() - start_s

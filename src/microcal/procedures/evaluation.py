@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, Protocol
+from typing import Protocol, TypedDict
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -33,11 +33,21 @@ from ..metrics import decoupling_metrics, multi_directional_variation, pose_stat
 from ..thesis.experiment import DECOUPLING_PATH_UM, TABLE_5_2_POSES_UM
 from ..vision.probe import VisionProbe
 from ..vision.targets import Target
+from .evaluation_figures import (
+    BySource,
+    DecouplingFigures,
+    DirectionalPose,
+    Evaluation,
+    MultiDirectionalFigures,
+    PoseAccuracyFigures,
+)
 
 __all__ = [
     "APPROACH_SIDES",
     "DETOUR_UM",
     "TESTS",
+    "Evaluation",
+    "RunOptions",
     "aimed_poses_um",
     "approach_detours_um",
     "decoupling_path",
@@ -124,19 +134,13 @@ def _commanders(
     }
 
 
-def _sources(
-    probe: PositionProbe | None, truth: Callable[[], FloatArray] | None
-) -> dict[str, dict[str, Any]]:
+def _sources(probe: PositionProbe | None, truth: Callable[[], FloatArray] | None) -> list[str]:
+    """The sources that measure: ``vision`` (the probe), then ``truth``."""
     if probe is None and truth is None:
         raise InputError(
             "evaluation: nothing measures the end-effector (no cameras, no ground truth)"
         )
-    out: dict[str, dict[str, Any]] = {}
-    if probe is not None:
-        out["vision"] = {}
-    if truth is not None:
-        out["truth"] = {}
-    return out
+    return [name for name, by in (("vision", probe), ("truth", truth)) if by is not None]
 
 
 def _measure(
@@ -181,16 +185,16 @@ def run_pose_accuracy(
     settle_s: float = 5.0,
     truth: Callable[[], FloatArray] | None = None,
     progress: Callable[[str, int, int], None] | None = None,
-) -> dict[str, dict[str, Any]]:
+) -> BySource[PoseAccuracyFigures]:
     """ISO 9283 pose accuracy (AP, clause 7.2.1) and repeatability (RP, 7.2.2) per condition.
 
     Returns
     -------
     dict
-        ``{"vision" | "truth": {condition: {"mean_ap_p_um", "max_ap_p_um", "poses": [...]}}}``
-        (the ``pose_accuracy`` object of results.json).
+        ``{"vision" | "truth": {condition: PoseAccuracyFigures}}`` (the ``pose_accuracy``
+        object of results.json).
     """
-    out = _sources(probe, truth)
+    out: BySource[PoseAccuracyFigures] = {s: {} for s in _sources(probe, truth)}
     for name, command in _commanders(manipulator, conditions).items():
         visit = functools.partial(_visit, command, manipulator=manipulator, clock=clock,
                                   settle_s=settle_s, probe=probe, truth=truth)  # fmt: skip
@@ -212,11 +216,11 @@ def run_pose_accuracy(
                 if len(a):
                     stats.append(pose_statistics(pose, a))
             ap = [s.ap_p_um for s in stats]
-            out[source][name] = {
-                "mean_ap_p_um": float(np.mean(ap)) if ap else float("nan"),
-                "max_ap_p_um": float(np.max(ap)) if ap else float("nan"),
-                "poses": [s.as_dict() for s in stats],
-            }
+            out[source][name] = PoseAccuracyFigures(
+                mean_ap_p_um=float(np.mean(ap)) if ap else float("nan"),
+                max_ap_p_um=float(np.max(ap)) if ap else float("nan"),
+                poses=stats,
+            )
     return out
 
 
@@ -273,7 +277,7 @@ def run_multi_directional(
     settle_s: float = 5.0,
     truth: Callable[[], FloatArray] | None = None,
     progress: Callable[[str, int, int], None] | None = None,
-) -> dict[str, dict[str, Any]]:
+) -> BySource[MultiDirectionalFigures]:
     """ISO 9283 multi-directional pose accuracy variation (vAP, clause 7.3) per condition.
 
     Each pose is approached, every cycle, from three directions: from a point
@@ -286,15 +290,15 @@ def run_multi_directional(
     Returns
     -------
     dict
-        ``{"vision" | "truth": {condition: {"vap_um": mean over the poses, "max_vap_um",
-        "poses": [{"desired_um", "vap_um"}]}}}``.
+        ``{"vision" | "truth": {condition: MultiDirectionalFigures}}`` (vAP mean over the
+        poses, the worst, and each pose's).
     """
     if travel_um is None:
         margin = np.where(manipulator.held, 0.0, 50.0)
         travel_um = (manipulator.limits_um[:, 0] + margin, manipulator.limits_um[:, 1] - margin)
     low, high = travel_um
     detours = [approach_detours_um(p, np.asarray(low), np.asarray(high)) for p in poses_um]
-    out = _sources(probe, truth)
+    out: BySource[MultiDirectionalFigures] = {s: {} for s in _sources(probe, truth)}
     for name, command in _commanders(manipulator, conditions).items():
         visit = functools.partial(_visit, command, manipulator=manipulator, clock=clock,
                                   settle_s=settle_s, probe=probe, truth=truth)  # fmt: skip
@@ -318,14 +322,13 @@ def run_multi_directional(
             for pose, by_dir in zip(poses_um, per_pose, strict=True):
                 dirs = [np.array(a)[np.all(np.isfinite(a), axis=1)] for a in by_dir]
                 if all(len(a) for a in dirs):
-                    rows.append({"desired_um": pose.tolist(),
-                                 "vap_um": multi_directional_variation(dirs)})  # fmt: skip
-            vap = [r["vap_um"] for r in rows]
-            out[source][name] = {
-                "vap_um": float(np.mean(vap)) if vap else float("nan"),
-                "max_vap_um": float(np.max(vap)) if vap else float("nan"),
-                "poses": rows,
-            }
+                    rows.append(DirectionalPose(pose, multi_directional_variation(dirs)))
+            vap = [r.vap_um for r in rows]
+            out[source][name] = MultiDirectionalFigures(
+                vap_um=float(np.mean(vap)) if vap else float("nan"),
+                max_vap_um=float(np.max(vap)) if vap else float("nan"),
+                poses=rows,
+            )
     return out
 
 
@@ -339,17 +342,17 @@ def run_decoupling(
     settle_s: float = 5.0,
     truth: Callable[[], FloatArray] | None = None,
     progress: Callable[[str, int, int], None] | None = None,
-) -> dict[str, dict[str, Any]]:
+) -> BySource[DecouplingFigures]:
     """The decoupling test of Fig 5.5: undesired displacement ranges (Table 5-5) and Ω (5-6).
 
     Returns
     -------
     dict
-        ``{"vision" | "truth": {condition: {"undesired_um": {...}, "omega": {...},
-        "samples_um": [...]}}}`` (the ``decoupling`` object of results.json, with the samples).
+        ``{"vision" | "truth": {condition: DecouplingFigures}}`` (the ``decoupling`` object
+        of results.json, with the samples).
     """
     path, segment = decoupling_path(samples_per_axis)
-    out = _sources(probe, truth)
+    out: BySource[DecouplingFigures] = {s: {} for s in _sources(probe, truth)}
     for name, command in _commanders(manipulator, conditions).items():
         samples: dict[str, list[FloatArray]] = {k: [] for k in out}
         for k, rel in enumerate(path):
@@ -362,17 +365,22 @@ def run_decoupling(
         for source, pts in samples.items():
             p = np.array(pts)
             good = np.all(np.isfinite(p), axis=1)
-            r = decoupling_metrics(p[good], segment[good])
-            out[source][name] = {
-                **r.as_dict(),
-                "samples_um": p.tolist(),
-                "segment": segment.tolist(),
-            }
+            out[source][name] = DecouplingFigures(
+                decoupling_metrics(p[good], segment[good]), p, segment
+            )
     return out
 
 
 #: The tests of :func:`run_evaluation`.
 TESTS = ("all", "pose-accuracy", "decoupling", "distance", "stabilisation")
+
+
+class RunOptions(TypedDict):
+    """The keywords every test of an evaluation takes (:func:`run_pose_accuracy` ...)."""
+
+    settle_s: float
+    truth: Callable[[], FloatArray] | None
+    progress: Callable[[str, int, int], None] | None
 
 
 def _iso_tests(
@@ -383,28 +391,28 @@ def _iso_tests(
     poses_um: FloatArray,
     tests: str,
     cycles: int,
-    kwargs: dict[str, Any],
+    options: RunOptions,
     drift_s: float,
     drift_interval_s: float,
     band_um: float,
-) -> dict[str, Any]:
-    """Distance, stabilisation and drift (``procedures.iso_tests``) as asked."""
+    into: Evaluation,
+) -> None:
+    """Distance, stabilisation and drift (``procedures.iso_tests``) as asked, ``into`` the
+    evaluation."""
     from .iso_tests import run_distance, run_drift, run_stabilisation
 
     p1, p2, p4 = poses_um[0], poses_um[1], poses_um[min(3, len(poses_um) - 1)]
-    parts: dict[str, Any] = {}
     if tests in ("all", "distance"):
-        parts["distance_accuracy"] = run_distance(manipulator, clock, probe, conditions, p2, p4,
-                                                  cycles=max(cycles, 2), **kwargs)  # fmt: skip
+        into.distance_accuracy = run_distance(manipulator, clock, probe, conditions, p2, p4,
+                                              cycles=max(cycles, 2), **options)  # fmt: skip
     if tests in ("all", "stabilisation"):
-        parts["stabilisation"] = run_stabilisation(
+        into.stabilisation = run_stabilisation(
             manipulator, clock, probe, conditions, p1, p2, cycles=cycles, band_um=band_um,
-            truth=kwargs["truth"], progress=kwargs["progress"],
+            truth=options["truth"], progress=options["progress"],
         )  # fmt: skip
     if drift_s > 0:
-        parts["drift"] = run_drift(manipulator, clock, probe, conditions, p1, duration_s=drift_s,
-                                   interval_s=min(drift_interval_s, drift_s), **kwargs)  # fmt: skip
-    return parts
+        into.drift = run_drift(manipulator, clock, probe, conditions, p1, duration_s=drift_s,
+                               interval_s=min(drift_interval_s, drift_s), **options)  # fmt: skip
 
 
 def run_evaluation(
@@ -428,7 +436,7 @@ def run_evaluation(
     drift_s: float = 0.0,
     drift_interval_s: float = 600.0,
     band_um: float = 2.0,
-) -> dict[str, Any]:
+) -> Evaluation:
     """The evaluation tests of a calibrated manipulator on any rig (thesis 5.3, ISO 9283).
 
     Each test runs without compensation, with the matrix compensator and (for a polynomial
@@ -462,9 +470,10 @@ def run_evaluation(
 
     Returns
     -------
-    dict
-        ``pose_accuracy`` and/or ``decoupling`` objects of results.json, and with the closed
-        loop its ``closed_loop`` summary (iterations, frames, how the loops ended).
+    Evaluation
+        The tests that ran (``pose_accuracy`` and/or ``decoupling``, the ISO 9283 tests
+        asked), and with the closed loop its ``closed_loop`` summary (iterations, frames,
+        how the loops ended); its ``to_json()`` is what results.json stores of them.
     """
     calibration.check_device(manipulator.identity)
     if tests not in TESTS:
@@ -491,8 +500,8 @@ def run_evaluation(
                                      clock, read_extra, ServoConfig(tolerance_um=tolerance_um),
                                      truth=truth)  # fmt: skip
         conditions["closed_loop"] = loop
-    kwargs: dict[str, Any] = {"settle_s": settle_s, "truth": truth, "progress": progress}
-    parts: dict[str, Any] = {}
+    options = RunOptions(settle_s=settle_s, truth=truth, progress=progress)
+    parts = Evaluation()
     rng = calibration.joint_range_um
     lim = manipulator.limits_um if rng is None else rng
     poses_um = TABLE_5_2_POSES_UM if poses == "table-5-2" else iso_cube_poses(*lim.T)
@@ -511,13 +520,13 @@ def run_evaluation(
     check_limits(np.vstack(planned), manipulator.limits_um, row="test command",
                  owner=f"evaluate on {manipulator.name}")  # fmt: skip
     if tests in ("all", "pose-accuracy"):
-        parts["pose_accuracy"] = run_pose_accuracy(
-            manipulator, clock, probe, conditions, cycles=cycles, poses_um=poses_um, **kwargs
+        parts.pose_accuracy = run_pose_accuracy(
+            manipulator, clock, probe, conditions, cycles=cycles, poses_um=poses_um, **options
         )
     if tests in ("all", "decoupling"):
-        parts["decoupling"] = run_decoupling(manipulator, clock, probe, conditions, **kwargs)
-    parts |= _iso_tests(manipulator, clock, probe, conditions, poses_um, tests, cycles,
-                        kwargs, drift_s, drift_interval_s, band_um)  # fmt: skip
+        parts.decoupling = run_decoupling(manipulator, clock, probe, conditions, **options)
+    _iso_tests(manipulator, clock, probe, conditions, poses_um, tests, cycles, options, drift_s,
+               drift_interval_s, band_um, parts)  # fmt: skip
     if loop is not None:
-        parts["closed_loop"] = loop.summary()
+        parts.closed_loop = loop.summary()
     return parts

@@ -206,7 +206,7 @@ def identify(
         fitted = fit_family(u_fit, p_fit, fam, inputs, extra, joint_range, held)
         if chosen is None:
             return fitted
-        return dataclasses.replace(fitted, selection=fitted.selection | chosen.as_dict())
+        return dataclasses.replace(fitted, selection={**fitted.selection, **chosen.as_dict()})
 
     val = validate_split(fit, u, positions, n_fit)
     validation: dict[str, object] = {
@@ -258,7 +258,7 @@ def calibrate_manipulator(
         refit = identify(d_um, p_um, model, train=train, **options)
         result = dataclasses.replace(refit, outliers=result.outliers, excluded=excluded)
     d = np.asarray(d_um, dtype=np.float64)
-    extra: dict[str, Any] = {
+    extra: dict[str, object] = {
         "joint_range_um": np.column_stack([d.min(axis=0), d.max(axis=0)]).tolist()
     }
     fits: dict[str, Identification] = {model: result}

@@ -19,15 +19,21 @@ simulator, by ground truth.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 
 from .._validation import FloatArray
 from ..control.feedforward import FeedForward
 from ..devices.base import Clock, Manipulator
-from ..metrics import distance_statistics, drift, pose_statistics, stabilisation_time_s
+from ..metrics import (
+    DistanceStatistics,
+    distance_statistics,
+    drift,
+    pose_statistics,
+    stabilisation_time_s,
+)
 from .evaluation import PositionProbe, _commanders, _measure, _sources, _visit, aimed_poses_um
+from .evaluation_figures import BySource, DriftFigures, StabilisationFigures
 
 __all__ = ["run_distance", "run_drift", "run_stabilisation"]
 
@@ -46,15 +52,15 @@ def run_distance(
     settle_s: float = 5.0,
     truth: Callable[[], FloatArray] | None = None,
     progress: Progress | None = None,
-) -> dict[str, dict[str, Any]]:
+) -> BySource[DistanceStatistics]:
     """Distance accuracy AD and repeatability RD (ISO 9283 clause 7.4) between two poses.
 
     Returns
     -------
     dict
-        ``{source: {condition: DistanceStatistics.as_dict()}}``; ``cycles`` >= 2.
+        ``{source: {condition: DistanceStatistics}}``; ``cycles`` >= 2.
     """
-    out = _sources(probe, truth)
+    out: BySource[DistanceStatistics] = {s: {} for s in _sources(probe, truth)}
     for name, command in _commanders(manipulator, conditions).items():
         home = _visit(command, np.zeros(3), manipulator, clock, settle_s, probe, truth)
         got: dict[str, list[list[FloatArray]]] = {k: [[], []] for k in home}
@@ -70,7 +76,7 @@ def run_distance(
             ok = np.all(np.isfinite(a1), axis=1) & np.all(np.isfinite(a2), axis=1)
             if ok.sum() >= 2:
                 stats = distance_statistics(aim1, aim2, np.array(a1)[ok], np.array(a2)[ok])
-                out[source][name] = stats.as_dict()
+                out[source][name] = stats
     return out
 
 
@@ -87,7 +93,7 @@ def run_stabilisation(
     window_s: float = 6.0,
     truth: Callable[[], FloatArray] | None = None,
     progress: Progress | None = None,
-) -> dict[str, dict[str, Any]]:
+) -> BySource[StabilisationFigures]:
     """Pose stabilisation time (ISO 9283 clause 7.5) at ``p1`` after a move from ``p2``.
 
     The "attained" signal is the device's "stopped"; the position is then measured as fast as
@@ -98,10 +104,10 @@ def run_stabilisation(
     Returns
     -------
     dict
-        ``{source: {condition: {"band_um", "times_s": [per cycle, None if not settled
-        within the window], "mean_s", "max_s"}}}``.
+        ``{source: {condition: StabilisationFigures}}`` (the band, the time of each cycle,
+        their mean and the worst).
     """
-    out = _sources(probe, truth)
+    out: BySource[StabilisationFigures] = {s: {} for s in _sources(probe, truth)}
     for name, command in _commanders(manipulator, conditions).items():
         times: dict[str, list[float | None]] = {k: [] for k in out}
         for c in range(cycles):
@@ -131,13 +137,13 @@ def run_stabilisation(
                 progress(f"stabilisation, {name}", c + 1, cycles)
         for source, ts in times.items():
             settled = [x for x in ts if x is not None]
-            out[source][name] = {
-                "band_um": band_um,
-                "window_s": window_s,
-                "times_s": ts,
-                "mean_s": float(np.mean(settled)) if settled else None,
-                "max_s": float(np.max(settled)) if len(settled) == len(ts) else None,
-            }
+            out[source][name] = StabilisationFigures(
+                band_um=band_um,
+                window_s=window_s,
+                times_s=ts,
+                mean_s=float(np.mean(settled)) if settled else None,
+                max_s=float(np.max(settled)) if len(settled) == len(ts) else None,
+            )
     return out
 
 
@@ -153,7 +159,7 @@ def run_drift(
     settle_s: float = 5.0,
     truth: Callable[[], FloatArray] | None = None,
     progress: Progress | None = None,
-) -> dict[str, dict[str, Any]]:
+) -> BySource[DriftFigures]:
     """Drift of pose accuracy (ISO 9283 clause 7.7) over ``duration_s``.
 
     Every ``interval_s`` at most (evenly, the last visit at ``duration_s``) each condition
@@ -164,9 +170,9 @@ def run_drift(
     Returns
     -------
     dict
-        ``{source: {condition: {"t_s": [...], "ap_p_um": [...], "drift_ap_um": float}}}``.
+        ``{source: {condition: DriftFigures}}`` (the time and AP_P of each visit, and dAP).
     """
-    out = _sources(probe, truth)
+    out: BySource[DriftFigures] = {s: {} for s in _sources(probe, truth)}
     commanders = _commanders(manipulator, conditions)
     visits = int(np.ceil(duration_s / interval_s - 1e-9)) + 1  # evenly, the last at the end
     series: dict[str, dict[str, tuple[list[float], list[float]]]] = {
@@ -188,9 +194,7 @@ def run_drift(
             progress("drift", v + 1, visits)
     for source, per in series.items():
         for name, (t, ap) in per.items():
-            out[source][name] = {
-                "t_s": t,
-                "ap_p_um": ap,
-                "drift_ap_um": drift(ap[0], ap[-1]) if len(ap) >= 2 else None,
-            }
+            out[source][name] = DriftFigures(
+                t_s=t, ap_p_um=ap, drift_ap_um=drift(ap[0], ap[-1]) if len(ap) >= 2 else None
+            )
     return out

@@ -17,15 +17,16 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from .._validation import FloatArray, as_array, as_rows
 from ..errors import DetectionError, InputError
+from ..json_value import JsonValue
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
-from ..metrics.error_summary import summarize_errors
+from ..metrics.error_summary import ErrorSummary, summarize_errors
 from .evaluation import iso_cube_poses
 from .station import Station, check_frames
 
@@ -54,15 +55,23 @@ class MeetResult:
     vision_um: FloatArray
     truth_um: FloatArray | None
 
-    def as_dict(self) -> dict[str, Any]:
+    def gap_summary(self, source: str) -> ErrorSummary | None:
+        """The gap's figures by ``source`` (``vision`` or ``truth``) over the targets where it
+        was measured; None where it was at none (or the source is not there)."""
+        values = {"vision": self.vision_um, "truth": self.truth_um}.get(source)
+        if values is None:
+            return None
+        ok = values[np.isfinite(values)]
+        return summarize_errors(ok) if ok.size else None
+
+    def as_dict(self) -> dict[str, JsonValue]:
         """Plain dict for results.json: the summaries and each target's distances."""
-        out: dict[str, Any] = {"mode": self.mode, "offset_um": self.offset_um.tolist(),
-                               "targets_um": self.targets_um.tolist()}  # fmt: skip
+        out: dict[str, JsonValue] = {"mode": self.mode, "offset_um": self.offset_um.tolist(),
+                                     "targets_um": self.targets_um.tolist()}  # fmt: skip
         for source, values in (("vision", self.vision_um), ("truth", self.truth_um)):
             if values is None:
                 continue
-            ok = values[np.isfinite(values)]
-            s = summarize_errors(ok) if ok.size else None
+            s = self.gap_summary(source)
             out[source] = {
                 "mean_um": None if s is None else s.mean,
                 "max_um": None if s is None else s.max,

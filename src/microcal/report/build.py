@@ -5,15 +5,33 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import SupportsFloat
 
 import jinja2
 import numpy as np
 
+from .._validation import FloatArray
 from .._version import __version__
 from ..formats.atomic import write_text_atomic
+from ..formats.cameras_file import (
+    DiagnosticsRecord,
+    LensModelRecord,
+    RejectedPair,
+    RejectedView,
+    TurnedView,
+)
+from ..formats.records import (
+    CheckRecord,
+    DecouplingResult,
+    DesignRecord,
+    PoseAccuracyResult,
+    Results,
+    ValidationRecord,
+)
 from ..thesis.figures import (
     CLAIMED_ACCURACY_UM,
     DECOUPLING_UM,
@@ -44,29 +62,34 @@ def compares_with_thesis(data: RunData) -> bool:
 
 
 def _rig_text(data: RunData) -> str:
-    """One line naming the rig of a run, for a report without the thesis comparison."""
+    """One line naming the rig of a run, for a report without the thesis comparison.
+
+    The rig is run.json's record of it as written (a spec's ``to_dict()``), read key by key
+    so that a rig of any version is named.
+    """
     rig = data.rig
     if rig is None:
-        return "not recorded (no run.json)" if not data.manifest else "not recorded in run.json"
+        return "not recorded (no run.json)" if data.manifest is None else "not recorded in run.json"
     driver = rig.get("driver")
     if driver == "sim":
         text = f"the simulator, preset {rig.get('preset', '?')}"
         if rig.get("seed") is not None:
             text += f", seed {rig['seed']}"
-        if rig.get("overrides"):
-            text += f", {len(rig['overrides'])} settings overridden"
+        overrides = rig.get("overrides")
+        if overrides and isinstance(overrides, Mapping | list | str):
+            text += f", {len(overrides)} settings overridden"
         return text
     if driver == "hardware":
         parts = []
         manipulator = rig.get("manipulator")
-        if isinstance(manipulator, dict) and manipulator.get("kind"):
+        if isinstance(manipulator, Mapping) and manipulator.get("kind"):
             parts.append(f"manipulator {manipulator['kind']}")
         cameras = rig.get("cameras")
-        if isinstance(cameras, dict) and cameras:
+        if isinstance(cameras, Mapping) and cameras:
             parts.append(
                 "cameras "
                 + ", ".join(
-                    f"{name} ({c['kind']})" if isinstance(c, dict) and c.get("kind") else name
+                    f"{name} ({c['kind']})" if isinstance(c, Mapping) and c.get("kind") else name
                     for name, c in cameras.items()
                 )
             )
@@ -74,250 +97,442 @@ def _rig_text(data: RunData) -> str:
     return f"driver {driver}"
 
 
-def _stereo(data: RunData, thesis: bool) -> dict[str, Any] | None:
-    if not data.cameras:
+# --- the sections: what the template shows, built from the run's records -------------------
+@dataclass(frozen=True)
+class CameraRow:
+    """One camera of the stereo calibration's table."""
+
+    name: str
+    rms_px: float | None
+    thesis_px: float | None
+    views_used: int | None
+    rejected: list[RejectedView]
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    k1: float
+    size: tuple[int, int]
+    lens_model: LensModelRecord | None
+    diagnostics: DiagnosticsRecord | None
+
+
+@dataclass(frozen=True)
+class StereoSection:
+    """The stereo calibration: a row per camera, the stereo figures, the figures drawn."""
+
+    rows: list[CameraRow]
+    method: str
+    baseline_um: float | None
+    per_view: str | None
+    residuals: str | None
+    coverage: str | None
+    field: str | None
+    uncertainty: str | None
+    turned: list[TurnedView]
+    pairs_rejected: list[RejectedPair]
+    notes: list[str]
+    angle_deg: float | None
+
+
+def _stereo(data: RunData, thesis: bool) -> StereoSection | None:
+    if data.cameras is None:
         return None
-    cams = data.cameras.get("cameras", {})
-    rows, per_view, residuals, sizes, maps = [], {}, {}, {}, {}
+    cams = data.cameras.cameras
+    rows: list[CameraRow] = []
+    per_view: dict[str, dict[str, float]] = {}
+    residuals: dict[str, FloatArray] = {}
+    sizes: dict[str, tuple[int, int]] = {}
+    maps: dict[str, FloatArray] = {}
     for name, c in cams.items():
-        K = np.asarray(c["K"], dtype=float)
-        dist = list(c.get("dist", [0.0] * 5))
+        K = np.asarray(c.K, dtype=float)
+        dist = list(c.dist)
         rows.append(
-            {
-                "name": name,
-                "rms_px": c.get("rms_px"),
-                "thesis_px": THESIS_REPROJECTION_PX.get(name) if thesis else None,
-                "views_used": c.get("views_used"),
-                "rejected": c.get("views_rejected", []),
-                "fx": K[0, 0],
-                "fy": K[1, 1],
-                "cx": K[0, 2],
-                "cy": K[1, 2],
-                "k1": dist[0] if dist else 0.0,
-                "size": c.get("image_size_px"),
-                "lens_model": c.get("lens_model"),
-                "diagnostics": c.get("diagnostics"),
-            }
+            CameraRow(
+                name=name,
+                rms_px=c.rms_px,
+                thesis_px=THESIS_REPROJECTION_PX.get(name) if thesis else None,
+                views_used=c.views_used,
+                rejected=c.views_rejected,
+                fx=K[0, 0],
+                fy=K[1, 1],
+                cx=K[0, 2],
+                cy=K[1, 2],
+                k1=dist[0] if dist else 0.0,
+                size=c.image_size_px,
+                lens_model=c.lens_model,
+                diagnostics=c.diagnostics,
+            )
         )
-        umap = (c.get("diagnostics") or {}).get("uncertainty_map_px")
+        umap = c.diagnostics.uncertainty_map_px if c.diagnostics is not None else None
         if umap:
             maps[name] = np.asarray(umap, dtype=float)
-        if c.get("per_view_rms_px"):
-            per_view[name] = c["per_view_rms_px"]
-        views = c.get("residuals_px") or {}
-        if views:
-            residuals[name] = np.vstack([np.asarray(v, dtype=float) for v in views.values()])
-            sizes[name] = c["image_size_px"]
-    stereo = data.cameras.get("stereo", {})
-    return {
-        "rows": rows,
-        "method": stereo.get("method", ""),
-        "baseline_um": stereo.get("baseline_um"),
-        "per_view": figures.per_view_rms(per_view) if per_view else None,
-        "residuals": figures.calibration_residuals(residuals) if residuals else None,
-        "coverage": figures.calibration_coverage(residuals, sizes) if residuals else None,
-        "field": figures.residual_field(residuals, sizes) if residuals else None,
-        "uncertainty": figures.projection_uncertainty(
-            maps, {n: cams[n]["image_size_px"] for n in maps}
-        )
+        if c.per_view_rms_px:
+            per_view[name] = c.per_view_rms_px
+        if c.residuals_px:
+            residuals[name] = np.vstack(
+                [np.asarray(v, dtype=float) for v in c.residuals_px.values()]
+            )
+            sizes[name] = c.image_size_px
+    stereo = data.cameras.stereo
+    return StereoSection(
+        rows=rows,
+        method=stereo.method,
+        baseline_um=stereo.baseline_um,
+        per_view=figures.per_view_rms(per_view) if per_view else None,
+        residuals=figures.calibration_residuals(residuals) if residuals else None,
+        coverage=figures.calibration_coverage(residuals, sizes) if residuals else None,
+        field=figures.residual_field(residuals, sizes) if residuals else None,
+        uncertainty=figures.projection_uncertainty(maps, {n: cams[n].image_size_px for n in maps})
         if maps
         else None,
-        "turned": stereo.get("turned_views", []),
-        "pairs_rejected": stereo.get("views_rejected", []),
-        "notes": stereo.get("notes", []),
-        "angle_deg": stereo.get("angle_deg"),
-    }
+        turned=stereo.turned_views,
+        pairs_rejected=stereo.views_rejected,
+        notes=stereo.notes,
+        angle_deg=stereo.angle_deg,
+    )
 
 
-def _acquisition(data: RunData) -> dict[str, Any] | None:
+@dataclass(frozen=True)
+class FailedRow:
+    """A pose that failed, at which stage (acquisition or measurement) and why."""
+
+    pose: int
+    stage: str
+    reason: str
+
+
+@dataclass(frozen=True)
+class AcquisitionSection:
+    """The acquisition: how many poses, how they were designed and settled, what failed."""
+
+    n_commands: int | None
+    n_stored: int
+    design: DesignRecord | None
+    settle: str | None
+    frames: int | None
+    mean_settle_s: float | None
+    max_settle_s: float | None
+    design_figure: str | None
+    settle_figure: str | None
+    failed: list[FailedRow]
+
+
+def _acquisition(data: RunData) -> AcquisitionSection | None:
     if data.commands_um is None and not data.journal:
         return None
-    n_fit = None
-    for entry in data.calibration.manipulators.values() if data.calibration else []:
-        n_fit = entry.validation.get("n_fit")
-    settle = np.array([float(r["settle_s"]) for r in data.journal if "settle_s" in r])
-    failed = [
-        {"pose": r.get("pose"), "stage": "acquisition", "reason": r.get("reason", "")}
-        for r in data.journal
-        if r.get("status") != "ok"
-    ]
+    models = data.models()  # the last device's own model last
+    last = models[-1].validation if models else None
+    n_fit = last.n_fit if last is not None else None
+    settle = np.array([float(r.settle_s) for r in data.journal if r.settle_s is not None])
+    failed = [FailedRow(r.pose, "acquisition", r.reason or "")
+              for r in data.journal if r.status != "ok"]  # fmt: skip
     if data.measurements is not None:
         failed += [
-            {"pose": pose, "stage": "measurement", "reason": reason}
+            FailedRow(pose, "measurement", reason)
             for pose, reason in sorted(data.measurements.failed_reasons.items())
             if not reason.startswith("acquisition failed")
         ]
-    design = data.manifest.get("design", {})
-    return {
-        "n_commands": None if data.commands_um is None else len(data.commands_um),
-        "n_stored": sum(1 for r in data.journal if r.get("status") == "ok"),
-        "design": design,
-        "settle": data.manifest.get("settle"),
-        "frames": data.manifest.get("frames_per_pose"),
-        "mean_settle_s": float(settle.mean()) if settle.size else None,
-        "max_settle_s": float(settle.max()) if settle.size else None,
-        "design_figure": (
+    manifest = data.manifest
+    return AcquisitionSection(
+        n_commands=None if data.commands_um is None else len(data.commands_um),
+        n_stored=sum(1 for r in data.journal if r.status == "ok"),
+        design=manifest.design if manifest is not None else None,
+        settle=manifest.settle if manifest is not None else None,
+        frames=manifest.frames_per_pose if manifest is not None else None,
+        mean_settle_s=float(settle.mean()) if settle.size else None,
+        max_settle_s=float(settle.max()) if settle.size else None,
+        design_figure=(
             figures.command_design(data.commands_um, n_fit)
             if data.commands_um is not None
             else None
         ),
-        "settle_figure": figures.settle_times(settle) if settle.size else None,
-        "failed": failed,
-    }
+        settle_figure=figures.settle_times(settle) if settle.size else None,
+        failed=failed,
+    )
 
 
-def _measurement(data: RunData, thesis: bool) -> dict[str, Any] | None:
+@dataclass(frozen=True)
+class MeasurementSection:
+    """The 3D measurement: poses measured and failed, its error against the truth (the
+    simulator), the reported uncertainty."""
+
+    n_ok: int
+    n_failed: int
+    rms_error_um: float | None
+    claimed_um: float | None
+    median_std_um: list[float] | None = None
+    figure: str | None = None
+
+
+def _measurement(data: RunData, thesis: bool) -> MeasurementSection | None:
     m = data.measurements
     if m is None:
         return None
-    out: dict[str, Any] = {
-        "n_ok": len(m.pose),
-        "n_failed": m.n_failed,
-        "rms_error_um": data.results.get("measurement", {}).get("rms_error_um"),
-        "claimed_um": CLAIMED_ACCURACY_UM if thesis else None,
-    }
-    if m.std_um is not None:
-        out["median_std_um"] = np.median(m.std_um, axis=0).tolist()
-        out["figure"] = figures.measurement_uncertainty(m.std_um)
-    return out
+    measured = data.results.measurement if data.results is not None else None
+    std = m.std_um
+    return MeasurementSection(
+        n_ok=len(m.pose),
+        n_failed=m.n_failed,
+        rms_error_um=measured.rms_error_um if measured is not None else None,
+        claimed_um=CLAIMED_ACCURACY_UM if thesis else None,
+        median_std_um=None if std is None else np.median(std, axis=0).tolist(),
+        figure=None if std is None else figures.measurement_uncertainty(std),
+    )
 
 
-def _models(data: RunData, thesis: bool) -> dict[str, Any] | None:
+@dataclass(frozen=True)
+class AxisTerms:
+    """The selected terms of one axis of {G}: (name, coefficient, standard error) each."""
+
+    axis: str
+    terms: list[tuple[str, float, float]]
+
+
+@dataclass(frozen=True)
+class ModelView:
+    """An identified model: its terms per axis, validation, and the thesis's figures."""
+
+    kind: str
+    axes: list[AxisTerms]
+    n_terms: int
+    held: str
+    validation: ValidationRecord | None
+    thesis: dict[str, float] | None
+
+
+@dataclass(frozen=True)
+class ModelsSection:
+    """The identified models and their prediction errors at the validation poses."""
+
+    models: list[ModelView]
+    figure: str | None
+
+
+def _models(data: RunData, thesis: bool) -> ModelsSection | None:
     if data.calibration is None:
         return None
     errors = data.model_errors()
     models = [
-        {
-            "kind": kind,
-            "axes": [{"axis": a, "terms": model.axis_terms(i)} for i, a in enumerate("xyz")],
-            "n_terms": int(np.sum(model.selected)),
-            "held": ", ".join(f"{j} at {v:g} µm" for j, v in model.held_um.items()),
-            "validation": validation,
-            "thesis": VALIDATION_UM.get(kind) if thesis else None,
-        }
-        for kind, model, validation in data.models()
+        ModelView(
+            kind=found.kind,
+            axes=[AxisTerms(a, found.model.axis_terms(i)) for i, a in enumerate("xyz")],
+            n_terms=int(np.sum(found.model.selected)),
+            held=", ".join(f"{j} at {v:g} µm" for j, v in found.model.held_um.items()),
+            validation=found.validation,
+            thesis=VALIDATION_UM.get(found.kind) if thesis else None,
+        )
+        for found in data.models()
     ]
     figure = (
         figures.prediction_errors({e.kind: (e.poses, e.errors_um) for e in errors})
         if errors
         else None
     )
-    return {"models": models, "figure": figure}
+    return ModelsSection(models, figure)
 
 
-def _pose_accuracy(data: RunData, thesis: bool) -> dict[str, Any] | None:
-    pa = data.results.get("pose_accuracy")
+@dataclass(frozen=True)
+class PoseTable:
+    """The pose accuracy of one condition by one source."""
+
+    source: str
+    condition: str
+    figures: PoseAccuracyResult
+
+
+@dataclass(frozen=True)
+class PoseAccuracySection:
+    """Pose accuracy: the sources measured, a table per source and condition, the thesis's
+    figures (mean, worst) per condition where the run compares with it."""
+
+    sources: list[str]
+    tables: list[PoseTable]
+    thesis: Mapping[str, tuple[float, float]]
+
+
+def _pose_accuracy(data: RunData, thesis: bool) -> PoseAccuracySection | None:
+    pa = data.results.pose_accuracy if data.results is not None else None
     if not pa:
         return None
-    sources = [s for s in ("vision", "truth") if s in pa]
-    tables = []
-    for source in sources:
-        for name in CONDITIONS:
-            if name in pa[source]:
-                tables.append({"source": source, "condition": name, **pa[source][name]})
-    return {"sources": sources, "tables": tables, "thesis": POSE_ACCURACY_UM if thesis else {}}
+    sources: list[str] = [s for s in ("vision", "truth") if s in pa]
+    tables = [PoseTable(source, name, pa[source][name])
+              for source in sources for name in CONDITIONS if name in pa[source]]  # fmt: skip
+    return PoseAccuracySection(sources, tables, POSE_ACCURACY_UM if thesis else {})
 
 
-def _decoupling(data: RunData, thesis: bool) -> dict[str, Any] | None:
-    dc = data.results.get("decoupling")
+@dataclass(frozen=True)
+class DecouplingPlot:
+    """The figure of one condition's decoupling run."""
+
+    condition: str
+    figure: str
+
+
+@dataclass(frozen=True)
+class DecouplingSection:
+    """Decoupling: the figures per source and condition, their plots, the thesis's."""
+
+    sources: list[str]
+    by_source: dict[str, dict[str, DecouplingResult]]
+    plots: list[DecouplingPlot]
+    thesis_ranges: Mapping[str, Mapping[str, tuple[float, float]]]
+    thesis_omega: Mapping[str, Mapping[str, float]]
+
+
+def _decoupling(data: RunData, thesis: bool) -> DecouplingSection | None:
+    dc = data.results.decoupling if data.results is not None else None
     if not dc:
         return None
-    sources = [s for s in ("vision", "truth") if s in dc]
+    sources: list[str] = [s for s in ("vision", "truth") if s in dc]
     plots = []
     for name in CONDITIONS:
-        runs = {
-            source: (
-                np.asarray(dc[source][name]["samples_um"], dtype=float),
-                np.asarray(dc[source][name]["segment"], dtype=int),
-            )
-            for source in sources
-            if dc[source].get(name, {}).get("samples_um")
-        }
+        runs: dict[str, tuple[FloatArray, np.ndarray]] = {}
+        for source in sources:
+            found = dc[source].get(name)
+            if found is not None and found.samples_um:
+                samples = np.asarray(found.samples_um, dtype=float)
+                runs[source] = (samples, np.asarray(found.segment, dtype=int))
         if runs:
-            plots.append({"condition": name, "figure": figures.decoupling(name, runs)})
-    return {
-        "sources": sources,
-        "plots": plots,
-        "thesis_ranges": DECOUPLING_UM if thesis else {},
-        "thesis_omega": OMEGA_UM if thesis else {},
-    }
+            plots.append(DecouplingPlot(name, figures.decoupling(name, runs)))
+    return DecouplingSection(
+        sources=sources,
+        by_source=dc,
+        plots=plots,
+        thesis_ranges=DECOUPLING_UM if thesis else {},
+        thesis_omega=OMEGA_UM if thesis else {},
+    )
 
 
-def _iso(data: RunData) -> list[dict[str, Any]]:
+@dataclass(frozen=True)
+class IsoRow:
+    """One figure of ISO 9283's distance, stabilisation or drift tests."""
+
+    what: str
+    source: str
+    condition: str
+    value: str
+
+
+def _iso(data: RunData) -> list[IsoRow]:
     """ISO 9283's distance, stabilisation and drift rows, where evaluate ran them."""
+    results = data.results
+    if results is None:
+        return []
     rows = []
-    for source, per in data.results.get("distance_accuracy", {}).items():
-        rows += [{"what": "distance AD_P / RD (7.4)", "source": source, "condition": c,
-                  "value": f"{_fmt(d['ad_p_um'])} / {_fmt(d['rd_p_um'])} µm over "
-                           f"{_fmt(d['commanded_um'], 0)} µm"} for c, d in per.items()]  # fmt: skip
-    for source, per in data.results.get("stabilisation", {}).items():
-        rows += [{"what": f"stabilisation mean / worst, ±{d['band_um']} µm (7.5)",
-                  "source": source, "condition": c,
-                  "value": f"{_fmt(d['mean_s'])} / {_fmt(d['max_s'])} s"}
-                 for c, d in per.items()]  # fmt: skip
-    for source, per in data.results.get("drift", {}).items():
-        rows += [{"what": "drift dAP (7.7)", "source": source, "condition": c,
-                  "value": f"{_fmt(d['drift_ap_um'])} µm over "
-                           f"{_fmt((d['t_s'][-1] - d['t_s'][0]) / 3600 if d['t_s'] else None)} h"}
-                 for c, d in per.items()]  # fmt: skip
+    for source, per in (results.distance_accuracy or {}).items():
+        rows += [IsoRow("distance AD_P / RD (7.4)", source, c,
+                        f"{_fmt(d.ad_p_um)} / {_fmt(d.rd_p_um)} µm over "
+                        f"{_fmt(d.commanded_um, 0)} µm") for c, d in per.items()]  # fmt: skip
+    for source, per_s in (results.stabilisation or {}).items():
+        rows += [IsoRow(f"stabilisation mean / worst, ±{d.band_um} µm (7.5)", source, c,
+                        f"{_fmt(d.mean_s)} / {_fmt(d.max_s)} s")
+                 for c, d in per_s.items()]  # fmt: skip
+    for source, per_d in (results.drift or {}).items():
+        rows += [IsoRow("drift dAP (7.7)", source, c,
+                        f"{_fmt(d.drift_ap_um)} µm over "
+                        f"{_fmt((d.t_s[-1] - d.t_s[0]) / 3600 if d.t_s else None)} h")
+                 for c, d in per_d.items()]  # fmt: skip
     return rows
 
 
-def _station(data: RunData, root: Path) -> dict[str, Any] | None:
+@dataclass(frozen=True)
+class DeviceRow:
+    """One device of a station: its validation error and mean AP_P (µm), its own report."""
+
+    name: str
+    validation: float | None
+    uncalibrated: float | None
+    optimal_truth: float | None
+    optimal_vision: float | None
+    link: str
+
+
+@dataclass(frozen=True)
+class MeetRow:
+    """A station's meet test in one loop: the gap between the tips, µm."""
+
+    mode: str
+    targets: int
+    vision_mean: float | None
+    vision_max: float | None
+    truth_mean: float | None
+    truth_max: float | None
+
+
+@dataclass(frozen=True)
+class StationSection:
+    """A station demo's devices side by side, and its meet tests."""
+
+    devices: list[DeviceRow]
+    meet: list[MeetRow] = field(default_factory=list)
+
+
+def _station(data: RunData, root: Path) -> StationSection | None:
     """The devices of a station demo's results.json and its meet test (None for a run)."""
-    results = data.results or {}
-    devices, meet = results.get("devices"), results.get("meet")
-    if not isinstance(devices, dict):
+    results = data.results
+    if results is None or results.devices is None:
         return None
     rows = []
-    for name, r in devices.items():
-        pa = r.get("pose_accuracy", {}) if isinstance(r, dict) else {}
+    for name, r in results.devices.items():
+        pa = r.pose_accuracy or {}
 
-        def ap(source: str, condition: str, pa: dict[str, Any] = pa) -> Any:
-            return pa.get(source, {}).get(condition, {}).get("mean_ap_p_um")
+        def ap(source: str, condition: str, pa: Mapping[str, Mapping[str, PoseAccuracyResult]] = pa
+               ) -> float | None:  # fmt: skip
+            figures = pa.get(source, {}).get(condition)
+            return figures.mean_ap_p_um if figures is not None else None
 
-        poly = (r.get("models", {}) if isinstance(r, dict) else {}).get("polynomial", {})
+        poly = (r.models or {}).get("polynomial")
         link = f"{name}/report.html" if (root / name / "report.html").is_file() else ""
-        rows.append({"name": name, "validation": poly.get("validation", {}).get("mean_um"),
-                     "uncalibrated": ap("truth", "uncalibrated"),
-                     "optimal_truth": ap("truth", "optimal"),
-                     "optimal_vision": ap("vision", "optimal"), "link": link})  # fmt: skip
+        rows.append(DeviceRow(name, poly.validation.mean_um if poly is not None else None,
+                              ap("truth", "uncalibrated"), ap("truth", "optimal"),
+                              ap("vision", "optimal"), link))  # fmt: skip
     meets = []
-    for mode, m in (meet or {}).items() if isinstance(meet, dict) else ():
-        vision, truth = m.get("vision") or {}, m.get("truth") or {}
-        meets.append({"mode": mode, "targets": len(m.get("targets_um", [])),
-                      "vision_mean": vision.get("mean_um"), "vision_max": vision.get("max_um"),
-                      "truth_mean": truth.get("mean_um"),
-                      "truth_max": truth.get("max_um")})  # fmt: skip
-    return {"devices": rows, "meet": meets}
+    for mode, m in (results.meet or {}).items():
+        vision, truth = m.vision, m.truth
+        meets.append(MeetRow(mode, len(m.targets_um),
+                             vision.mean_um if vision else None, vision.max_um if vision else None,
+                             truth.mean_um if truth else None,
+                             truth.max_um if truth else None))  # fmt: skip
+    return StationSection(rows, meets)
 
 
-def _checks(data: RunData) -> dict[str, Any] | None:
+@dataclass(frozen=True)
+class ChecksSection:
+    """The history of checks of the calibration, and its figure."""
+
+    rows: list[CheckRecord]
+    figure: str
+
+
+def _checks(data: RunData) -> ChecksSection | None:
     if not data.checks:
         return None
-    offsets = np.array([c["offset_um"] for c in data.checks], dtype=float)
-    std = np.array([c["offset_std_um"] for c in data.checks], dtype=float)
-    verdicts = [str(c["verdict"]) for c in data.checks]
-    devices = [str(c.get("manipulator") or "m1") for c in data.checks]
-    return {"rows": data.checks, "figure": figures.check_history(offsets, std, verdicts, devices)}
+    offsets = np.array([c.offset_um for c in data.checks], dtype=np.float64)
+    std = np.array([c.offset_std_um for c in data.checks], dtype=np.float64)
+    verdicts = [c.verdict for c in data.checks]
+    devices = [str(c.manipulator or "m1") for c in data.checks]
+    return ChecksSection(data.checks, figures.check_history(offsets, std, verdicts, devices))
 
 
-def _provenance(data: RunData) -> list[tuple[str, Any]]:
-    rows: list[tuple[str, Any]] = [("run directory", str(data.run_dir))]
-    for label, prov in (
-        ("run", data.manifest.get("provenance")),
-        ("cameras", (data.cameras or {}).get("provenance")),
+def _provenance(data: RunData) -> list[tuple[str, str]]:
+    rows: list[tuple[str, str]] = [("run directory", str(data.run_dir))]
+    manifest, cameras, results = data.manifest, data.cameras, data.results
+    sources: tuple[tuple[str, Mapping[str, object] | None], ...] = (
+        ("run", manifest.provenance if manifest is not None else None),
+        ("cameras", cameras.provenance if cameras is not None else None),
         ("calibration", data.calibration.provenance if data.calibration else None),
-        ("results", data.results.get("provenance")),
-    ):
+        ("results", results.provenance if results is not None else None),
+    )
+    for label, prov in sources:
         for key, value in (prov or {}).items():
             rows.append((f"{label}: {key}", _plain(value)))
-    if data.manifest.get("rig"):
-        rows.append(("rig", _plain(data.manifest["rig"])))
+    if manifest is not None and manifest.rig:
+        rows.append(("rig", _plain(manifest.rig)))
     return rows
 
 
-def _plain(value: Any) -> str:
+def _plain(value: object) -> str:
     return json.dumps(value, sort_keys=True) if isinstance(value, dict | list) else str(value)
 
 
@@ -335,7 +550,7 @@ def build_report(run_dir: str | os.PathLike[str]) -> str:
         "title": f"microcal calibration report: {Path(run_dir).resolve().name}",
         "version": __version__,
         "generated": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
-        "results": data.results,
+        "results": data.results if data.results is not None else Results(),
         "stereo": _stereo(data, thesis),
         "acquisition": _acquisition(data),
         "measurement": _measurement(data, thesis),
@@ -364,9 +579,11 @@ def build_report(run_dir: str | os.PathLike[str]) -> str:
     return env.from_string(text).render(**context)
 
 
-def _fmt(value: Any, digits: int = 2) -> str:
+def _fmt(value: object, digits: int = 2) -> str:
     if value is None:
         return "-"
+    if not isinstance(value, str | SupportsFloat):
+        return str(value)
     try:
         x = float(value)
     except (TypeError, ValueError):

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any
 
 from rich.console import Console
 from rich.table import Table
@@ -36,7 +35,7 @@ def print_parts(console: Console, parts: list[TextTable | str]) -> None:
 @contextmanager
 def staged_progress(console: Console | None = None) -> Iterator[Callable[[str, int, int], None]]:
     """A progress callback (stage, done, total) showing one bar per stage while it runs."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+    from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeRemainingColumn
 
     bar = Progress(
         TextColumn("{task.description:<28}"),
@@ -46,7 +45,7 @@ def staged_progress(console: Console | None = None) -> Iterator[Callable[[str, i
         console=console or Console(stderr=True),
         transient=True,
     )
-    tasks: dict[str, Any] = {}
+    tasks: dict[str, TaskID] = {}
 
     def progress(stage: str, done: int, total: int) -> None:
         if stage not in tasks:

@@ -5,25 +5,36 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from .._validation import FloatArray
 from ..errors import FormatError, InputError
 from ..formats.calibration_file import Calibration, load_calibration
-from ..formats.json_file import read_versioned_json
+from ..formats.cameras_file import CamerasRecord
+from ..formats.json_file import parse_schema, read_versioned_json
 from ..formats.measurements import Measurements, read_measurements
-from ..formats.results_file import load_results
+from ..formats.records import CheckRecord, JournalLine, Results, RunManifest, ValidationRecord
+from ..formats.results_file import read_results
 from ..formats.run_directory import RUN_FILE_NAMES, RunDirectory
 from ..kinematics.extra_inputs import by_symbol
 from ..kinematics.models import KinematicModel
 
-__all__ = ["ModelErrors", "RunData", "load_run"]
+__all__ = ["IdentifiedModel", "ModelErrors", "RunData", "load_run"]
 
 #: The files a report reads, in the order a run produces them (the run directory's files
 #: but its images and the report itself).
 RUN_FILES = tuple(name for name in RUN_FILE_NAMES if name not in ("images", "report.html"))
+
+
+@dataclass(frozen=True)
+class IdentifiedModel:
+    """An identified model of the calibration and its validation figures (None when the
+    calibration records none)."""
+
+    kind: str
+    model: KinematicModel
+    validation: ValidationRecord | None
 
 
 @dataclass
@@ -32,7 +43,7 @@ class ModelErrors:
 
     kind: str
     model: KinematicModel
-    validation: dict[str, Any]
+    validation: ValidationRecord | None
     poses: np.ndarray  # (n_validate,) int: the validation poses
     errors_um: FloatArray  # (n_validate,)
 
@@ -42,33 +53,35 @@ class RunData:
     """The parts of a run directory that exist; None or empty for what is missing."""
 
     run_dir: Path
-    manifest: dict[str, Any] = field(default_factory=dict)
+    manifest: RunManifest | None = None
     commands_um: FloatArray | None = None  # (N, 3)
-    journal: list[dict[str, Any]] = field(default_factory=list)
+    journal: list[JournalLine] = field(default_factory=list)
     measurements: Measurements | None = None
-    cameras: dict[str, Any] | None = None
+    cameras: CamerasRecord | None = None
     calibration: Calibration | None = None
-    results: dict[str, Any] = field(default_factory=dict)
-    checks: list[dict[str, Any]] = field(default_factory=list)  # the calibration's history
+    results: Results | None = None
+    checks: list[CheckRecord] = field(default_factory=list)  # the calibration's history
 
     @property
-    def rig(self) -> dict[str, Any] | None:
+    def rig(self) -> dict[str, object] | None:
         """The rig run.json records (``{"driver": "sim", "preset": "thesis", ...}`` or
         ``{"driver": "hardware", ...}``); None without a run.json or a rig entry in it."""
-        rig = self.manifest.get("rig")
-        return dict(rig) if isinstance(rig, dict) else None
+        rig = self.manifest.rig if self.manifest is not None else None
+        return dict(rig) if rig is not None else None
 
-    def models(self) -> list[tuple[str, KinematicModel, dict[str, Any]]]:
-        """Every identified model as (kind, model, its validation object).
+    def models(self) -> list[IdentifiedModel]:
+        """Every identified model with its validation figures.
 
         A matrix model kept beside a polynomial one (for the matrix compensator) comes first.
         """
-        out: list[tuple[str, KinematicModel, dict[str, Any]]] = []
+        out: list[IdentifiedModel] = []
         for entry in self.calibration.manipulators.values() if self.calibration else []:
             matrix = entry.matrix_model
             if matrix is not None and entry.model.kind != "matrix":
-                out.append(("matrix", matrix, dict(entry.extra.get("matrix_validation", {}))))
-            out.append((entry.model.kind, entry.model, entry.validation))
+                out.append(IdentifiedModel("matrix", matrix, _validation(entry.matrix_validation)))
+            out.append(
+                IdentifiedModel(entry.model.kind, entry.model, _validation(entry.validation))
+            )
         return out
 
     def model_errors(self) -> list[ModelErrors]:
@@ -81,8 +94,9 @@ class RunData:
         if m is None:
             return []
         out = []
-        for kind, model, validation in self.models():
-            n_fit = int(validation.get("n_fit", 0))
+        for found in self.models():
+            model, validation = found.model, found.validation
+            n_fit = validation.n_fit if validation is not None and validation.n_fit else 0
             if not 0 < n_fit < len(m.pose):
                 continue
             names = [by_symbol(s).name for s in model.extra_inputs]
@@ -90,8 +104,15 @@ class RunData:
                 continue  # an input the measurements do not have
             u = np.column_stack([m.d_um, *(m.extra[n] for n in names)])
             err = np.linalg.norm(m.p_um[n_fit:] - model.predict_um(u[n_fit:]), axis=1)
-            out.append(ModelErrors(kind, model, validation, m.pose[n_fit:], err))
+            out.append(ModelErrors(found.kind, model, validation, m.pose[n_fit:], err))
         return out
+
+
+def _validation(validation: object) -> ValidationRecord | None:
+    """A calibration's validation object, typed; None for none (an empty one)."""
+    if not validation:
+        return None
+    return parse_schema(ValidationRecord, validation, "calibration.json: validation")
 
 
 def _rows_of_four(value: object) -> bool:
@@ -102,21 +123,30 @@ def _rows_of_four(value: object) -> bool:
     return rows.ndim == 2 and rows.shape[1] == 4
 
 
-def _cameras(path: Path) -> dict[str, Any] | None:
+def _cameras(path: Path) -> CamerasRecord | None:
     """cameras.json as read, after its cameras load (a malformed one fails here, named)."""
     from ..formats.cameras_file import read_cameras
 
     if not path.exists():
         return None
     raw = read_versioned_json(path, ("microcal.cameras/1",))
-    read_cameras(path)
-    for name, cam in raw["cameras"].items():
+    cameras = read_cameras(path)[0]
+    for name, cam in cameras.items():
         residuals = cam.get("residuals_px", {})
         if not isinstance(residuals, dict) or not all(map(_rows_of_four, residuals.values())):
             raise FormatError(
                 f"{path}: cameras.{name}.residuals_px: expected per image rows of [u, v, du, dv] px"
             )
-    return raw
+    return parse_schema(CamerasRecord, raw, path)
+
+
+def _checks(calibration: Path) -> list[CheckRecord]:
+    """The history of checks of a calibration file, typed."""
+    from ..formats.check_file import history_path, read_history
+
+    where = history_path(calibration)
+    return [parse_schema(CheckRecord, entry, f"{where}, check {k}")
+            for k, entry in enumerate(read_history(calibration), start=1)]  # fmt: skip
 
 
 def load_run(run_dir: str | os.PathLike[str]) -> RunData:
@@ -138,24 +168,20 @@ def load_run(run_dir: str | os.PathLike[str]) -> RunData:
         raise InputError(
             f"{root}: holds none of {', '.join(RUN_FILES)}; is this a microcal run directory?"
         )
-    data = RunData(root)
-    manifest = run.manifest
-    if manifest is not None:
-        data.manifest = manifest.to_json()
+    data = RunData(root, manifest=run.manifest)
     if "commands.csv" in present:
         data.commands_um = run.commands()[1]
-    data.journal = [line.to_json() for line in run.journal().values()]
+    data.journal = list(run.journal().values())
     if "measurements.csv" in present:
         data.measurements = read_measurements(run.measurements_path)
     data.cameras = _cameras(root / "cameras.json")
     if (root / "calibration.json").exists():
         data.calibration = load_calibration(root / "calibration.json")
         if data.cameras is None and data.calibration.cameras:
-            data.cameras = {"cameras": data.calibration.cameras}
+            cameras = {"cameras": data.calibration.cameras}
+            data.cameras = parse_schema(CamerasRecord, cameras, root / "calibration.json")
     if (root / "results.json").exists():
-        data.results = load_results(root / "results.json")
+        data.results = read_results(root / "results.json")
     if data.calibration is not None:
-        from ..formats.check_file import read_history
-
-        data.checks = read_history(root / "calibration.json")
+        data.checks = _checks(root / "calibration.json")
     return data

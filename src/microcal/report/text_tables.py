@@ -6,12 +6,13 @@ prints it. The thesis's columns appear only where the run is the thesis's experi
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..thesis.figures import (
     CLAIMED_ACCURACY_UM,
@@ -23,7 +24,24 @@ from ..thesis.figures import (
 )
 
 if TYPE_CHECKING:
+    from ..control.closed_loop import ClosedLoopSummary
+    from ..experiments.demo import DemoResult
+    from ..experiments.station_demo import StationDemoResult
+    from ..formats.records import ValidationRecord
+    from ..geometry import AnyCamera
+    from ..kinematics.manipulator_calibration import ManipulatorCalibration
     from ..kinematics.models import KinematicModel
+    from ..kinematics.validation import Validation
+    from ..procedures.compensation import Solution
+    from ..procedures.evaluation_figures import (
+        BySource,
+        DecouplingFigures,
+        Evaluation,
+        PoseAccuracyFigures,
+    )
+    from ..procedures.identification import Identification
+    from ..vision.measurement import PoseMeasurement
+    from ..vision.stereo_calibration import StereoCalibration
 
 __all__ = [
     "TextTable",
@@ -46,7 +64,7 @@ __all__ = [
 ]
 
 
-def is_thesis_rig(rig: Mapping[str, Any] | None) -> bool:
+def is_thesis_rig(rig: Mapping[str, object] | None) -> bool:
     """Whether a rig's record (run.json's ``rig``, a spec's ``to_dict()``) is the thesis's.
 
     Only the simulator's ``thesis`` preset reproduces the thesis's platform, so only its
@@ -69,7 +87,17 @@ class TextTable:
 SIGMA_CORNER = "σ corner px"  # noqa: RUF001
 
 
-def stereo_table(calibration: Any, digits: int = 4) -> TextTable:
+def _number(value: object) -> float | None:
+    """A figure of a calibration's JSON-like record (a number, or None for any other)."""
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
+
+
+def _objects(value: object) -> list[Mapping[str, object]]:
+    """The objects of a JSON-like list (``candidates``); [] for anything else."""
+    return [v for v in value if isinstance(v, Mapping)] if isinstance(value, list) else []
+
+
+def stereo_table(calibration: StereoCalibration, digits: int = 4) -> TextTable:
     """Per camera: RMS, views used, focal lengths, the lens model with its held-out RMS and
     the projection uncertainty at the worst image corner (a ``StereoCalibration``)."""
     table = TextTable(
@@ -87,9 +115,9 @@ def stereo_table(calibration: Any, digits: int = 4) -> TextTable:
         ],
     )
     for name, c in calibration.cameras.items():
-        lens = c.lens_model.get("name", "") if c.lens_model else ""
-        chosen = [d for d in c.lens_model.get("candidates", []) if d["name"] == lens]
-        h = chosen[0]["held_out_rms_px"] if chosen else None
+        lens = str(c.lens_model.get("name", "")) if c.lens_model else ""
+        chosen = [d for d in _objects(c.lens_model.get("candidates")) if d["name"] == lens]
+        h = _number(chosen[0]["held_out_rms_px"]) if chosen else None
         sigma = f"{c.diagnostics.uncertainty_px['corners']:.3f}" if c.diagnostics else ""
         table.rows.append([name, c.model.kind, f"{c.rms_px:.{digits}f}", str(c.views_used),
                            *_scales(c.model), lens or "fixed",
@@ -97,7 +125,9 @@ def stereo_table(calibration: Any, digits: int = 4) -> TextTable:
     return table
 
 
-def demo_stereo_table(calibration: Any, truth_px: Mapping[str, float], target: str) -> TextTable:
+def demo_stereo_table(
+    calibration: StereoCalibration, truth_px: Mapping[str, float], target: str
+) -> TextTable:
     """The demo's stereo calibration next to the thesis's reprojection errors."""
     thesis = {"top": REPROJECTION_ERROR_TOP_PX, "side": REPROJECTION_ERROR_SIDE_PX}
     table = TextTable(
@@ -111,7 +141,7 @@ def demo_stereo_table(calibration: Any, truth_px: Mapping[str, float], target: s
     return table
 
 
-def _scales(model: Any) -> list[str]:
+def _scales(model: AnyCamera) -> list[str]:
     """A camera's scale per image axis with its unit: focal length (px) of a pinhole camera,
     magnification (px/µm) of an affine one."""
     if model.kind == "affine":
@@ -119,7 +149,7 @@ def _scales(model: Any) -> list[str]:
     return [f"{model.K[i, i]:.1f} px" for i in (0, 1)]
 
 
-def model_choice_lines(calibration: Any) -> list[str]:
+def model_choice_lines(calibration: StereoCalibration) -> list[str]:
     """One line per camera whose model was chosen (``--camera-model auto``): the choice, its
     reason and every candidate's training and held-out RMS."""
     lines = []
@@ -128,11 +158,11 @@ def model_choice_lines(calibration: Any) -> list[str]:
         if not choice:
             continue
         figures = []
-        for cand in choice.get("candidates", []):
+        for cand in _objects(choice.get("candidates")):
             if cand.get("failed"):
                 figures.append(f"{cand['model']} failed ({cand['failed']})")
                 continue
-            train, held = cand.get("train_rms_px"), cand.get("held_out_rms_px")
+            train, held = _number(cand.get("train_rms_px")), _number(cand.get("held_out_rms_px"))
             ill = f", {cand['ill_conditioned']}" if cand.get("ill_conditioned") else ""
             figures.append(f"{cand['model']} held-out {_px(held)} (training {_px(train)}){ill}")
         lines.append(
@@ -146,29 +176,34 @@ def _px(value: float | None) -> str:
 
 
 def identification_table(
-    validations: Mapping[str, Mapping[str, Any]], oracle: Mapping[str, float]
+    validations: Mapping[str, Validation], oracle: Mapping[str, float]
 ) -> TextTable:
     """Validation errors per model next to the thesis's, and the oracle's (Eq 5.1, µm)."""
-    n_fit = int(next(iter(validations.values()))["n_fit"])
+    n_fit = next(iter(validations.values())).n_fit
     table = TextTable(
         f"3. Identification: first {n_fit} poses fit, the rest validate (Eq 5.1, µm)",
         ["model", "mean", "std", "max", "thesis mean", "thesis std", "thesis max"],
     )
     keys = ("mean", "std", "max")
     for kind, v in validations.items():
-        ours = [f"{float(v[f'{k}_um']):.2f}" for k in keys]
+        s = v.summary
+        ours = [f"{float(x):.2f}" for x in (s.mean, s.std, s.max)]
         table.rows.append([kind, *ours, *(f"{VALIDATION_UM[kind][k]:.2f}" for k in keys)])
     table.rows.append(["oracle", *(f"{oracle[k]:.2f}" for k in keys), "-", "-", "-"])
     return table
 
 
 def pose_accuracy_table(
-    pose_accuracy: Mapping[str, Any], conditions: list[str], *, thesis: bool, title: str = ""
+    pose_accuracy: BySource[PoseAccuracyFigures],
+    conditions: list[str],
+    *,
+    thesis: bool,
+    title: str = "",
 ) -> TextTable:
     """Mean / worst AP_P per condition, by vision and ground truth; the thesis's if asked;
     and mean / worst vAP (ISO 9283 7.3) of each source that has it."""
     sources = [s for s in ("vision", "truth") if s in pose_accuracy]
-    vap = [s for s in sources if all("vap_um" in pose_accuracy[s][n] for n in conditions)]
+    vap = [s for s in sources if all(pose_accuracy[s][n].vap_um is not None for n in conditions)]
     table = TextTable(
         title or "Pose accuracy AP_P (µm): mean / worst",
         ["condition", *(("ground truth" if s == "truth" else s) for s in sources)]
@@ -177,21 +212,20 @@ def pose_accuracy_table(
     )
     for name in conditions:
         row = [name] + [
-            f"{pose_accuracy[s][name]['mean_ap_p_um']:.2f} / "
-            f"{pose_accuracy[s][name]['max_ap_p_um']:.2f}"
+            f"{pose_accuracy[s][name].mean_ap_p_um:.2f} / {pose_accuracy[s][name].max_ap_p_um:.2f}"
             for s in sources
         ]
         if thesis:  # the thesis has no closed loop: nothing to set beside it
             published = POSE_ACCURACY_UM.get(name)
             row.append("-" if published is None else f"{published[0]:.2f} / {published[1]:.2f}")
-        row += [f"{pose_accuracy[s][name]['vap_um']:.2f} / "
-                f"{pose_accuracy[s][name]['max_vap_um']:.2f}" for s in vap]  # fmt: skip
+        row += [f"{pose_accuracy[s][name].vap_um:.2f} / "
+                f"{pose_accuracy[s][name].max_vap_um:.2f}" for s in vap]  # fmt: skip
         table.rows.append(row)
     return table
 
 
 def decoupling_table(
-    decoupling: Mapping[str, Any], conditions: list[str], *, thesis: bool, title: str = ""
+    decoupling: BySource[DecouplingFigures], conditions: list[str], *, thesis: bool, title: str = ""
 ) -> TextTable:
     """Undesired displacement [min, max] per axis: by truth with the thesis's figures, or by
     vision | truth (by vision alone on a rig without ground truth)."""
@@ -203,12 +237,12 @@ def decoupling_table(
         cells = []
         for axis in "xyz":
             if thesis:
-                lo, hi = decoupling["truth"][name]["undesired_um"][axis]
+                lo, hi = decoupling["truth"][name].metrics.ranges_um[axis]
                 published = DECOUPLING_UM.get(name)
                 beside = "" if published is None else " ({:.1f}, {:.1f})".format(*published[axis])
                 cells.append(f"[{lo:.1f}, {hi:.1f}]{beside}")
                 continue
-            parts = [decoupling[s][name]["undesired_um"][axis]
+            parts = [decoupling[s][name].metrics.ranges_um[axis]
                      for s in ("vision", "truth") if s in decoupling]  # fmt: skip
             cells.append(" | ".join(f"[{v[0]:.1f}, {v[1]:.1f}]" for v in parts))
         table.rows.append([name, *cells])
@@ -236,7 +270,7 @@ def terms_table(model: KinematicModel) -> TextTable:
     return table
 
 
-def demo_summary(result: Any, frames: int) -> list[TextTable | str]:
+def demo_summary(result: DemoResult, frames: int) -> list[TextTable | str]:
     """What ``microcal demo`` prints of a ``DemoResult``, step by step, next to the thesis."""
     from ..sim.platforms import CALIBRATION_TARGET
 
@@ -257,57 +291,61 @@ def demo_summary(result: Any, frames: int) -> list[TextTable | str]:
         + f" µm; errors over the reported covariance: mean square {result.mahalanobis_mean_sq:.2f}"
         " (3 when it matches)."
     )
-    validations = {k: result.models[k].validation for k in ("matrix", "polynomial")}
+    validations = {k: _split(result.models[k]) for k in ("matrix", "polynomial")}
     out.append(identification_table(validations, result.oracle))
     evaluation = result.evaluation
-    if evaluation:
-        names = ["uncalibrated", "matrix", "optimal"]
+    names = ["uncalibrated", "matrix", "optimal"]
+    if evaluation.pose_accuracy is not None:
         title = "4. Pose accuracy at the Table 5-2 poses: mean / worst AP_P (µm)"
-        out.append(
-            pose_accuracy_table(evaluation["pose_accuracy"], names, thesis=True, title=title)
-        )
+        out.append(pose_accuracy_table(evaluation.pose_accuracy, names, thesis=True, title=title))
+    if evaluation.decoupling is not None:
         title = "5. Decoupling: undesired displacement \\[min, max] (µm), truth (thesis)"
-        out.append(decoupling_table(evaluation["decoupling"], names, thesis=True, title=title))
+        out.append(decoupling_table(evaluation.decoupling, names, thesis=True, title=title))
     return out
 
 
-def validation_lines(v: dict[str, Any]) -> list[str]:
+def _split(identification: Identification) -> Validation:
+    """The validation of a model on the poses it was not fitted to (the thesis's split)."""
+    if identification.split is None:
+        raise ValueError("identification: no split validation to print")
+    return identification.split
+
+
+def validation_lines(v: ValidationRecord) -> list[str]:
     """What ``microcal fit`` prints of a calibration.json ``validation`` object."""
     lines = [
-        f"validation ({v['method']}): mean {v['mean_um']:.2f} µm, std {v['std_um']:.2f}, "
-        f"max {v['max_um']:.2f}, RMS {v['rms_um']:.2f}, 95 % {v['p95_um']:.2f}; RMS per axis "
-        "x/y/z " + "/".join(f"{r:.2f}" for r in v["rms_axis_um"].values()) + " µm"
+        f"validation ({v.method}): mean {v.mean_um:.2f} µm, std {v.std_um:.2f}, "
+        f"max {v.max_um:.2f}, RMS {v.rms_um:.2f}, 95 % {v.p95_um:.2f}; RMS per axis "
+        "x/y/z " + "/".join(f"{r:.2f}" for r in (v.rms_axis_um or {}).values()) + " µm"
     ]
-    if "cross_validation" in v:
-        cv = v["cross_validation"]
+    cv = v.cross_validation
+    if cv is not None:
         lines.append(
-            f"{cv['folds']}-fold cross-validation (selection repeated per fold): mean "
-            f"{cv['mean_um']:.2f} µm, std {cv['std_um']:.2f}, max {cv['max_um']:.2f}"
+            f"{cv.folds}-fold cross-validation (selection repeated per fold): mean "
+            f"{cv.mean_um:.2f} µm, std {cv.std_um:.2f}, max {cv.max_um:.2f}"
         )
-        unstable = [f"{axis}:{term} {share:.0%}" for axis, shares in cv["term_frequency"].items()
+        unstable = [f"{axis}:{term} {share:.0%}" for axis, shares in cv.term_frequency.items()
                     for term, share in shares.items() if 0 < share < 1]  # fmt: skip
         if unstable:
             lines.append("terms not selected in every fold: " + ", ".join(unstable))
     return lines
 
 
-def evaluation_tables(
-    parts: Mapping[str, Any], poses: str, *, thesis: bool
-) -> list[TextTable | str]:
+def evaluation_tables(parts: Evaluation, poses: str, *, thesis: bool) -> list[TextTable | str]:
     """What ``microcal evaluate`` prints: pose accuracy over ``poses``, decoupling by vision
     and truth; the thesis's pose-accuracy figures where ``thesis`` (its poses, its preset);
     the closed loop's line where it ran."""
     out: list[TextTable | str] = []
-    if "pose_accuracy" in parts:
-        pa = parts["pose_accuracy"]
+    if parts.pose_accuracy is not None:
+        pa = parts.pose_accuracy
         title = f"Pose accuracy AP_P (µm): mean / worst over the {poses} poses"
         out.append(pose_accuracy_table(pa, list(pa["vision"]), thesis=thesis, title=title))
-    if "decoupling" in parts:
-        dc = parts["decoupling"]
+    if parts.decoupling is not None:
+        dc = parts.decoupling
         title = "Decoupling: undesired displacement \\[min, max] (µm), vision | truth"
         out.append(decoupling_table(dc, list(dc["vision"]), thesis=False, title=title))
-    if "closed_loop" in parts:
-        out.append(closed_loop_line(parts["closed_loop"]))
+    if parts.closed_loop is not None:
+        out.append(closed_loop_line(parts.closed_loop))
     return out + iso_lines(parts)
 
 
@@ -315,23 +353,23 @@ def _s(value: float | None) -> str:
     return "not settled" if value is None else f"{value:.2f} s"
 
 
-def iso_lines(parts: Mapping[str, Any]) -> list[str]:
+def iso_lines(parts: Evaluation) -> list[str]:
     """One line per source and condition for ISO 9283's distance, stabilisation and drift."""
     out: list[str] = []
-    for source, per in parts.get("distance_accuracy", {}).items():
-        out += [f"distance {c} ({source}): AD_P {d['ad_p_um']:+.3f} µm, RD {d['rd_p_um']:.3f} µm "
-                f"over {d['commanded_um']:.0f} µm, {d['n']} cycles (ISO 9283 7.4)"
+    for source, per in (parts.distance_accuracy or {}).items():
+        out += [f"distance {c} ({source}): AD_P {d.ad_p_um:+.3f} µm, RD {d.rd_p_um:.3f} µm "
+                f"over {d.commanded_um:.0f} µm, {d.n} cycles (ISO 9283 7.4)"
                 for c, d in per.items()]  # fmt: skip
-    for source, per in parts.get("stabilisation", {}).items():
-        out += [f"stabilisation {c} ({source}): mean {_s(d['mean_s'])}, worst {_s(d['max_s'])} "
-                f"within ±{d['band_um']:g} µm (ISO 9283 7.5)" for c, d in per.items()]  # fmt: skip
-    for source, per in parts.get("drift", {}).items():
-        for c, d in per.items():
-            if d["drift_ap_um"] is not None:
-                span = d["t_s"][-1] - d["t_s"][0]
-                out.append(f"drift {c} ({source}): dAP {d['drift_ap_um']:.3f} µm over "
-                           f"{span / 3600:.2f} h, AP {d['ap_p_um'][0]:.3f} -> "
-                           f"{d['ap_p_um'][-1]:.3f} µm (ISO 9283 7.7)")  # fmt: skip
+    for source, per_s in (parts.stabilisation or {}).items():
+        out += [f"stabilisation {c} ({source}): mean {_s(d.mean_s)}, worst {_s(d.max_s)} "
+                f"within ±{d.band_um:g} µm (ISO 9283 7.5)" for c, d in per_s.items()]  # fmt: skip
+    for source, per_d in (parts.drift or {}).items():
+        for c, f in per_d.items():
+            if f.drift_ap_um is not None:
+                span = f.t_s[-1] - f.t_s[0]
+                out.append(f"drift {c} ({source}): dAP {f.drift_ap_um:.3f} µm over "
+                           f"{span / 3600:.2f} h, AP {f.ap_p_um[0]:.3f} -> "
+                           f"{f.ap_p_um[-1]:.3f} µm (ISO 9283 7.7)")  # fmt: skip
     return out
 
 
@@ -352,20 +390,20 @@ def arrival_line(a: Mapping[str, Any]) -> str:
     )
 
 
-def closed_loop_line(s: Mapping[str, Any]) -> str:
+def closed_loop_line(s: ClosedLoopSummary) -> str:
     """One line on the closed loop: iterations, frames, how it ended, how sure it was."""
-    status = ", ".join(f"{n} {k}" for k, n in s["status"].items() if n)
+    status = ", ".join(f"{n} {k}" for k, n in s.status.items() if n)
     line = (
-        f"closed loop to {s['tolerance_um']:g} µm at {100 * s['confidence']:.0f} %: "
-        f"{s['targets']} targets, {s['iterations_mean']:.1f} iterations (at most "
-        f"{s['iterations_max']}), {s['frames_mean']:.0f} frames per camera (at most "
-        f"{s['frames_max']}); ended by {status}"
+        f"closed loop to {s.tolerance_um:g} µm at {100 * s.confidence:.0f} %: "
+        f"{s.targets} targets, {s.iterations_mean:.1f} iterations (at most "
+        f"{s.iterations_max}), {s.frames_mean:.0f} frames per camera (at most "
+        f"{s.frames_max}); ended by {status}"
     )
-    if "truth_within_tolerance" in s:
+    if s.truth_within_tolerance is not None and s.truth_in_measured_95 is not None:
         line += (
-            f"; by ground truth within the tolerance at {100 * s['truth_within_tolerance']:.0f} "
+            f"; by ground truth within the tolerance at {100 * s.truth_within_tolerance:.0f} "
             f"% of targets, inside the last measurement's 95 % region at "
-            f"{100 * s['truth_in_measured_95']:.0f} %"
+            f"{100 * s.truth_in_measured_95:.0f} %"
         )
     return line
 
@@ -380,7 +418,7 @@ def demo_intro(out: Path, poses: int) -> str:
     )
 
 
-def demo_closing(result: Any, out: Path, wall_s: float) -> list[TextTable | str]:
+def demo_closing(result: DemoResult, out: Path, wall_s: float) -> list[TextTable | str]:
     """The lines ``microcal demo`` ends with: what it wrote, the terms selected."""
     model = result.models["polynomial"].model
     terms = "; ".join(
@@ -395,7 +433,7 @@ def demo_closing(result: Any, out: Path, wall_s: float) -> list[TextTable | str]
     ]
 
 
-def measurement_lines(results: list[Any], path: Path) -> list[TextTable | str]:
+def measurement_lines(results: Sequence[PoseMeasurement], path: Path) -> list[TextTable | str]:
     """What ``microcal measure`` prints of its pose measurements."""
     ok = [r for r in results if r.status == "ok"]
     lines: list[TextTable | str] = [f"measured {len(ok)} of {len(results)} poses; wrote {path}"]
@@ -408,7 +446,7 @@ def measurement_lines(results: list[Any], path: Path) -> list[TextTable | str]:
     return lines
 
 
-def stereo_lines(calibration: Any, out: Path) -> list[TextTable | str]:
+def stereo_lines(calibration: StereoCalibration, out: Path) -> list[TextTable | str]:
     """What ``microcal stereo-calibrate`` prints: the table, rejected views, the baseline."""
     lines: list[TextTable | str] = [stereo_table(calibration)]
     for name, c in calibration.cameras.items():
@@ -439,24 +477,30 @@ def stereo_lines(calibration: Any, out: Path) -> list[TextTable | str]:
 
 
 def fit_lines(
-    model: KinematicModel, validation: Mapping[str, Any], header: str, wrote: str
+    model: KinematicModel, validation: Mapping[str, object], header: str, wrote: str
 ) -> list[TextTable | str]:
-    """What ``microcal fit`` prints: what was fitted, its terms, validation, what it wrote."""
-    return [header, terms_table(model), *validation_lines(dict(validation)), wrote]
+    """What ``microcal fit`` prints: what was fitted, its terms, validation (calibration.json's
+    object, read as a :class:`~microcal.formats.records.ValidationRecord`), what it wrote."""
+    from ..formats.json_file import parse_schema
+    from ..formats.records import ValidationRecord
+
+    figures = parse_schema(ValidationRecord, validation, "validation")
+    return [header, terms_table(model), *validation_lines(figures), wrote]
 
 
-def outlier_lines(result: Any, poses: Any) -> list[str]:
+def outlier_lines(result: Identification, poses: ArrayLike) -> list[str]:
     """The warnings of ``microcal fit`` about poses the model misses far more than the rest."""
     left_out = set(result.excluded)
+    pose = np.asarray(poses)
     return [
-        f"warning: pose {int(poses[row])} is {dist:.2f} µm from the model, {z:.0f} robust standard "
+        f"warning: pose {int(pose[row])} is {dist:.2f} µm from the model, {z:.0f} robust standard "
         f"deviations: " + ("left out of the fit" if row in left_out else
                            "check it (--exclude-outliers leaves such poses out)")
         for row, dist, z in result.outliers
     ]  # fmt: skip
 
 
-def solution_lines(solution: Any, calibration: Any) -> list[str]:
+def solution_lines(solution: Solution, calibration: ManipulatorCalibration) -> list[str]:
     """The notes ``microcal solve`` prints on stderr about a compensator's solution."""
     lines = []
     if solution.outside_range is not None:
@@ -508,7 +552,7 @@ def check_lines(data: Mapping[str, Any]) -> list[str]:
     return out
 
 
-def station_summary(result: Any) -> list[TextTable | str]:
+def station_summary(result: StationDemoResult) -> list[TextTable | str]:
     """What ``microcal demo --preset thesis-platform`` prints: each device's figures in the
     one {G}, and the meet test of the two manipulators (a ``StationDemoResult``)."""
     devices = TextTable(
@@ -517,13 +561,14 @@ def station_summary(result: Any) -> list[TextTable | str]:
         first_left=True,
     )
     for name, r in result.devices.items():
-        pa = r.evaluation.get("pose_accuracy", {})
+        pa = r.evaluation.pose_accuracy or {}
 
-        def ap(source: str, condition: str, pa: dict[str, Any] = pa) -> str:
-            value = pa.get(source, {}).get(condition, {}).get("mean_ap_p_um")
-            return "-" if value is None else f"{value:.2f}"
+        def ap(source: str, condition: str, pa: BySource[PoseAccuracyFigures] = pa) -> str:
+            figures = pa.get(source, {}).get(condition)
+            return "-" if figures is None else f"{figures.mean_ap_p_um:.2f}"
 
-        val = r.models["polynomial"].validation.get("mean_um")
+        split = r.models["polynomial"].split
+        val = None if split is None else split.summary.mean
         devices.rows.append([name, "-" if val is None else f"{val:.2f}",
                              ap("truth", "uncalibrated"), ap("truth", "optimal"),
                              ap("vision", "optimal")])  # fmt: skip
@@ -533,10 +578,9 @@ def station_summary(result: Any) -> list[TextTable | str]:
         first_left=True,
     )
     for mode, m in result.meet.items():
-        d = m.as_dict()
-        cells = [
-            "-" if d.get(s, {}).get(k) is None else f"{d[s][k]:.2f}"
-            for s in ("vision", "truth") for k in ("mean_um", "max_um")
-        ]  # fmt: skip
+        cells = []
+        for source in ("vision", "truth"):
+            s = m.gap_summary(source)
+            cells += ["-", "-"] if s is None else [f"{s.mean:.2f}", f"{s.max:.2f}"]
         meet.rows.append([mode, str(len(m.targets_um)), *cells])
     return [devices, meet]

@@ -25,6 +25,7 @@ The other presets (:data:`PRESETS`) change the cameras only, but for ``populatio
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -257,7 +258,7 @@ def _set_dotted(obj: Any, dotted: str, value: Any, full: str = "") -> Any:
         raise InputError(f"override {full!r}: {str(exc).partition(': ')[2]}") from None
 
 
-def check_overrides(overrides: dict[str, Any], preset: str = "thesis") -> PlatformConfig:
+def check_overrides(overrides: Mapping[str, object], preset: str = "thesis") -> PlatformConfig:
     """A preset's configuration with ``overrides`` applied: each name, type and range checked.
 
     Raises
@@ -364,7 +365,7 @@ class SimPlatform:
 def platform(
     preset: str = "thesis",
     seed: int = 0,
-    overrides: dict[str, Any] | None = None,
+    overrides: Mapping[str, object] | None = None,
     clock: Clock | None = None,
 ) -> SimPlatform:
     """Build a simulated platform.
@@ -376,8 +377,9 @@ def platform(
         ``"thesis-3cam"``, ``"population"`` (see the module docstring).
     seed : int
         Seed of every random draw (noise, faults, vibration); same seed, same frames.
-    overrides : dict, optional
-        Dotted settings of :class:`PlatformConfig`, e.g. ``{"top.bit_depth": 12}``.
+    overrides : mapping, optional
+        Dotted settings of :class:`PlatformConfig`, e.g. ``{"top.bit_depth": 12}``, each
+        checked (name, type, range) by :func:`check_overrides`.
     clock : Clock, optional
         The platform's time; a :class:`SimClock` from 0 by default (the digital twin gives
         one that follows the wall clock).

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, TypeVar
+from typing import Any, TypedDict, TypeVar
 
 import cv2
 import numpy as np
@@ -32,6 +32,7 @@ __all__ = [
     "OUTLIER_ROUNDS",
     "CameraCalibration",
     "StereoCalibration",
+    "TurnedView",
 ]
 
 #: A view is an outlier when its RMS exceeds this many times the median view's ...
@@ -40,6 +41,14 @@ OUTLIER_FACTOR = 3.0
 OUTLIER_FLOOR_PX = 0.15
 #: Rounds of rejection at most; the fit after the last round is the one returned.
 OUTLIER_ROUNDS = 3
+
+
+class TurnedView(TypedDict):
+    """An image whose corner numbering was turned to agree (a symmetric board)."""
+
+    image: str
+    camera: str
+    turn_deg: int
 
 
 @dataclass
@@ -74,7 +83,7 @@ class StereoCalibration:
     cameras: dict[str, CameraCalibration]
     rms_px: float
     baseline_um: float
-    turned_views: list[dict[str, Any]] = field(default_factory=list)
+    turned_views: list[TurnedView] = field(default_factory=list)
     """Images whose corner numbering was turned (a symmetric board): ``image``, ``camera``,
     ``turn_deg``. Method (b): to agree with the first camera's in the same view; method (a):
     with the same camera's first view, or as its steps across the target's plane fit."""

@@ -32,6 +32,7 @@ from .board_symmetry import ambiguous_turns
 from .calibration_result import (
     CameraCalibration,
     StereoCalibration,
+    TurnedView,
     _baseline,
     _camera_model,
     _fit_rejecting_outliers,
@@ -492,7 +493,7 @@ def calibrate_known_displacements(
     if disp.ndim != 2 or disp.shape[1] != 3:
         raise InputError(f"displacements_um: expected shape (V, 3), got {disp.shape}")
     cams = {}
-    turned_views = []
+    turned_views: list[TurnedView] = []
     for name, dets in detections.items():
         if len(dets) != len(disp):
             raise InputError(
@@ -502,7 +503,7 @@ def calibrate_known_displacements(
             name, dets, image_names[name], target, disp, image_size_px[name], refine, camera_model
         )
         turned_views += [
-            {"image": image_names[name][i], "camera": name, "turn_deg": t}
+            TurnedView(image=image_names[name][i], camera=name, turn_deg=t)
             for i, t in sorted(turned.items())
         ]
     rms = float(np.sqrt(np.mean([c.rms_px**2 for c in cams.values()])))

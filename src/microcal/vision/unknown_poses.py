@@ -18,7 +18,6 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import cv2
 import numpy as np
@@ -30,6 +29,7 @@ from .calibration_diagnostics import diagnose
 from .calibration_result import (
     CameraCalibration,
     StereoCalibration,
+    TurnedView,
     _baseline,
     _camera_model,
     _fit_rejecting_outliers,
@@ -134,7 +134,7 @@ def _agree_numbering(
     mono: Mapping[str, _Mono],
     detections: Mapping[str, Sequence[Detection]],
     image_names: Mapping[str, Sequence[str]],
-) -> tuple[dict[str, dict[int, Detection]], dict[str, dict[int, Pose]], list[dict[str, Any]],
+) -> tuple[dict[str, dict[int, Detection]], dict[str, dict[int, Pose]], list[TurnedView],
            list[dict[str, str]], list[str]]:  # fmt: skip
     """Number each camera's corners as the first camera that saw the same view does.
 
@@ -200,7 +200,7 @@ def _agree_numbering(
             dets[c][v] = _renumbered(detections[c][v], target, t)
             poses[c][v] = (R, raw[c][v][1] - R @ ts)
     turned = [
-        {"image": image_names[c][v], "camera": c, "turn_deg": t}
+        TurnedView(image=image_names[c][v], camera=c, turn_deg=t)
         for c in names
         for v, t in sorted(turns[c].items())
         if t != 0

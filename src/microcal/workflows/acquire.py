@@ -24,6 +24,7 @@ from ..formats.records import RunManifest
 from ..formats.run_directory import HOLDS_A_RUN, MANIFEST, RunDirectory, RunWriter, holds_run
 from ..formats.run_lock import run_lock
 from ..formats.run_manifest import new_manifest
+from ..journal_record import JournalRecord
 from ..kinematics.designs import DESIGNS
 from ..kinematics.models import held_from_limits
 from ..procedures.acquisition import AcquisitionConfig, RunStoppedError
@@ -322,10 +323,10 @@ def acquire_remaining(
         periodic.say = bar.console.print if tty else lambda line: print(line, flush=True)
         periodic.stored_before = len(writer.done)
 
-    def progress(done: int, total: int, record: dict[str, Any]) -> None:
-        settles.append(float(record["settle_s"]))
-        if record["status"] != "ok":
-            failed.append((int(record["pose"]), str(record.get("reason", ""))))
+    def progress(done: int, total: int, record: JournalRecord) -> None:
+        settles.append(record.settle_s)
+        if record.status != "ok":
+            failed.append((record.pose, record.reason or ""))
         bar.update(task, completed=done)
         if not tty and (done % 10 == 0 or done == total):
             print(f"acquired {done}/{total} poses", flush=True)  # while the run goes on

@@ -89,12 +89,12 @@ def write_demo_outputs(out: Path, result: DemoResult, wall_s: float) -> None:
         "oracle": {f"{k}_um": v for k, v in result.oracle.items()},
         "acquisition": {
             "poses": len(records),
-            "stored": sum(r["status"] == "ok" for r in records),
-            "mean_settle_s": float(np.mean([r["settle_s"] for r in records])),
-            "failed": [{"pose": r["pose"], "reason": r.get("reason", "")}
-                       for r in records if r["status"] != "ok"],
+            "stored": sum(r.status == "ok" for r in records),
+            "mean_settle_s": float(np.mean([r.settle_s for r in records])),
+            "failed": [{"pose": r.pose, "reason": r.reason or ""}
+                       for r in records if r.status != "ok"],
         },
-        **result.evaluation,
+        **result.evaluation.to_json(),
         "timing": {"simulated_s": result.sim_time_s, "wall_s": wall_s},
         "provenance": prov,
     })  # fmt: skip

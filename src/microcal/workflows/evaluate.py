@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from ..formats.json_file import check_json_output
 from ..formats.results_file import RESULTS_FORMAT, update_results
 from ..procedures.evaluation import run_evaluation
+from ..procedures.evaluation_figures import Evaluation
 from .station import open_calibrated_rig
 
 __all__ = ["EvaluateRequest", "EvaluateResult", "evaluate"]
@@ -55,10 +55,10 @@ class EvaluateRequest:
 
 @dataclass(frozen=True)
 class EvaluateResult:
-    """What the evaluation found (results.json's parts it wrote) and on which rig."""
+    """What the evaluation found (written into results.json) and on which rig (its record)."""
 
-    parts: dict[str, Any]
-    rig_record: dict[str, Any]
+    evaluation: Evaluation
+    rig_record: Mapping[str, object]
     out: Path
 
 

@@ -1,0 +1,151 @@
+"""What a study measured: each seed's figures (:class:`SeedRun`) and their distribution.
+
+:func:`~microcal.experiments.study.run_seed` gives a :class:`SeedRun`,
+:func:`~microcal.experiments.study.run_study` a :class:`Study`; ``Study.to_json()`` is
+study.json without its ``format`` (keys in docs/formats.md; NaN is the writer's to turn into
+null).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from ..control.closed_loop import ClosedLoopSummary
+from ..json_value import JsonValue
+
+__all__ = ["Coverage", "FigureSummary", "SeedRun", "Study"]
+
+
+@dataclass(frozen=True)
+class Coverage:
+    """How often the true error of a compensated position lay in its predicted 95 % region:
+    by the model's covariance alone (``truth``) and with the measurement's added
+    (``vision``); ``mean_sq`` is the mean squared Mahalanobis distance (3 when it matches)."""
+
+    truth: float
+    vision: float
+    mean_sq: float
+
+    def to_json(self) -> dict[str, JsonValue]:
+        """``coverage_95.MODEL`` of a run."""
+        return {"truth": self.truth, "vision": self.vision, "mean_sq": self.mean_sq}
+
+
+@dataclass(frozen=True)
+class SeedRun:
+    """One seed of a study (one entry of study.json's ``runs``).
+
+    The figures per model or condition are dicts in the order they were made: the models
+    (``quadratic``, ``smooth``, ``auto``), ``matrix``, the ``oracle`` and, with the prior,
+    ``prior``; the conditions of the evaluation besides.
+
+    Attributes
+    ----------
+    seed : int
+    uncalibrated_ap_truth_mean_um : float
+        Mean AP_P by truth without compensation, µm.
+    validation_mean_um : dict of str -> float
+        Mean validation error (Eq 5.1) per model and the oracle's, µm.
+    ap_truth_mean_um, ap_truth_max_um, ap_vision_mean_um : dict of str -> float
+        Mean and worst AP_P per condition by truth, and the mean by the probe, µm (NaN for a
+        condition that failed).
+    vap_truth_mean_um : dict of str -> float
+        Mean vAP per condition by truth, µm.
+    coverage_95 : dict of str -> Coverage
+        Per model.
+    family : str
+        The family the ``auto`` model chose.
+    closed_loop : ClosedLoopSummary or None
+        The closed loop's summary, where it was evaluated and ran.
+    failed : dict of str -> str
+        Conditions that could not reach a pose, and why.
+    n_poses : int
+        Poses measured (acquired and usable).
+    render : bool
+        The full pipeline ran (rendered images) instead of the projected probe.
+    wall_s : float
+        Wall-clock time of the seed, s.
+    """
+
+    seed: int
+    uncalibrated_ap_truth_mean_um: float
+    validation_mean_um: dict[str, float]
+    ap_truth_mean_um: dict[str, float]
+    ap_truth_max_um: dict[str, float]
+    ap_vision_mean_um: dict[str, float]
+    vap_truth_mean_um: dict[str, float]
+    coverage_95: dict[str, Coverage]
+    family: str
+    closed_loop: ClosedLoopSummary | None
+    failed: dict[str, str]
+    n_poses: int
+    render: bool
+    wall_s: float
+
+    def to_json(self) -> dict[str, JsonValue]:
+        """The run's object in study.json. A closed loop that was evaluated but failed (see
+        ``failed``) has an empty ``closed_loop`` object."""
+        out: dict[str, JsonValue] = {
+            "seed": self.seed,
+            "uncalibrated_ap_truth_mean_um": self.uncalibrated_ap_truth_mean_um,
+            "validation_mean_um": self.validation_mean_um,
+            "ap_truth_mean_um": self.ap_truth_mean_um,
+            "ap_truth_max_um": self.ap_truth_max_um,
+            "ap_vision_mean_um": self.ap_vision_mean_um,
+            "vap_truth_mean_um": self.vap_truth_mean_um,
+            "coverage_95": {name: c.to_json() for name, c in self.coverage_95.items()},
+            "family": self.family,
+        }
+        if self.closed_loop is not None:
+            out["closed_loop"] = self.closed_loop.to_json()
+        elif "closed_loop" in self.failed:
+            out["closed_loop"] = {}
+        out |= {
+            "failed": self.failed,
+            "n_poses": self.n_poses,
+            "render": self.render,
+            "wall_s": self.wall_s,
+        }
+        return out
+
+
+@dataclass(frozen=True)
+class FigureSummary:
+    """One figure's distribution over the seeds: median, 90th percentile, extremes (of the
+    seeds where it is finite) and how many seeds have it NaN (a condition that failed)."""
+
+    median: float
+    p90: float
+    min: float
+    max: float
+    failed: int
+
+    def to_json(self) -> dict[str, JsonValue]:
+        """One entry of study.json's ``summary``."""
+        return {
+            "median": self.median,
+            "p90": self.p90,
+            "min": self.min,
+            "max": self.max,
+            "failed": self.failed,
+        }
+
+
+@dataclass(frozen=True)
+class Study:
+    """A study: its preset, seeds, each seed's run (in seed order) and the summary by
+    figure name (``ap_truth_mean_um.auto``, ``validation_over_oracle.quadratic`` ...)."""
+
+    preset: str
+    seeds: list[int]
+    runs: list[SeedRun]
+    summary: dict[str, FigureSummary] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, JsonValue]:
+        """study.json's content without ``format``."""
+        return {
+            "preset": self.preset,
+            "seeds": self.seeds,
+            "runs": [r.to_json() for r in self.runs],
+            "summary": {name: s.to_json() for name, s in self.summary.items()},
+        }
