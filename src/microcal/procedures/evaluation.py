@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Mapping, Sequence
-from typing import Protocol, TypedDict
+from typing import TypedDict
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -33,6 +33,7 @@ from ..metrics import decoupling_metrics, multi_directional_variation, pose_stat
 from ..thesis.experiment import DECOUPLING_PATH_UM, TABLE_5_2_POSES_UM
 from ..vision.probe import VisionProbe
 from ..vision.targets import Target
+from . import trials
 from .evaluation_figures import (
     BySource,
     DecouplingFigures,
@@ -41,12 +42,14 @@ from .evaluation_figures import (
     MultiDirectionalFigures,
     PoseAccuracyFigures,
 )
+from .trials import PositionProbe, aimed_poses_um
 
 __all__ = [
     "APPROACH_SIDES",
     "DETOUR_UM",
     "TESTS",
     "Evaluation",
+    "PositionProbe",
     "RunOptions",
     "aimed_poses_um",
     "approach_detours_um",
@@ -93,87 +96,6 @@ def decoupling_path(
     return np.array(points), np.array(segment)
 
 
-class PositionProbe(Protocol):
-    """What measures the end-effector for an evaluation (a :class:`VisionProbe`, or on the
-    simulator a projection of the truth)."""
-
-    def measure(self, d_um: FloatArray) -> FloatArray:
-        """Position in {G} now, (3,) µm (NaN when it cannot be measured); ``d_um`` are the
-        joints commanded, a hint for where to look."""
-        ...
-
-
-Command = Callable[[FloatArray], FloatArray]  # displacement from home -> joints commanded
-
-
-def _uncompensated(manipulator: Manipulator) -> Command:
-    def command(rel: FloatArray) -> FloatArray:
-        manipulator.move_to_um(rel)
-        return rel
-
-    return command
-
-
-def _compensated(ff: FeedForward) -> Command:
-    home: list[FloatArray] = []  # the model's home, taken once per condition
-
-    def command(rel: FloatArray) -> FloatArray:
-        if not home:
-            home.append(ff.home_um())
-        return ff.move_to_position_um(home[0] + rel)
-
-    return command
-
-
-def _commanders(
-    manipulator: Manipulator, conditions: dict[str, FeedForward | None]
-) -> dict[str, Command]:
-    return {
-        name: _uncompensated(manipulator) if ff is None else _compensated(ff)
-        for name, ff in conditions.items()
-    }
-
-
-def _sources(probe: PositionProbe | None, truth: Callable[[], FloatArray] | None) -> list[str]:
-    """The sources that measure: ``vision`` (the probe), then ``truth``."""
-    if probe is None and truth is None:
-        raise InputError(
-            "evaluation: nothing measures the end-effector (no cameras, no ground truth)"
-        )
-    return [name for name, by in (("vision", probe), ("truth", truth)) if by is not None]
-
-
-def _measure(
-    probe: PositionProbe | None, truth: Callable[[], FloatArray] | None, d_um: FloatArray
-) -> dict[str, FloatArray]:
-    got = {}
-    if probe is not None:
-        got["vision"] = probe.measure(d_um)
-    if truth is not None:
-        got["truth"] = truth()
-    return got
-
-
-def _settle(manipulator: Manipulator, clock: Clock, settle_s: float) -> None:
-    manipulator.wait_until_stopped(clock)
-    clock.sleep(settle_s)
-
-
-def _visit(
-    command: Command,
-    rel_um: FloatArray,
-    manipulator: Manipulator,
-    clock: Clock,
-    settle_s: float,
-    probe: PositionProbe | None,
-    truth: Callable[[], FloatArray] | None,
-) -> dict[str, FloatArray]:
-    """Command a displacement from home, settle, and measure: the position by each source."""
-    d = command(rel_um)
-    _settle(manipulator, clock, settle_s)
-    return _measure(probe, truth, d)
-
-
 def run_pose_accuracy(
     manipulator: Manipulator,
     clock: Clock,
@@ -194,9 +116,9 @@ def run_pose_accuracy(
         ``{"vision" | "truth": {condition: PoseAccuracyFigures}}`` (the ``pose_accuracy``
         object of results.json).
     """
-    out: BySource[PoseAccuracyFigures] = {s: {} for s in _sources(probe, truth)}
-    for name, command in _commanders(manipulator, conditions).items():
-        visit = functools.partial(_visit, command, manipulator=manipulator, clock=clock,
+    out: BySource[PoseAccuracyFigures] = {s: {} for s in trials.sources(probe, truth)}
+    for name, command in trials.commanders(manipulator, conditions).items():
+        visit = functools.partial(trials.visit, command, manipulator=manipulator, clock=clock,
                                   settle_s=settle_s, probe=probe, truth=truth)  # fmt: skip
         home = visit(np.zeros(3))
         desired = aimed_poses_um(conditions[name], poses_um)
@@ -222,19 +144,6 @@ def run_pose_accuracy(
                 poses=stats,
             )
     return out
-
-
-def aimed_poses_um(ff: FeedForward | None, poses_um: FloatArray) -> FloatArray:
-    """The displacements from home a condition aims at for ``poses_um``, (N, 3) µm.
-
-    The poses themselves, except for a compensated device with held joints (an X-Y
-    positioner): it reaches only a surface, so each pose is moved to the nearest point of
-    that surface by its model (its command pose in the sense of ISO 9283: one it can attain).
-    """
-    if ff is None or not ff.model.held_um:
-        return np.asarray(poses_um, dtype=np.float64)
-    home = ff.home_um()
-    return np.array([ff.aim_um(home + p) - home for p in np.asarray(poses_um, float)])
 
 
 #: The detour before each approach of the multi-directional test, µm along each axis.
@@ -298,9 +207,9 @@ def run_multi_directional(
         travel_um = (manipulator.limits_um[:, 0] + margin, manipulator.limits_um[:, 1] - margin)
     low, high = travel_um
     detours = [approach_detours_um(p, np.asarray(low), np.asarray(high)) for p in poses_um]
-    out: BySource[MultiDirectionalFigures] = {s: {} for s in _sources(probe, truth)}
-    for name, command in _commanders(manipulator, conditions).items():
-        visit = functools.partial(_visit, command, manipulator=manipulator, clock=clock,
+    out: BySource[MultiDirectionalFigures] = {s: {} for s in trials.sources(probe, truth)}
+    for name, command in trials.commanders(manipulator, conditions).items():
+        visit = functools.partial(trials.visit, command, manipulator=manipulator, clock=clock,
                                   settle_s=settle_s, probe=probe, truth=truth)  # fmt: skip
         home = visit(np.zeros(3))
         arrived: dict[str, list[list[list[FloatArray]]]] = {
@@ -352,11 +261,11 @@ def run_decoupling(
         of results.json, with the samples).
     """
     path, segment = decoupling_path(samples_per_axis)
-    out: BySource[DecouplingFigures] = {s: {} for s in _sources(probe, truth)}
-    for name, command in _commanders(manipulator, conditions).items():
+    out: BySource[DecouplingFigures] = {s: {} for s in trials.sources(probe, truth)}
+    for name, command in trials.commanders(manipulator, conditions).items():
         samples: dict[str, list[FloatArray]] = {k: [] for k in out}
         for k, rel in enumerate(path):
-            for source, p in _visit(
+            for source, p in trials.visit(
                 command, rel, manipulator, clock, settle_s, probe, truth
             ).items():
                 samples[source].append(p)

@@ -32,8 +32,9 @@ from ..metrics import (
     pose_statistics,
     stabilisation_time_s,
 )
-from .evaluation import PositionProbe, _commanders, _measure, _sources, _visit, aimed_poses_um
+from . import trials
 from .evaluation_figures import BySource, DriftFigures, StabilisationFigures
+from .trials import PositionProbe, aimed_poses_um
 
 __all__ = ["run_distance", "run_drift", "run_stabilisation"]
 
@@ -60,13 +61,13 @@ def run_distance(
     dict
         ``{source: {condition: DistanceStatistics}}``; ``cycles`` >= 2.
     """
-    out: BySource[DistanceStatistics] = {s: {} for s in _sources(probe, truth)}
-    for name, command in _commanders(manipulator, conditions).items():
-        home = _visit(command, np.zeros(3), manipulator, clock, settle_s, probe, truth)
+    out: BySource[DistanceStatistics] = {s: {} for s in trials.sources(probe, truth)}
+    for name, command in trials.commanders(manipulator, conditions).items():
+        home = trials.visit(command, np.zeros(3), manipulator, clock, settle_s, probe, truth)
         got: dict[str, list[list[FloatArray]]] = {k: [[], []] for k in home}
         for c in range(cycles):
             for i, pose in enumerate((p1_um, p2_um)):
-                for source, p in _visit(command, pose, manipulator, clock, settle_s, probe,
+                for source, p in trials.visit(command, pose, manipulator, clock, settle_s, probe,
                                         truth).items():  # fmt: skip
                     got[source][i].append(p - home[source])
             if progress:
@@ -107,8 +108,8 @@ def run_stabilisation(
         ``{source: {condition: StabilisationFigures}}`` (the band, the time of each cycle,
         their mean and the worst).
     """
-    out: BySource[StabilisationFigures] = {s: {} for s in _sources(probe, truth)}
-    for name, command in _commanders(manipulator, conditions).items():
+    out: BySource[StabilisationFigures] = {s: {} for s in trials.sources(probe, truth)}
+    for name, command in trials.commanders(manipulator, conditions).items():
         times: dict[str, list[float | None]] = {k: [] for k in out}
         for c in range(cycles):
             command(p2_um)
@@ -119,7 +120,7 @@ def run_stabilisation(
             t: list[float] = []
             samples: dict[str, list[FloatArray]] = {k: [] for k in out}
             while not t or t[-1] - signal < window_s:
-                for source, p in _measure(probe, truth, p1_um).items():
+                for source, p in trials.measure_by_sources(probe, truth, p1_um).items():
                     samples[source].append(p)
                 t.append(clock.now_s())
                 if len(t) > 1 and t[-1] <= t[-2]:
@@ -172,8 +173,8 @@ def run_drift(
     dict
         ``{source: {condition: DriftFigures}}`` (the time and AP_P of each visit, and dAP).
     """
-    out: BySource[DriftFigures] = {s: {} for s in _sources(probe, truth)}
-    commanders = _commanders(manipulator, conditions)
+    out: BySource[DriftFigures] = {s: {} for s in trials.sources(probe, truth)}
+    commanders = trials.commanders(manipulator, conditions)
     visits = int(np.ceil(duration_s / interval_s - 1e-9)) + 1  # evenly, the last at the end
     series: dict[str, dict[str, tuple[list[float], list[float]]]] = {
         s: {n: ([], []) for n in commanders} for s in out
@@ -183,8 +184,8 @@ def run_drift(
     for v in range(visits):
         clock.sleep(max(0.0, start + v * duration_s / (visits - 1) - clock.now_s()))
         for name, command in commanders.items():
-            home = _visit(command, np.zeros(3), manipulator, clock, settle_s, probe, truth)
-            at = _visit(command, p1_um, manipulator, clock, settle_s, probe, truth)
+            home = trials.visit(command, np.zeros(3), manipulator, clock, settle_s, probe, truth)
+            at = trials.visit(command, p1_um, manipulator, clock, settle_s, probe, truth)
             for source, p in at.items():
                 rel = (p - home[source])[None, :]
                 if np.all(np.isfinite(rel)):
