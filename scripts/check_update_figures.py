@@ -67,15 +67,16 @@ def main() -> None:
                            f"mount_offset_um = {shift}\n")  # fmt: skip
             copy = Path(tmp) / "calibration.json"  # its check history stays in tmp
             copy.write_bytes(Path(args.calibration).read_bytes())
-            data = check_calibration(rig, copy, Path(tmp) / "check.json",
+            done = check_calibration(rig, copy, Path(tmp) / "check.json",
                                      update=Path(tmp) / "updated.json")  # fmt: skip
             updated = load_calibration(Path(tmp) / "updated.json").manipulator().model
         fresh = run_demo(seed=seed, evaluate=False, plat=platform("thesis", seed=seed,
                                                                   overrides=over))  # fmt: skip
         row = {
-            "seed": seed, "shift_um": shift, "verdict": data["verdict"],
-            "offset_um": data["offset_um"], "after": data["update"]["verdict_after"],
-            "check_s": data["duration_s"],
+            "seed": seed, "shift_um": shift, "verdict": done.result.verdict,
+            "offset_um": done.result.offset_um.tolist(),
+            "after": done.update.verdict_after if done.update else None,
+            "check_s": done.result.extra["duration_s"],
             "ap_stale_um": absolute_ap_um(model, seed + 1000, over),
             "ap_updated_um": absolute_ap_um(updated, seed + 1000, over),
             "ap_fresh_um": absolute_ap_um(fresh.models["polynomial"].model, seed + 1000, over),

@@ -42,9 +42,9 @@ def check(
     cfg = CheckConfig(frames=frames, settle_s=settle_s, alpha=alpha)
     with Console(stderr=True).status("measuring the check poses ...") as status:
         tick = lambda done, total: status.update(f"check pose {done} of {total} ...")  # noqa: E731
-        data = check_calibration(rig, calibration, out, manipulator=manipulator, seed=seed,
+        done = check_calibration(rig, calibration, out, manipulator=manipulator, seed=seed,
                                  config=cfg, history_sigma=history_sigma, update=update,
                                  progress=tick)  # fmt: skip
-    for line in check_lines(data):
+    for line in check_lines(done.result, done.flag, done.update):
         print(line)
     print(f"wrote {out}")

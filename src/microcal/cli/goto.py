@@ -33,4 +33,4 @@ def goto(
 
     with open_station(rig, calibration, manipulator=manipulator, seed=seed) as station:
         arrival = station.move_to_um([x, y, z], "closed" if closed else "open", tolerance_um)
-    print(arrival_line(arrival.as_dict()))
+    print(arrival_line(arrival))

@@ -42,6 +42,7 @@ from ..kinematics.models import KinematicModel
 __all__ = [
     "CheckConfig",
     "CheckResult",
+    "CheckUpdate",
     "check_poses_um",
     "compare",
     "offset_updated",
@@ -99,6 +100,38 @@ class CheckConfig:
             raise InputError(f"alpha: expected a false-alarm rate in (0, 0.5), got {self.alpha}")
         if not (np.isfinite(self.settle_s) and self.settle_s >= 0):
             raise InputError(f"settle_s: expected a finite wait >= 0 s, got {self.settle_s}")
+
+
+@dataclass(frozen=True)
+class CheckUpdate:
+    """What ``check --update`` did: the calibration written with the re-fitted offset and the
+    check made again with it, or why nothing was written.
+
+    Attributes
+    ----------
+    calibration : str or None
+        The updated calibration file, or None when nothing was written.
+    refused : str
+        Why nothing was written (empty when it was).
+    verdict_after : str
+        The verdict of the check made again with the updated calibration.
+    offset_after_um, offset_after_std_um : (3,) float
+        Its offset and standard deviation.
+    """
+
+    calibration: str | None
+    refused: str = ""
+    verdict_after: str = ""
+    offset_after_um: tuple[float, ...] = ()
+    offset_after_std_um: tuple[float, ...] = ()
+
+    def to_json(self) -> dict[str, JsonValue]:
+        """check.json's ``update`` object."""
+        if self.calibration is None:
+            return {"calibration": None, "refused": self.refused}
+        return {"calibration": self.calibration, "verdict_after": self.verdict_after,
+                "offset_after_um": list(self.offset_after_um),
+                "offset_after_std_um": list(self.offset_after_std_um)}  # fmt: skip
 
 
 @dataclass

@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -32,6 +32,7 @@ if TYPE_CHECKING:
     from ..kinematics.manipulator_calibration import ManipulatorCalibration
     from ..kinematics.models import KinematicModel
     from ..kinematics.validation import Validation
+    from ..procedures.check import CheckResult, CheckUpdate
     from ..procedures.compensation import Solution
     from ..procedures.evaluation_figures import (
         BySource,
@@ -40,6 +41,7 @@ if TYPE_CHECKING:
         PoseAccuracyFigures,
     )
     from ..procedures.identification import Identification
+    from ..procedures.station import Arrival
     from ..vision.measurement import PoseMeasurement
     from ..vision.stereo_calibration import StereoCalibration
 
@@ -373,20 +375,20 @@ def iso_lines(parts: Evaluation) -> list[str]:
     return out
 
 
-def arrival_line(a: Mapping[str, Any]) -> str:
+def arrival_line(a: Arrival) -> str:
     """What ``microcal goto`` prints: where the tip arrived, how sure, how it got there."""
     fmt = ", ".join
     how = (
         "open loop"
-        if a["mode"] == "open"
-        else f"closed loop, {a['iterations']} correction(s), ended by {a['status']}"
+        if a.mode == "open"
+        else f"closed loop, {a.iterations} correction(s), ended by {a.status}"
     )
     return (
-        f"arrived at ({fmt(f'{v:.3f}' for v in a['measured_um'])}) µm in {{G}}, "
-        f"std ({fmt(f'{v:.3f}' for v in a['std_um'])}) µm, "
-        f"{sum(v * v for v in a['error_um']) ** 0.5:.3f} µm from the target as measured "
-        f"({how}, {a['frames']} frames per camera); "
-        f"joints ({fmt(f'{v:.3f}' for v in a['d_um'])}) µm"
+        f"arrived at ({fmt(f'{v:.3f}' for v in a.measured_um.tolist())}) µm in {{G}}, "
+        f"std ({fmt(f'{v:.3f}' for v in a.std_um.tolist())}) µm, "
+        f"{sum(v * v for v in a.error_um.tolist()) ** 0.5:.3f} µm from the target as measured "
+        f"({how}, {a.frames} frames per camera); "
+        f"joints ({fmt(f'{v:.3f}' for v in a.d_um.tolist())}) µm"
     )
 
 
@@ -528,27 +530,29 @@ def solution_lines(solution: Solution, calibration: ManipulatorCalibration) -> l
     return lines
 
 
-def check_lines(data: Mapping[str, Any]) -> list[str]:
+def check_lines(
+    result: CheckResult, flag: str = "", update: CheckUpdate | None = None
+) -> list[str]:
     """What ``microcal check`` prints: the verdict, the offset, the tests, a flag, the update."""
-    off = ", ".join(f"{v:+.2f}" for v in data["offset_um"])
-    std = ", ".join(f"{v:.2f}" for v in data["offset_std_um"])
+    off = ", ".join(f"{v:+.2f}" for v in result.offset_um.tolist())
+    std = ", ".join(f"{v:.2f}" for v in result.offset_std_um.tolist())
     says = {"valid": "the calibration is still valid",
             "offset": f"the offset moved by ({off}) ± ({std}) µm; the model still fits "
                       "(--update writes a calibration with the new offset)",
             "refit": "the model no longer fits these poses: calibrate again (acquire, measure, "
-                     "fit)"}[data["verdict"]]  # fmt: skip
-    out = [f"{data['verdict']}: {says}",
-           f"{data['n_poses']} poses against the {data['against']}: fit chi2 "
-           f"{data['chi2']:.1f} (p {data['p_value']:.3f}), offset ({off}) ± ({std}) µm "
-           f"(p {data['offset_p_value']:.3f})"]  # fmt: skip
-    if data.get("flag"):
-        out.append(f"flag: {data['flag']}")
-    if "update" in data and data["update"]["calibration"] is None:
-        out.append(f"no update written: {data['update']['refused']}")
-    elif "update" in data:
-        u = data["update"]
-        out.append(f"wrote {u['calibration']} (offset re-fitted); checked again: "
-                   f"{u['verdict_after']}")  # fmt: skip
+                     "fit)"}[result.verdict]  # fmt: skip
+    against = "reference check" if result.reference else "calibration"
+    out = [f"{result.verdict}: {says}",
+           f"{result.n_poses} poses against the {against}: fit chi2 "
+           f"{result.chi2:.1f} (p {result.p_value:.3f}), offset ({off}) ± ({std}) µm "
+           f"(p {result.offset_p_value:.3f})"]  # fmt: skip
+    if flag:
+        out.append(f"flag: {flag}")
+    if update is not None and update.calibration is None:
+        out.append(f"no update written: {update.refused}")
+    elif update is not None:
+        out.append(f"wrote {update.calibration} (offset re-fitted); checked again: "
+                   f"{update.verdict_after}")  # fmt: skip
     return out
 
 

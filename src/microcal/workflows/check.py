@@ -38,9 +38,11 @@ from ..formats.check_file import (
 from ..formats.hashing import sha256_file
 from ..formats.json_file import check_json_output
 from ..formats.provenance import provenance
+from ..json_value import JsonValue
 from ..procedures.check import (
     CheckConfig,
     CheckResult,
+    CheckUpdate,
     offset_updated,
     planned_check,
     run_check,
@@ -49,7 +51,14 @@ from ..vision.probe import VisionProbe
 from .calibration_update import camera_models
 from .station import open_station
 
-__all__ = ["CheckConfig", "PeriodicCheck", "check_calibration", "parse_every"]
+__all__ = [
+    "CheckConfig",
+    "CheckOutcome",
+    "CheckUpdate",
+    "PeriodicCheck",
+    "check_calibration",
+    "parse_every",
+]
 
 
 def _reference(history: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray] | None:
@@ -75,6 +84,28 @@ def _far_from_history(result: CheckResult, history: list[dict[str, Any]], sigma:
             f"{offsets[:, worst].mean():+.2f} ± {spread[worst]:.2f} µm")  # fmt: skip
 
 
+@dataclasses.dataclass(frozen=True)
+class CheckOutcome:
+    """What ``microcal check`` found and wrote.
+
+    Attributes
+    ----------
+    result : CheckResult
+        The check: verdict, offset, tests, poses.
+    flag : str
+        Why its offset stands out from the calibration's history (empty when it does not).
+    update : CheckUpdate or None
+        What ``--update`` did (None when not asked).
+    out : Path
+        check.json.
+    """
+
+    result: CheckResult
+    flag: str
+    update: CheckUpdate | None
+    out: Path
+
+
 def check_calibration(
     rig: str | os.PathLike[str],
     calibration: str | os.PathLike[str],
@@ -86,13 +117,13 @@ def check_calibration(
     history_sigma: float = 3.0,
     update: str | os.PathLike[str] | None = None,
     progress: Callable[[int, int], None] | None = None,
-) -> dict[str, Any]:
+) -> CheckOutcome:
     """Check a calibration on its rig, write check.json, add to the history, update if asked.
 
     Returns
     -------
-    dict
-        check.json's object (with ``flag`` and, after an update, ``update``).
+    CheckOutcome
+        The check, its flag against the history and the update (check.json holds them).
     """
     cfg = config or CheckConfig()
     out_path = _check_outputs(calibration, out, update)
@@ -107,18 +138,21 @@ def check_calibration(
         measure = station.probe.measure_with_covariance
         result = run_check(rig_.manipulator, rig_.clock, measure, m, config=cfg,
                            reference=reference, progress=progress)  # fmt: skip
-        data: dict[str, Any] = {"format": CHECK_FORMAT, **result.as_dict()}
-        data["flag"] = _far_from_history(result, history, history_sigma)
-        data["provenance"] = provenance({"calibration": calibration}, command="check")
+        flag = _far_from_history(result, history, history_sigma)
+        done = None
         if update is not None:
-            data["update"] = _update(cal, m.name, result, calibration, update, rig_, measure, cfg)
+            done = _update(cal, m.name, result, calibration, update, rig_, measure, cfg)
+    data: dict[str, JsonValue] = {"format": CHECK_FORMAT, **result.as_dict(), "flag": flag}
+    data["provenance"] = provenance({"calibration": calibration}, command="check")
+    if done is not None:
+        data["update"] = done.to_json()
     write_text_atomic(out_path, json.dumps(data, indent=1, allow_nan=False) + "\n")
     entry = {k: v for k, v in data.items() if k not in ("format", "provenance", "update")}
     entry |= {"manipulator": name, "calibration_sha256": sha256_file(calibration),
               "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
               "software": f"microcal {__version__}"}  # fmt: skip
     append_history(history_path(calibration), entry)
-    return data
+    return CheckOutcome(result, flag, done, Path(out_path))
 
 
 def _check_outputs(
@@ -159,13 +193,13 @@ def _update(
     rig: Any,
     measure: Any,
     cfg: CheckConfig,
-) -> dict[str, Any]:
+) -> CheckUpdate:
     """Re-fit the base offset only, write the new calibration, check it again."""
     if result.verdict != "offset":
         why = ("nothing to update: the calibration is valid" if result.verdict == "valid" else
                "the model no longer fits: an update re-fits only the offset; calibrate again "
                "(acquire, measure, fit)")  # fmt: skip
-        return {"calibration": None, "refused": why}
+        return CheckUpdate(None, refused=why)
     m = cal.manipulators[name]
     model = offset_updated(m.model, result.offset_um)
     updated = dataclasses.replace(m, model=model)
@@ -175,9 +209,9 @@ def _update(
                       offset_std_um=result.offset_std_um.tolist())  # fmt: skip
     write_calibration(new, Calibration(manipulators, cal.cameras, prov))
     again = run_check(rig.manipulator, rig.clock, measure, updated, config=cfg)
-    return {"calibration": str(new), "verdict_after": again.verdict,
-            "offset_after_um": again.offset_um.tolist(),
-            "offset_after_std_um": again.offset_std_um.tolist()}  # fmt: skip
+    return CheckUpdate(str(new), verdict_after=again.verdict,
+                       offset_after_um=tuple(again.offset_um.tolist()),
+                       offset_after_std_um=tuple(again.offset_std_um.tolist()))  # fmt: skip
 
 
 def parse_every(text: str) -> tuple[int | None, float | None]:
