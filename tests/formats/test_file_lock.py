@@ -3,11 +3,9 @@ line, the lock file is never followed through a link and does not outlive its ho
 
 from __future__ import annotations
 
-import contextlib
 import multiprocessing
 import os
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -15,29 +13,9 @@ import pytest
 from microcal.errors import InputError
 from microcal.formats.atomic import write_text_atomic
 from microcal.formats.file_lock import lock_path, locked_update
+from support.locks import held_elsewhere
 
 fork = multiprocessing.get_context("fork")
-
-
-@contextlib.contextmanager
-def held_elsewhere(path: Path) -> Iterator[int]:
-    """Another process holds ``path``'s lock for the block; its PID."""
-    taken, release = fork.Event(), fork.Event()
-
-    def hold() -> None:
-        with locked_update(path):
-            taken.set()
-            release.wait(30)
-
-    proc = fork.Process(target=hold)
-    proc.start()
-    try:
-        assert taken.wait(10), "the holder did not take the lock"
-        assert proc.pid is not None
-        yield proc.pid
-    finally:
-        release.set()
-        proc.join(10)
 
 
 def test_the_lock_file_lies_beside_the_file_a_path_leads_to(tmp_path: Path):

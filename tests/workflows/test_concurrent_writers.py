@@ -8,12 +8,11 @@ exit having lost the other's update.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import multiprocessing
 import os
 import re
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +29,7 @@ from microcal.sim.synthetic_run import synthetic_run
 from microcal.workflows.check import check_calibration
 from microcal.workflows.fit import FitRequest, fit
 from support.cli import invoke_microcal
+from support.locks import held_elsewhere
 
 #: The one line a writer that waited too long for the other gets.
 IN_USE = re.compile(r"^\S+: in use by microcal \((PID \d+|another process)\); ")
@@ -124,28 +124,6 @@ def test_two_evaluations_merging_into_one_results_keep_both_parts(tmp_path: Path
 
 
 # --- a lock held too long -------------------------------------------------------------------
-@contextlib.contextmanager
-def held_elsewhere(path: Path) -> Iterator[int]:
-    """Another process holds ``path``'s lock for the block; its PID."""
-    ctx = multiprocessing.get_context("fork")
-    taken, release = ctx.Event(), ctx.Event()
-
-    def hold() -> None:
-        with file_lock.locked_update(path):
-            taken.set()
-            release.wait(30)
-
-    proc = ctx.Process(target=hold)
-    proc.start()
-    try:
-        assert taken.wait(10), "the holder did not take the lock"
-        assert proc.pid is not None
-        yield proc.pid
-    finally:
-        release.set()
-        proc.join(10)
-
-
 def test_a_fit_into_a_calibration_held_too_long_is_refused_in_one_line(
     measurements: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ):
