@@ -108,6 +108,16 @@ def test_a_silent_controller_times_out_and_never_hangs(fake_mcs2):
     assert time.monotonic() - t0 < 4.0
 
 
+def test_an_answer_without_end_is_refused_after_a_bounded_read(fake_mcs2):
+    m = driver()
+    fake_mcs2.faults.endless = True
+    with pytest.raises(DeviceError, match=r"runs past 4096 bytes without a line end"):
+        m.position_um()
+    assert len(m._buffer) == 0  # the connection and what it sent are dropped
+    fake_mcs2.faults.endless = False
+    np.testing.assert_allclose(m.position_um(), [0.0, 0.0, 0.0])  # a new connection answers
+
+
 def test_slow_answers_within_the_timeout_are_fine(fake_mcs2):
     fake_mcs2.faults.delay_s = 0.2
     m = driver()

@@ -50,6 +50,7 @@ class Faults:
     fail_after_moves: int = 0  # the move command this many commands from now fails (0: none)
     refuse_with: tuple[int, str] | None = None  # the next command is refused with this error
     silent: bool = False  # answer nothing at all
+    endless: bool = False  # answer with bytes that never end in a line end
 
 
 @dataclass
@@ -136,6 +137,12 @@ class FakeMCS2:
                     answer, drop = self.handle(line.decode("ascii"))
                     if self.faults.delay_s:
                         time.sleep(self.faults.delay_s)
+                    if self.faults.endless:
+                        try:
+                            while not self._stop.is_set():
+                                conn.sendall(b"0" * 65536)
+                        except OSError:
+                            return
                     if answer is not None and not self.faults.silent:
                         try:
                             conn.sendall(answer.encode("ascii") + b"\r\n")

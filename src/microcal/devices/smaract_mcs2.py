@@ -39,9 +39,12 @@ from .._validation import FloatArray
 from ..errors import DeviceError, DeviceTimeoutError, InputError, MoveError
 from .base import Manipulator
 
-__all__ = ["MCS2_PORT", "STATE_BITS", "MCS2Manipulator"]
+__all__ = ["MAX_ANSWER_BYTES", "MCS2_PORT", "STATE_BITS", "MCS2Manipulator"]
 
 MCS2_PORT = 55551
+#: Longest answer line the driver reads, bytes (the longest real answer is an error message of
+#: about a hundred); a peer that sends more without a line end is not an MCS2.
+MAX_ANSWER_BYTES = 4096
 PM_PER_UM = 1_000_000
 #: Channel state bits the driver reads (:CHANn:STAT?).
 STATE_BITS = {
@@ -188,6 +191,12 @@ class MCS2Manipulator(Manipulator):
             if not chunk:
                 raise ConnectionError("closed by the controller")
             self._buffer += chunk
+            if b"\r\n" not in self._buffer and len(self._buffer) > MAX_ANSWER_BYTES:
+                self._disconnect()
+                raise DeviceError(
+                    f"{self.name}: the answer to {line!r} runs past {MAX_ANSWER_BYTES} bytes "
+                    f"without a line end; is {self.address}:{self.port} an MCS2 controller?"
+                )
         answer, _, self._buffer = self._buffer.partition(b"\r\n")
         return answer.decode("ascii", errors="replace").strip()
 
