@@ -72,7 +72,7 @@ def test_temperature_is_given_not_solved(rng):
     c = optimal_compensator(m, targets, extra=23.5)
     assert c.converged.all()
     np.testing.assert_allclose(c.d_um, d[:50], atol=1e-6)
-    with pytest.raises(InputError, match=r"this model also needs \['T'\]"):
+    with pytest.raises(InputError, match=r"this model also needs T \(ambient temperature"):
         optimal_compensator(m, targets)
 
 

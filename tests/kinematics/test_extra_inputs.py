@@ -9,7 +9,7 @@ import pytest
 from microcal import InputError, LimitError, sim
 from microcal.control.feedforward import APPROACH_UM, FeedForward, extra_inputs_reader
 from microcal.kinematics.designs import make_design
-from microcal.kinematics.extra_inputs import APPROACH_INPUTS, expand_names
+from microcal.kinematics.extra_inputs import APPROACH_INPUTS, default_extra_inputs, expand_names
 from microcal.metrics import multi_directional_variation
 from microcal.procedures.acquisition import AcquisitionConfig, acquire, approach_start_um
 from microcal.procedures.evaluation import approach_detours_um, run_multi_directional
@@ -97,6 +97,22 @@ def test_identification_finds_the_reversal_error():
     for axis, symbol in enumerate(("sx", "sy", "sz")):
         got = {name: c for name, c, _ in model.axis_terms(axis)}
         assert got.get(symbol, 0.0) == pytest.approx(h[axis], abs=0.1), (axis, got)
+
+
+def test_left_out_the_approach_directions_are_the_fixed_approach_from_below():
+    plat = sim.platform("thesis", seed=0)
+    cal, _ = _truth_fit(plat)
+    targets = cal.predict_um(np.array([[4000.0, 4000.0, 2400.0], [1500.0, 6500.0, 900.0]]))
+    # Metric: joints, µm; the defaults are the explicit +1 exactly (same solve).
+    np.testing.assert_allclose(cal.joints_for(targets), cal.joints_for(targets, extra=[1, 1, 1]),
+                               rtol=0, atol=1e-9)  # fmt: skip
+    d = cal.joints_for(targets)
+    np.testing.assert_allclose(cal.predict_um(d), targets, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(cal.predict_um(d), cal.predict_um(np.hstack([d, np.ones((2, 3))])),
+                               rtol=0, atol=1e-12)  # fmt: skip
+    assert default_extra_inputs(("sx", "sy", "sz")).tolist() == [1.0, 1.0, 1.0]
+    with pytest.raises(InputError, match=r"needs T \(ambient temperature .*\), sx \(direction"):
+        default_extra_inputs(("T", "sx"))
 
 
 def test_a_model_with_direction_terms_arrives_moving_up_and_is_refused_near_the_floor():

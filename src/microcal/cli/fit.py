@@ -26,6 +26,10 @@ _Folds = Annotated[int | None, Option(min=2, help="Validate by K-fold cross-vali
 _FoldSeed = Annotated[int, Option(help="Seed of the cross-validation folds.")]
 _Extra = Annotated[list[str] | None, Option(help="Extra input: temperature, approach (sx,sy,sz).")]
 _Temperature = Annotated[bool, Option(help="Same as --extra temperature (T, T² terms).")]
+_Approach = Annotated[bool | None, Option(
+    "--approach/--no-approach", show_default=False,
+    help="Fit the direction terms sx, sy, sz (reversal error). [default: when the run "
+         "recorded approach directions]")]  # fmt: skip
 _Name = Annotated[
     str | None, Option(help="Name of the manipulator in the calibration file. [the run's: m1]")
 ]
@@ -40,7 +44,7 @@ def fit(
     select: _Select = SelectChoice.stepwise, penter: _Penter = 0.05, premove: _Premove = 0.10,
     train: _Train = None, folds: _Folds = None, seed: _FoldSeed = 0, extra: _Extra = None,
     temperature: _Temperature = False, manipulator: _Name = None, cameras: _Cameras = None,
-    mat: _Mat = None, exclude_outliers: _Exclude = False,
+    mat: _Mat = None, exclude_outliers: _Exclude = False, approach: _Approach = None,
 ) -> None:  # fmt: skip
     """Identify a manipulator's kinematic model from measured positions.
 
@@ -53,14 +57,14 @@ def fit(
     names = (*(extra or []), *(["temperature"] if temperature else []))
     done = run_fit(FitRequest(
         source, out, model.value, select.value, penter, premove, train, folds, seed, names,
-        manipulator, cameras, mat, exclude_outliers,
+        manipulator, cameras, mat, exclude_outliers, approach,
     ))  # fmt: skip
     r = done.identification
     skipped = f" ({done.n_failed} failed poses skipped)" if done.n_failed else ""
     header = (f"{model.value} model of {done.entry.name!r} from {len(done.poses)} poses of "
               f"{done.measurements}{skipped}")  # fmt: skip
     wrote = "wrote " + " and ".join(str(w) for w in done.written)
-    lines = fit_lines(r.model, r.validation, header, wrote)
+    lines = [*done.notes, *fit_lines(r.model, r.validation, header, wrote)]
     print_parts(Console(), [*lines, *outlier_lines(r, done.poses)])
 
 
@@ -78,7 +82,7 @@ def solve(
 ) -> None:  # fmt: skip
     """Print the joint commands that put the end-effector at a position (the compensator).
 
-    Example: microcal solve calibration.json 2000 2000 300 --limits 0:8000,0:8000,0:4800
+    Example: microcal solve calibration.json 5000 4800 2700 --limits 0:8000,0:8000,0:4800
     """
     from ..report.text_tables import solution_lines
     from ..workflows.fit import SolveRequest
@@ -87,6 +91,6 @@ def solve(
     done = run_solve(
         SolveRequest(calibration, tuple(position_um), manipulator, temperature, limits)
     )
-    print("dx_um dy_um dz_um\n" + " ".join(f"{v:.4f}" for v in done.solution.d_um))
+    print("dx_um dy_um dz_um\n" + " ".join(f"{v:.4f}" for v in done.solution.d_um), flush=True)
     for line in solution_lines(done.solution, done.entry):
         print(line, file=sys.stderr)

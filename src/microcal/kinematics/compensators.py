@@ -29,6 +29,7 @@ from numpy.typing import ArrayLike
 
 from .._validation import FloatArray, as_array, as_rows, check_limits
 from ..errors import DegenerateDataError, InputError
+from .extra_inputs import default_extra_inputs
 from .models import KinematicModel
 
 __all__ = [
@@ -90,9 +91,7 @@ def _extra_inputs(model: KinematicModel, n: int, extra: ArrayLike | None) -> Flo
             raise InputError(f"extra: this model has no inputs besides the joints, got {extra}")
         return np.zeros((n, 0))
     if extra is None:
-        raise InputError(
-            f"extra: this model also needs {list(names)} (for example the temperature)"
-        )
+        return np.broadcast_to(default_extra_inputs(names), (n, len(names)))
     e = np.asarray(extra, dtype=np.float64)
     if e.ndim == 0 or e.shape == (len(names),):
         e = np.broadcast_to(e.reshape(1, -1), (n, len(names)))
@@ -336,7 +335,8 @@ def matrix_compensator(
     p_um : (N, 3) or (3,) float
         Desired positions in {G}, µm.
     extra : float or (N, e) float, optional
-        Values of the model's extra inputs (temperature), if it has any.
+        Values of the model's extra inputs (temperature), if it has any; left out, each
+        approach direction is +1 (a model with other inputs then needs them).
     limits_um : (3, 2) float, optional
         Soft limits (low, high) per joint; targets outside raise LimitError.
 
@@ -365,7 +365,8 @@ def optimal_compensator(
     p_um : (N, 3) or (3,) float
         Desired positions in {G}, µm.
     extra : float or (N, e) float, optional
-        Values of the model's extra inputs, given (not solved for).
+        Values of the model's extra inputs, given (not solved for); left out, each approach
+        direction is +1 (a model with other inputs then needs them).
     limits_um : (3, 2) float, optional
         Soft limits per joint; a converged solution outside raises LimitError.
     tol_um : float

@@ -32,6 +32,7 @@ __all__ = [
     "EXTRA_INPUTS",
     "ExtraInput",
     "by_symbol",
+    "default_extra_inputs",
     "expand_names",
     "extra_input",
     "fixed_approach_values",
@@ -165,6 +166,26 @@ def values_for(symbols: Sequence[str], values: Mapping[str, float]) -> FloatArra
             )
         out.append(float(values[entry.name]))
     return np.array([out])
+
+
+def default_extra_inputs(symbols: Sequence[str]) -> FloatArray:
+    """The values a model's extra inputs take when none are given, (e,): each approach
+    direction +1 (every joint arriving moving up, as a fixed approach from below makes it).
+
+    Raises
+    ------
+    InputError
+        An input without a default (the temperature), naming each input the model needs in
+        its order, with its meaning and unit.
+    """
+    entries = [by_symbol(s) for s in symbols]
+    if all(is_approach(e.name) for e in entries):
+        return np.ones(len(entries))
+    needs = ", ".join(f"{e.symbol} ({e.meaning}, {e.unit})" for e in entries)
+    raise InputError(
+        f"extra: this model also needs {needs}; give one value per input in that order "
+        "(an approach direction is +1 when the joint arrives moving up)"
+    )
 
 
 #: An extra input explained this well (R^2) by a quadratic in the joints cannot be told apart

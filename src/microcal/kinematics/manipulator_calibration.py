@@ -12,6 +12,7 @@ from numpy.typing import ArrayLike
 from .._validation import FloatArray
 from ..errors import DegenerateDataError, FormatError, InputError
 from .compensators import Compensator
+from .extra_inputs import default_extra_inputs
 from .models import KinematicModel
 
 __all__ = ["ManipulatorCalibration"]
@@ -32,8 +33,30 @@ class ManipulatorCalibration:
     extra: Mapping[str, object] = field(default_factory=dict)
 
     def predict_um(self, u: ArrayLike) -> FloatArray:
-        """Position in {G} (µm) for joint values (and further inputs), (N, 3)."""
-        return self.model.predict_um(u)
+        """Position in {G} (µm) for joint values (and further inputs), (N, 3).
+
+        Parameters
+        ----------
+        u : (N, k) or (k,) float, or (N, j) or (j,) float
+            Inputs in the order of the model's ``inputs`` (joints in µm first); or the joints
+            alone, the extra inputs then taking their defaults (each approach direction +1,
+            every joint arriving moving up; a model with a temperature input needs it given).
+
+        Raises
+        ------
+        InputError
+            Another number of columns, or joints alone for a model whose extra inputs have
+            no default (the message names them).
+        """
+        m = self.model
+        u_arr = np.asarray(u, dtype=np.float64)
+        if m.extra_inputs and u_arr.shape[-1:] == (len(m.joints),):
+            rows = np.atleast_2d(u_arr)
+            extra = np.broadcast_to(
+                default_extra_inputs(m.extra_inputs), (rows.shape[0], len(m.extra_inputs))
+            )
+            return m.predict_um(np.hstack([rows, extra]))
+        return m.predict_um(u)
 
     @cached_property
     def matrix_model(self) -> KinematicModel | None:
@@ -81,7 +104,9 @@ class ManipulatorCalibration:
         p_um : (N, 3) or (3,) float
             Desired positions in {G}, µm.
         extra : float or (N, e) float, optional
-            Values of the model's extra inputs (the temperature in °C), if it has any.
+            Values of the model's extra inputs (the temperature in °C), if it has any; left
+            out, each approach direction is +1 (the joints arrive moving up, as a fixed
+            approach from below makes them), and a model with other inputs asks for them.
         limits_um : (3, 2) float, optional
             Soft limits per joint; a target outside raises LimitError and nothing is returned.
 

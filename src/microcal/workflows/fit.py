@@ -9,8 +9,16 @@ from typing import Literal
 
 import numpy as np
 
+from ..errors import InputError
 from ..formats.calibration_file import Calibration, load_calibration
-from ..formats.measurements import read_measurements
+from ..formats.measurements import Measurements, read_measurements
+from ..kinematics.extra_inputs import (
+    APPROACH_INPUTS,
+    expand_names,
+    extra_input,
+    identifiability_problem,
+    is_approach,
+)
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..procedures.compensation import Solution, solve_position
 from ..procedures.identification import Identification, calibrate_manipulator
@@ -33,6 +41,10 @@ class FitRequest:
         calibration.json to write, or to update with this manipulator's entry.
     extra : tuple of str
         Extra inputs to model (``temperature``, ``approach``).
+    approach : bool, optional
+        Model the joints' approach directions (terms ``sx, sy, sz``: the reversal error).
+        None (the default): when the measurements recorded them and each joint arrived from
+        both sides often enough to identify its term, as the demo does; False: never.
     manipulator : str, optional
         The entry's name; the measured run's device (run.json), else ``m1``.
     cameras : Path, optional
@@ -55,6 +67,7 @@ class FitRequest:
     cameras: Path | None = None
     mat: Path | None = None
     exclude_outliers: bool = False
+    approach: bool | None = None
 
 
 @dataclass(frozen=True)
@@ -75,6 +88,8 @@ class FitResult:
         Poses whose measurement failed, skipped.
     written : tuple of Path
         The files written (the calibration, and the .mat export if asked).
+    notes : tuple of str
+        What was chosen for the user (the direction terms fitted by default), one line each.
     """
 
     measurements: Path
@@ -84,6 +99,46 @@ class FitResult:
     n_failed: int
     calibration: Calibration
     written: tuple[Path, ...] = field(default_factory=tuple)
+    notes: tuple[str, ...] = ()
+
+
+def extras_to_fit(
+    names: tuple[str, ...], approach: bool | None, meas: Measurements
+) -> tuple[list[str], tuple[str, ...]]:
+    """The extra inputs to fit and the note that says what was chosen by default.
+
+    ``approach`` None adds each joint's approach direction that the measurements recorded at
+    every pose and that can be identified from them (both signs often enough, not following
+    the joints); True adds all three (refused if not recorded); False none.
+
+    Raises
+    ------
+    InputError
+        ``--no-approach`` with ``--extra approach...``.
+    """
+    chosen = expand_names(list(names))
+    given = [n for n in chosen if is_approach(n)]
+    if approach is False:
+        if given:
+            raise InputError("--no-approach and --extra approach: choose one")
+        return chosen, ()
+    if approach is True:
+        return chosen + [n for n in APPROACH_INPUTS if n not in given], ()
+    if given:
+        return chosen, ()
+    found = []
+    for name in APPROACH_INPUTS:
+        values = meas.extra.get(name)
+        ok = meas.d_um[:, np.ptp(meas.d_um, axis=0) > 0]
+        if (values is not None and np.all(np.isfinite(values))
+                and identifiability_problem(name, values, ok) is None):  # fmt: skip
+            found.append(name)
+    if not found:
+        return chosen, ()
+    symbols = ", ".join(extra_input(n).symbol for n in found)
+    note = (f"note: fitting the direction terms {symbols} (reversal error), as the run "
+            "recorded each pose's approach direction; --no-approach leaves them out")  # fmt: skip
+    return chosen + found, (note,)
 
 
 def fit(request: FitRequest) -> FitResult:
@@ -99,7 +154,8 @@ def fit(request: FitRequest) -> FitResult:
     update.check_fit_outputs(r.out, r.mat, r.manipulator)
     path = r.source / "measurements.csv" if r.source.is_dir() else r.source
     meas = read_measurements(path, min_poses=MIN_DESIGN_POSES)
-    inputs = meas.extra_inputs(list(r.extra), path)
+    names, notes = extras_to_fit(r.extra, r.approach, meas)
+    inputs = meas.extra_inputs(names, path)
     manifest = update.manifest_beside(path)  # run.json, read once
     held = update.measured_held_joints(manifest)  # an X-Y positioner's dz
     entry, fits = calibrate_manipulator(
@@ -112,7 +168,7 @@ def fit(request: FitRequest) -> FitResult:
     )
     written = [r.out] if r.mat is None else [r.out, r.mat]
     return FitResult(path, calibration.manipulators[entry.name], fits[r.model], meas.pose,
-                     meas.n_failed, calibration, tuple(written))  # fmt: skip
+                     meas.n_failed, calibration, tuple(written), notes)  # fmt: skip
 
 
 @dataclass(frozen=True)
