@@ -109,9 +109,23 @@ def test_demo_replaces_only_an_earlier_demo(tmp_path):
     mixed.mkdir()
     (mixed / "run.json").write_text(json.dumps({"provenance": {"command": "demo"}}))
     (mixed / "notes.txt").write_text("mine")
-    with pytest.raises(Exception, match="earlier demo did not write"):
+    with pytest.raises(Exception, match=r"earlier demo did not write \(notes.txt\)"):
         _clear_demo_dir(mixed)
     assert (mixed / "notes.txt").read_text() == "mine"
+
+
+def test_files_other_commands_write_into_a_demo_directory_are_replaced_with_it(tmp_path):
+    """``check`` keeps its history beside calibration.json; the next demo replaces it with the
+    calibration it belonged to (and leaves a lock another command may hold alone)."""
+    earlier = tmp_path / "earlier"
+    earlier.mkdir()
+    (earlier / "run.json").write_text(json.dumps({"provenance": {"command": "demo"}}))
+    (earlier / "calibration.json").write_text("{}")
+    (earlier / "calibration.checks.jsonl").write_text("{}\n")
+    (earlier / "calibration.mat").write_bytes(b"MATLAB")
+    (earlier / ".calibration.json.lock").write_text("123\n")
+    _clear_demo_dir(earlier)
+    assert sorted(p.name for p in earlier.iterdir()) == [".calibration.json.lock"]
 
 
 @pytest.mark.slow

@@ -20,8 +20,11 @@ import numpy as np
 
 from ..devices.rig_spec import SimRigSpec
 from ..errors import InputError
+from ..formats.check_file import history_path
+from ..formats.file_lock import lock_path
 from ..formats.outputs import check_writable
 from ..formats.run_directory import RUN_FILE_NAMES, RunDirectory, RunWriter
+from ..formats.run_lock import LOCK_NAME
 from ..formats.run_manifest import new_manifest
 
 if TYPE_CHECKING:
@@ -43,6 +46,20 @@ __all__ = [
 
 #: What a demo writes into its directory (and may replace on the next demo).
 DEMO_FILES = frozenset(RUN_FILE_NAMES)
+#: Files other microcal commands write into a demo's directory afterwards (the history that
+#: ``check`` keeps beside calibration.json, ``fit --mat``'s export, a lock left by a process
+#: that was killed): replaced with the demo, whose calibration they belonged to.
+LATER_FILES = frozenset(
+    {
+        history_path("calibration.json").name,
+        "calibration.mat",
+        LOCK_NAME,
+        *(
+            lock_path(name).name
+            for name in (*RUN_FILE_NAMES, history_path("calibration.json").name)
+        ),
+    }
+)
 
 
 def write_demo_outputs(out: Path, result: DemoResult, wall_s: float) -> None:
@@ -232,6 +249,8 @@ def run_station_demo_files(
 def clear_demo_dir(out: Path) -> None:
     """Make ``out`` ready for a demo: new, empty, or holding only an earlier demo's files."""
     for name in check_demo_dir(out):
+        if name.endswith(".lock"):
+            continue  # another command's lock: its own to remove (it may hold it now)
         path = out / name
         if path.is_dir():
             shutil.rmtree(path)
@@ -262,9 +281,13 @@ def check_demo_dir(out: Path) -> set[str]:
     own = re.compile(r"[A-Za-z0-9_-]+_\d{4}\.tiff")
     if images.is_dir() and any(not own.fullmatch(f.name) for f in images.iterdir()):
         is_demo = False
-    if not is_demo or not entries <= DEMO_FILES:
+    foreign = sorted(entries - DEMO_FILES - LATER_FILES)
+    if not is_demo or foreign:
+        named = (
+            f" ({', '.join(foreign[:3])}{', ...' if len(foreign) > 3 else ''})" if foreign else ""
+        )
         raise InputError(
-            f"--out {out}: holds files that an earlier demo did not write; "
+            f"--out {out}: holds files that an earlier demo did not write{named}; "
             f"choose a new or empty directory"
         )
     return entries
