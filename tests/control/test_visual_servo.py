@@ -8,7 +8,12 @@ import pytest
 import scipy.stats
 
 from microcal.control.closed_loop import ClosedLoop
-from microcal.control.visual_servo import ServoConfig, probability_within, servo
+from microcal.control.visual_servo import (
+    ServoConfig,
+    probability_within,
+    servo,
+    smallest_confirmable_um,
+)
 from microcal.errors import DetectionError, LimitError, MoveError
 from microcal.kinematics import fit_matrix_model
 from microcal.sim import platform
@@ -38,6 +43,34 @@ def test_the_probability_of_the_tolerance_ball_matches_the_chi_square():
         p = probability_within(np.zeros(3), np.eye(3) * 0.5**2, r)
         assert p == pytest.approx(scipy.stats.chi2.cdf((r / 0.5) ** 2, 3), abs=0.02)
     assert probability_within(np.array([3.0, 0, 0]), np.eye(3) * 0.01, 0.5) == 0.0
+
+
+def test_the_smallest_confirmable_tolerance_is_the_chi_square_radius():
+    # Metric: radius, µm; isotropic sigma 0.5 µm: r = sigma * sqrt(chi2_3 quantile); the
+    # 4000 fixed draws give it to about 1 %.
+    r = smallest_confirmable_um(np.eye(3) * 0.5**2, 0.9)
+    assert r == pytest.approx(0.5 * np.sqrt(scipy.stats.chi2.ppf(0.9, 3)), rel=0.02)
+    assert probability_within(np.zeros(3), np.eye(3) * 0.5**2, 0.99 * r) < 0.9
+
+
+def test_a_loop_that_ends_on_its_cap_says_why_in_words():
+    from microcal.procedures.station import Arrival
+    from microcal.report.text_tables import arrival_line
+
+    def arrival(status, std_um):
+        cov = np.diag(np.square(std_um))
+        return Arrival(np.zeros(3), np.zeros(3), np.full(3, 0.1), cov, "closed", status, 6, 480,
+                       0.5, 0.9, 6)  # fmt: skip
+
+    noisy = arrival_line(arrival("iterations", [0.2, 0.2, 0.6]))
+    assert "stopped at its cap of 6 corrections, not 90 % sure of 0.5 µm" in noisy
+    assert "the measurement alone (std up to 0.60 µm) confirms no less than" in noisy
+    floor = smallest_confirmable_um(np.diag([0.04, 0.04, 0.36]), 0.9)
+    asked = float(noisy.split("--tolerance-um ")[1].split()[0])
+    assert floor < asked <= 1.1 * floor + 0.1
+    quiet = arrival_line(arrival("iterations", [0.05, 0.05, 0.05]))
+    assert "not 90 % sure of 0.5 µm; the error was still shrinking" in quiet
+    assert "ended 90 % sure of 0.5 µm" in arrival_line(arrival("tolerance", [0.05] * 3))
 
 
 def test_the_loop_reaches_the_tolerance_the_open_loop_misses():

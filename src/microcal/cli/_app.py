@@ -15,7 +15,14 @@ from ..errors import MicrocalError
 WORKFLOW = ("demo", "stereo-calibrate", "acquire", "measure", "fit", "solve", "evaluate", "report",
             "check")  # fmt: skip
 INTERRUPTED = 130  # the exit code after Ctrl-C (128 + SIGINT, as shells report it)
-Tolerance = Annotated[float, Option(min=0.01, help="The closed loop's tolerance, µm (90 % sure).")]
+Tolerance = Annotated[
+    float,
+    Option(
+        min=0.01,
+        help="The closed loop's tolerance, µm (90 % sure; no less than the cameras can "
+        "confirm, which goto names when it is).",
+    ),
+]
 
 
 def fail(message: str, code: int = 2) -> NoReturn:

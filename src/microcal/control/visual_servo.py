@@ -43,6 +43,7 @@ __all__ = [
     "probability_within",
     "reachable_error",
     "servo",
+    "smallest_confirmable_um",
 ]
 
 #: Normal draws (fixed) for the probability of the tolerance ball.
@@ -125,6 +126,21 @@ def probability_within(error_um: FloatArray, cov_um2: FloatArray, radius_um: flo
         L = np.diag(np.sqrt(np.maximum(np.diagonal(cov_um2), 0.0)))
     x = error_um + _DRAWS @ L.T
     return float(np.mean(np.sum(x * x, axis=1) <= radius_um**2))
+
+
+def smallest_confirmable_um(cov_um2: FloatArray, confidence: float) -> float:
+    """The smallest tolerance a measurement of covariance ``cov_um2`` (3, 3) µm² can confirm
+    at ``confidence``: the radius holding that share of N(0, cov) (the module's draws), µm.
+
+    Even a tip exactly on its target is confirmed within a smaller tolerance with a lower
+    probability only; a loop asked for less ends on its iteration cap.
+    """
+    try:
+        L = np.linalg.cholesky(cov_um2)
+    except np.linalg.LinAlgError:
+        L = np.diag(np.sqrt(np.maximum(np.diagonal(cov_um2), 0.0)))
+    radii = np.linalg.norm(_DRAWS @ L.T, axis=1)
+    return float(np.quantile(radii, confidence))
 
 
 def _frames_for(last_error_um: float, last_cov: FloatArray, last_frames: int,

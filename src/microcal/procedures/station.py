@@ -51,6 +51,10 @@ class Arrival:
         ``resolution``, ``iterations``).
     iterations, frames : int
         Corrections made, frames grabbed per camera.
+    tolerance_um, confidence : float, optional
+        What the closed loop aimed at (None for the open loop).
+    max_iterations : int, optional
+        The closed loop's cap on corrections.
     """
 
     target_um: FloatArray
@@ -61,6 +65,9 @@ class Arrival:
     status: str
     iterations: int
     frames: int
+    tolerance_um: float | None = None
+    confidence: float | None = None
+    max_iterations: int | None = None
 
     @property
     def error_um(self) -> FloatArray:
@@ -201,8 +208,9 @@ class Station:
         d = self._closed.move_to_position_um(target)
         self._d = d
         r = self._closed.results[-1]
+        c = self._closed.config
         return Arrival(target, d, r.measured_um, r.cov_um2, "closed", r.status, r.iterations,
-                       r.frames)  # fmt: skip
+                       r.frames, c.tolerance_um, c.confidence, c.max_iterations)  # fmt: skip
 
     def check_reach(self, p_um: ArrayLike) -> None:
         """Raise :class:`LimitError` if the model's joints for ``p_um`` (3,) in {G} leave the

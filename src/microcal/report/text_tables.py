@@ -6,6 +6,7 @@ prints it. The thesis's columns appear only where the run is the thesis's experi
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -14,6 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..control.visual_servo import smallest_confirmable_um
 from ..thesis.figures import (
     CLAIMED_ACCURACY_UM,
     DECOUPLING_UM,
@@ -381,7 +383,7 @@ def arrival_line(a: Arrival) -> str:
     how = (
         "open loop"
         if a.mode == "open"
-        else f"closed loop, {a.iterations} correction(s), ended by {a.status}"
+        else f"closed loop, {a.iterations} correction(s), {_ended(a)}"
     )
     return (
         f"arrived at ({fmt(f'{v:.3f}' for v in a.measured_um.tolist())}) µm in {{G}}, "
@@ -392,14 +394,35 @@ def arrival_line(a: Arrival) -> str:
     )
 
 
+def _ended(a: Arrival) -> str:
+    """How a closed loop ended, in words (the cap, and why it was reached)."""
+    if a.tolerance_um is None or a.confidence is None:
+        return f"ended by {a.status}"
+    sure = f"{100 * a.confidence:.0f} % sure of {a.tolerance_um:g} µm"
+    if a.status == "tolerance":
+        return f"ended {sure}"
+    if a.status == "resolution":
+        return "ended as the next correction was below the positioner's resolution"
+    floor = smallest_confirmable_um(a.cov_um2, a.confidence)
+    ask = math.ceil(11 * floor) / 10  # 10 % above it, rounded up to 0.1 µm
+    cap = f"stopped at its cap of {a.max_iterations} corrections, not {sure}"
+    if floor >= a.tolerance_um:
+        return (f"{cap}: the measurement alone (std up to {float(a.std_um.max()):.2f} µm) "
+                f"confirms no less than {floor:.2f} µm; --tolerance-um {ask:g} "
+                "would end on the tolerance")  # fmt: skip
+    return f"{cap}; the error was still shrinking"
+
+
 def closed_loop_line(s: ClosedLoopSummary) -> str:
     """One line on the closed loop: iterations, frames, how it ended, how sure it was."""
-    status = ", ".join(f"{n} {k}" for k, n in s.status.items() if n)
+    words = {"tolerance": "sure of the tolerance", "resolution": "below the resolution",
+             "iterations": "at the cap of corrections, not sure of the tolerance"}  # fmt: skip
+    status = ", ".join(f"{n} {words.get(k, k)}" for k, n in s.status.items() if n)
     line = (
         f"closed loop to {s.tolerance_um:g} µm at {100 * s.confidence:.0f} %: "
         f"{s.targets} targets, {s.iterations_mean:.1f} iterations (at most "
         f"{s.iterations_max}), {s.frames_mean:.0f} frames per camera (at most "
-        f"{s.frames_max}); ended by {status}"
+        f"{s.frames_max}); ended: {status}"
     )
     if s.truth_within_tolerance is not None and s.truth_in_measured_95 is not None:
         line += (
