@@ -61,7 +61,8 @@ def fit(
               f"{done.measurements}{skipped}")  # fmt: skip
     wrote = "wrote " + " and ".join(str(w) for w in done.written)
     lines = fit_lines(r.model, r.validation, header, wrote)
-    print_parts(Console(), [*lines, *outlier_lines(r, done.poses)])
+    notes = [f"warning: {n}" for n in done.notes]
+    print_parts(Console(), [*lines, *outlier_lines(r, done.poses), *notes])
 
 
 _Calibration = Annotated[Path, Argument(help="calibration.json")]

@@ -9,8 +9,9 @@ from typing import Literal
 
 import numpy as np
 
+from ..errors import InputError
 from ..formats.calibration_file import Calibration, load_calibration
-from ..formats.measurements import read_measurements
+from ..formats.measurements import Measurements, read_measurements
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..procedures.compensation import Solution, solve_position
 from ..procedures.identification import Identification, calibrate_manipulator
@@ -84,6 +85,54 @@ class FitResult:
     n_failed: int
     calibration: Calibration
     written: tuple[Path, ...] = field(default_factory=tuple)
+    notes: tuple[str, ...] = ()
+    """Warnings about the measurements fitted, one sentence each."""
+
+
+#: Measured positions spanning this many times more than the joint commands (µm for µm on a
+#: micromanipulator) mean joint commands written in another unit, millimetres most likely.
+_JOINT_UNIT_RATIO = 100.0
+
+
+def _check_joint_units(meas: Measurements, path: Path) -> None:
+    """Refuse joint commands whose range is far below the measured positions' range.
+
+    A micromanipulator moves its end-effector by about as much as its joints move (µm for
+    µm), so the two ranges are of one order; joints written in millimetres span a thousand
+    times less. Joints that do not move at all are left to the fit to refuse.
+
+    Raises
+    ------
+    InputError
+        Naming the file, both ranges and the unit expected.
+    """
+    span_d = float(np.max(np.ptp(meas.d_um, axis=0)))
+    span_p = float(np.max(np.ptp(meas.p_um, axis=0)))
+    if span_d > 0 and span_p > _JOINT_UNIT_RATIO * span_d:
+        raise InputError(
+            f"{path}: the joint commands span {span_d:.3g} but the measured positions "
+            f"{span_p:.3g} µm; dx_um, dy_um, dz_um are micrometres (a micromanipulator moves "
+            f"about as far as its joints): if they are millimetres, multiply them by 1000"
+        )
+
+
+def _repeated_rows_note(meas: Measurements, path: Path) -> str | None:
+    """A warning when rows repeat another row's joint commands and measured position
+    exactly: copies, since no two measurements agree to the last digit; each weights the fit
+    as a pose of its own."""
+    rows = np.hstack([meas.d_um, meas.p_um])
+    _, first = np.unique(rows, axis=0, return_index=True)
+    copies = np.setdiff1d(np.arange(len(rows)), first)
+    if copies.size == 0:
+        return None
+    poses = ", ".join(str(int(v)) for v in meas.pose[copies][:5]) + (
+        ", ..." if copies.size > 5 else ""
+    )
+    return (
+        f"{path}: {copies.size} rows repeat another row's joint commands and measured "
+        f"position exactly (poses {poses}); each copy weights the fit as one more pose: "
+        f"remove the copies"
+    )
 
 
 def fit(request: FitRequest) -> FitResult:
@@ -100,6 +149,8 @@ def fit(request: FitRequest) -> FitResult:
     path = r.source / "measurements.csv" if r.source.is_dir() else r.source
     meas = read_measurements(path, min_poses=MIN_DESIGN_POSES)
     inputs = meas.extra_inputs(list(r.extra), path)
+    _check_joint_units(meas, path)
+    note = _repeated_rows_note(meas, path)
     manifest = update.manifest_beside(path)  # run.json, read once
     held = update.measured_held_joints(manifest)  # an X-Y positioner's dz
     entry, fits = calibrate_manipulator(
@@ -112,7 +163,8 @@ def fit(request: FitRequest) -> FitResult:
     )
     written = [r.out] if r.mat is None else [r.out, r.mat]
     return FitResult(path, calibration.manipulators[entry.name], fits[r.model], meas.pose,
-                     meas.n_failed, calibration, tuple(written))  # fmt: skip
+                     meas.n_failed, calibration, tuple(written),
+                     () if note is None else (note,))  # fmt: skip
 
 
 @dataclass(frozen=True)
