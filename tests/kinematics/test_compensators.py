@@ -95,7 +95,10 @@ def test_ill_conditioned_model_is_refused(poly):
     data = poly.to_dict()
     coef = np.array(data["coefficients"])
     coef[:, 2] = coef[:, 1]  # dz acts exactly like dy: R is singular
+    selected = np.array(data["selected"], dtype=bool)
+    selected[:, 2] = selected[:, 1]
     data["coefficients"] = coef.tolist()
+    data["selected"] = selected.tolist()
     bad = KinematicModel.from_dict(data)
     with pytest.raises(DegenerateDataError, match="R is singular or ill-conditioned"):
         Compensator(bad)

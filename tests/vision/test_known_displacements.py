@@ -12,7 +12,7 @@ from microcal.vision.targets import parse_target
 @pytest.mark.slow
 @pytest.mark.parametrize("mistake", ["steps in mm", "steps out of order"])
 def test_known_displacements_that_fit_no_camera_are_a_clear_error(mistake):
-    from microcal.errors import DegenerateDataError
+    from microcal.errors import DegenerateDataError, InputError
     from microcal.thesis.cameras import thesis_cameras
     from microcal.vision.detect import Detection
     from microcal.vision.stereo_calibration import calibrate_known_displacements
@@ -28,8 +28,11 @@ def test_known_displacements_that_fit_no_camera_are_a_clear_error(mistake):
     }  # fmt: skip
     names = {n: [f"{n}{k}" for k in range(5)] for n in cams}
     sizes = {n: c.image_size_px for n, c in cams.items()}
-    given = steps / 1000.0 if mistake == "steps in mm" else steps[[3, 0, 4, 1, 2]]
-    with pytest.raises(DegenerateDataError, match=r"the views do not fit one camera .*steps in µm"):
+    if mistake == "steps in mm":
+        given, error = steps / 1000.0, (DegenerateDataError, r"do not fit one camera .*steps in µm")
+    else:  # the views fit the steps in another order: named as such
+        given, error = steps[[3, 0, 4, 1, 2]], (InputError, r"views out of order: top.*--known-d")
+    with pytest.raises(error[0], match=error[1]):
         calibrate_known_displacements(dets, names, target, given, sizes)
     # The same detections with the right steps calibrate (metric: RMS reprojection, px).
     cal = calibrate_known_displacements(dets, names, target, steps, sizes)

@@ -224,3 +224,17 @@ def test_approach_options_that_cannot_be_met_are_one_line(run_dir, run_with_dire
     assert "--no-approach and --extra approach: choose one" in both.stderr
     assert not (tmp_path / "a.json").exists()
     assert not (tmp_path / "b.json").exists()
+
+
+@pytest.mark.parametrize("span_um", [10.0, 8000.0])
+def test_joints_spanning_what_the_positions_span_fit_without_a_word(tmp_path, span_um):
+    """A run of a few µm, or of millimetres in µm, is neither refused nor warned about: only
+    positions spanning 100 times the joints are (joints written in millimetres)."""
+    rng = np.random.default_rng(2)
+    d = rng.uniform(0.0, span_um, (30, 3))
+    p = d @ np.array([[1.0, 0.01, 0.0], [0.0, 0.98, 0.02], [0.0, 0.0, 1.01]]) + [50.0, 60.0, 70.0]
+    p = p + rng.normal(0.0, 0.05, p.shape)
+    write_measurements(tmp_path / "measurements.csv", d, p)
+    out = invoke_microcal("fit", tmp_path, "--model", "matrix", "-o", tmp_path / "c.json")
+    assert out.returncode == 0, out.stderr
+    assert "warning" not in out.stdout + out.stderr

@@ -64,8 +64,8 @@ def fit(
     header = (f"{model.value} model of {done.entry.name!r} from {len(done.poses)} poses of "
               f"{done.measurements}{skipped}")  # fmt: skip
     wrote = "wrote " + " and ".join(str(w) for w in done.written)
-    lines = [*done.notes, *fit_lines(r.model, r.validation, header, wrote)]
-    print_parts(Console(), [*lines, *outlier_lines(r, done.poses)])
+    lines = fit_lines(r.model, r.validation, header, wrote)
+    print_parts(Console(), [*done.notes, *lines, *outlier_lines(r, done.poses)])
 
 
 _Calibration = Annotated[Path, Argument(help="calibration.json")]

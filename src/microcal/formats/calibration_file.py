@@ -158,12 +158,24 @@ def load_calibration(path: str | os.PathLike[str]) -> Calibration:
             model = KinematicModel.from_dict(data["model"])
         except FormatError as exc:
             raise FormatError(f"{p}: manipulators.{name}.{exc}") from None
+        _check_validation(p, name, schema.manipulators[name].validation)
         extra = {k: v for k, v in data.items() if k not in ("model", "validation")}
         validation = data.get("validation") or {}
         manipulators[name] = ManipulatorCalibration(name, model, validation, extra)
     calibration = Calibration(manipulators, schema.cameras, schema.provenance, p)
     calibration.camera_models()  # a malformed camera fails here, naming the file
     return calibration
+
+
+def _check_validation(path: Path, name: str, validation: _ValidationSchema | None) -> None:
+    """Refuse validation figures that cannot be: a standard deviation or RMS below zero."""
+    for key in ("std_um", "rms_um"):
+        value = getattr(validation, key) if validation is not None else 0.0
+        if value < 0:
+            raise FormatError(
+                f"{path}: manipulators.{name}.validation.{key} = {value:g} is negative (a "
+                f"spread is never below zero); fit the model again"
+            )
 
 
 def export_mat(path: str | os.PathLike[str], calibration: Calibration) -> Path:

@@ -211,6 +211,7 @@ def _parse(data: Mapping[str, object], where: str) -> _Cameras:
 def _models(parsed: _Cameras, where: str) -> dict[str, AnyCamera]:
     models: dict[str, AnyCamera] = {}
     for name, cam in parsed.cameras.items():
+        _check_uncertainties(cam, f"{where}: cameras.{name}")
         kind = cam.get("model", DEFAULT_CAMERA_MODEL)
         loader = CAMERA_LOADERS.get(kind) if isinstance(kind, str) else None
         if loader is None:
@@ -234,6 +235,45 @@ def _models(parsed: _Cameras, where: str) -> dict[str, AnyCamera]:
     except (ValueError, OverflowError, FloatingPointError) as exc:
         raise FormatError(f"{where}: cameras hold numbers no camera has ({exc})") from None
     return models
+
+
+#: A camera's keys that hold standard deviations (or uncertainties), every number >= 0
+#: (``projection_sigma_px`` is the camera model's own, checked as it is built).
+_UNCERTAINTY_KEYS = ("std",)
+_DIAGNOSTICS_UNCERTAINTY_KEYS = ("std_intrinsics", "uncertainty_px", "uncertainty_map_px")
+
+
+def _check_uncertainties(cam: Mapping[str, object], where: str) -> None:
+    """Refuse a standard deviation below zero in a camera's uncertainties, naming its key."""
+    diagnostics = cam.get("diagnostics")
+    keys = [(k, cam.get(k)) for k in _UNCERTAINTY_KEYS]
+    if isinstance(diagnostics, Mapping):
+        keys += [(f"diagnostics.{k}", diagnostics.get(k)) for k in _DIAGNOSTICS_UNCERTAINTY_KEYS]
+    for key, value in keys:
+        found = _first_negative(value, key)
+        if found is not None:
+            raise FormatError(
+                f"{where}.{found[0]} = {found[1]:g} is a standard deviation below zero; "
+                f"calibrate the cameras again (microcal stereo-calibrate)"
+            )
+
+
+def _first_negative(value: object, key: str) -> tuple[str, float] | None:
+    """The first number below zero in a JSON value (its key path and value), or None."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, int | float):
+        return (key, float(value)) if value < 0 else None
+    items: list[tuple[str, object]] = []
+    if isinstance(value, Mapping):
+        items = [(f"{key}.{k}", v) for k, v in value.items()]
+    elif isinstance(value, list):
+        items = [(f"{key}[{i}]", v) for i, v in enumerate(value)]
+    for sub, v in items:
+        found = _first_negative(v, sub)
+        if found is not None:
+            return found
+    return None
 
 
 def _check_usable(models: dict[str, AnyCamera], where: str) -> None:

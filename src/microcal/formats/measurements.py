@@ -157,6 +157,12 @@ def _parse_measurements(p: Path, text: str) -> Measurements:
                 f"{p}, line {line}: {column} = {row[column]!r} in a status-ok row (expected a "
                 f"finite number)"
             )
+        negative = [c for c, v in zip(cols, values, strict=True) if c in STD_COLUMNS and v < 0]
+        if negative:
+            raise FormatError(
+                f"{p}, line {line}: {negative[0]} = {row[negative[0]]!r} is a standard deviation "
+                f"below zero; {', '.join(STD_COLUMNS)} must be >= 0 (measure the run again)"
+            )
         rows.append([pose, *values])
         extra_rows.append([_extra_value(p, line, row, EXTRA_INPUTS[n].column) for n in extra_names])
     if not rows:

@@ -350,6 +350,7 @@ class KinematicModel:
             kind = data["kind"]
             if kind not in ("matrix", "polynomial"):
                 raise FormatError(f"model.kind: expected 'matrix' or 'polynomial', got {kind!r}")
+            _check_unselected(terms, coef, sel, cov)
             selection = data.get("selection", {})
             if not isinstance(selection, Mapping):
                 raise FormatError(f"model.selection: expected an object, got {selection!r}")
@@ -370,6 +371,27 @@ class KinematicModel:
             if isinstance(exc, FormatError):
                 raise
             raise FormatError(f"model: {exc}") from None
+
+
+def _check_unselected(
+    terms: tuple[Term, ...], coef: FloatArray, sel: np.ndarray, cov: FloatArray
+) -> None:
+    """Refuse a record whose unselected terms keep coefficients (the model would use them as
+    if selected: a term selected on one axis is evaluated on all three) or whose variances
+    are negative (a standard deviation below zero)."""
+    stray = np.flatnonzero(np.any((coef != 0) & ~sel, axis=0))
+    if stray.size:
+        names = ", ".join(terms[a].name for a in stray[:6]) + (", ..." if stray.size > 6 else "")
+        raise FormatError(
+            f"model: the terms {names} are not selected but keep coefficients; microcal writes "
+            f"0 there: fit the model again (or set them to 0, or select them)"
+        )
+    axis, term = np.nonzero(np.diagonal(cov, axis1=1, axis2=2) < 0)
+    if axis.size:
+        raise FormatError(
+            f"model.covariance: the variance of {terms[term[0]].name} on axis "
+            f"{AXES[axis[0]]} is negative (a standard deviation below zero); fit the model again"
+        )
 
 
 def _names(value: object, key: str) -> list[str]:

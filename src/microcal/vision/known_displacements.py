@@ -43,6 +43,7 @@ from .calibration_result import (
 from .detect import Detection
 from .lens_models import opencv_reason, predicts_better
 from .targets import Target
+from .view_order import check_view_order
 
 __all__ = [
     "CAMERA_MODEL_CHOICES",
@@ -117,6 +118,15 @@ def _turn_by_steps(
         out[i] = _renumbered(detections[i], target, best)
     total = {i: (turned.get(i, 0) + best) % 360 for i in used}
     return out, {i: t for i, t in total.items() if t}
+
+
+def _numbered(
+    detections: Sequence[Detection], target: Target, displacements_um: FloatArray
+) -> list[Detection]:
+    """One camera's detections numbered as its calibration numbers them (a symmetric board)."""
+    used = [i for i, d in enumerate(detections) if d.found]
+    dets, turned = _align_views(detections, used, target)
+    return _turn_by_steps(dets, used, target, displacements_um, turned)[0]
 
 
 def _steps_in_plane(target: Target, disp: FloatArray) -> bool:
@@ -492,13 +502,18 @@ def calibrate_known_displacements(
     disp = np.asarray(displacements_um, dtype=np.float64)
     if disp.ndim != 2 or disp.shape[1] != 3:
         raise InputError(f"displacements_um: expected shape (V, 3), got {disp.shape}")
-    cams = {}
-    turned_views: list[TurnedView] = []
     for name, dets in detections.items():
         if len(dets) != len(disp):
             raise InputError(
                 f"camera {name}: {len(dets)} images but {len(disp)} displacements; one each"
             )
+    check_view_order(
+        {name: _numbered(dets, target, disp) for name, dets in detections.items()},
+        image_names, target, disp, image_size_px,
+    )  # fmt: skip
+    cams = {}
+    turned_views: list[TurnedView] = []
+    for name, dets in detections.items():
         cams[name], turned = _calibrate_one_known(
             name, dets, image_names[name], target, disp, image_size_px[name], refine, camera_model
         )

@@ -88,8 +88,6 @@ class FitResult:
         Poses whose measurement failed, skipped.
     written : tuple of Path
         The files written (the calibration, and the .mat export if asked).
-    notes : tuple of str
-        What was chosen for the user (the direction terms fitted by default), one line each.
     """
 
     measurements: Path
@@ -100,6 +98,8 @@ class FitResult:
     calibration: Calibration
     written: tuple[Path, ...] = field(default_factory=tuple)
     notes: tuple[str, ...] = ()
+    """What was chosen by default (``note: ...``) and warnings about the measurements fitted
+    (``warning: ...``), one line each."""
 
 
 def extras_to_fit(
@@ -141,6 +141,52 @@ def extras_to_fit(
     return chosen + found, (note,)
 
 
+#: Measured positions spanning this many times more than the joint commands (µm for µm on a
+#: micromanipulator) mean joint commands written in another unit, millimetres most likely.
+_JOINT_UNIT_RATIO = 100.0
+
+
+def _check_joint_units(meas: Measurements, path: Path) -> None:
+    """Refuse joint commands whose range is far below the measured positions' range.
+
+    A micromanipulator moves its end-effector by about as much as its joints move (µm for
+    µm), so the two ranges are of one order; joints written in millimetres span a thousand
+    times less. Joints that do not move at all are left to the fit to refuse.
+
+    Raises
+    ------
+    InputError
+        Naming the file, both ranges and the unit expected.
+    """
+    span_d = float(np.max(np.ptp(meas.d_um, axis=0)))
+    span_p = float(np.max(np.ptp(meas.p_um, axis=0)))
+    if span_d > 0 and span_p > _JOINT_UNIT_RATIO * span_d:
+        raise InputError(
+            f"{path}: the joint commands span {span_d:.3g} but the measured positions "
+            f"{span_p:.3g} µm; dx_um, dy_um, dz_um are micrometres (a micromanipulator moves "
+            f"about as far as its joints): if they are millimetres, multiply them by 1000"
+        )
+
+
+def _repeated_rows_note(meas: Measurements, path: Path) -> str | None:
+    """A warning when rows repeat another row's joint commands and measured position
+    exactly: copies, since no two measurements agree to the last digit; each weights the fit
+    as a pose of its own."""
+    rows = np.hstack([meas.d_um, meas.p_um])
+    _, first = np.unique(rows, axis=0, return_index=True)
+    copies = np.setdiff1d(np.arange(len(rows)), first)
+    if copies.size == 0:
+        return None
+    poses = ", ".join(str(int(v)) for v in meas.pose[copies][:5]) + (
+        ", ..." if copies.size > 5 else ""
+    )
+    return (
+        f"{path}: {copies.size} rows repeat another row's joint commands and measured "
+        f"position exactly (poses {poses}); each copy weights the fit as one more pose: "
+        f"remove the copies"
+    )
+
+
 def fit(request: FitRequest) -> FitResult:
     """Identify a manipulator's model from measurements and add it to calibration.json.
 
@@ -156,6 +202,10 @@ def fit(request: FitRequest) -> FitResult:
     meas = read_measurements(path, min_poses=MIN_DESIGN_POSES)
     names, notes = extras_to_fit(r.extra, r.approach, meas)
     inputs = meas.extra_inputs(names, path)
+    _check_joint_units(meas, path)
+    repeated = _repeated_rows_note(meas, path)
+    if repeated is not None:
+        notes = (*notes, f"warning: {repeated}")
     manifest = update.manifest_beside(path)  # run.json, read once
     held = update.measured_held_joints(manifest)  # an X-Y positioner's dz
     entry, fits = calibrate_manipulator(
