@@ -282,6 +282,11 @@ def test_station_and_goto_on_the_simulator(demo, tmp_path):
     assert res.returncode == 0, res.stderr
     assert "arrived at (" in res.stdout
     assert "closed loop" in res.stdout
+    # While the loop goes on, one line per measurement on stderr; the last says it is done.
+    steps = [line for line in res.stderr.splitlines() if line.startswith("closed loop, measure")]
+    assert steps, res.stderr
+    assert steps[0].startswith("closed loop, measurement 1: ")
+    assert steps[-1].endswith("; done")
     res = invoke_microcal("goto", "--calibration", cal, "1e9", "0", "0")
     assert res.returncode == 2
     assert len(res.stderr.strip().splitlines()) == 1

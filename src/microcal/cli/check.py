@@ -5,9 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
-from rich.console import Console
 from typer import Option
 
+from ..report.console import staged_progress
 from ._app import app
 
 _Cal = Annotated[Path, Option(help="calibration.json with the cameras ('fit --cameras').")]
@@ -40,8 +40,8 @@ def check(
     from ..workflows.check import CheckConfig, check_calibration
 
     cfg = CheckConfig(frames=frames, settle_s=settle_s, alpha=alpha)
-    with Console(stderr=True).status("measuring the check poses ...") as status:
-        tick = lambda done, total: status.update(f"check pose {done} of {total} ...")  # noqa: E731
+    with staged_progress() as progress:
+        tick = lambda done, total: progress("check poses measured", done, total)  # noqa: E731
         done = check_calibration(rig, calibration, out, manipulator=manipulator, seed=seed,
                                  config=cfg, history_sigma=history_sigma, update=update,
                                  progress=tick)  # fmt: skip

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import Annotated
 
@@ -28,9 +29,12 @@ def goto(
 
     Example: microcal goto --calibration demo-out/calibration.json 3000 2000 1500 --closed
     """
-    from ..report.text_tables import arrival_line
+    from ..report.text_tables import arrival_line, correction_line
     from ..workflows.station import open_station
 
-    with open_station(rig, calibration, manipulator=manipulator, seed=seed) as station:
+    # One line per measurement of the closed loop, on standard error, as it is made.
+    say = lambda step: print(correction_line(step), file=sys.stderr, flush=True)  # noqa: E731
+    with open_station(rig, calibration, manipulator=manipulator, seed=seed,
+                      on_correction=say) as station:  # fmt: skip
         arrival = station.move_to_um([x, y, z], "closed" if closed else "open", tolerance_um)
     print(arrival_line(arrival))

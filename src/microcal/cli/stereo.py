@@ -8,7 +8,7 @@ from typing import Annotated
 from rich.console import Console
 from typer import Option
 
-from ..report.console import print_parts
+from ..report.console import print_parts, staged_progress
 from ._app import app, fail
 
 _Target = Annotated[
@@ -75,8 +75,8 @@ def _on_rig(rig: str, out: Path, views: Path | None, steps: Path | None, target:
     from ..workflows.stereo import RigViewsConfig, stereo_calibrate_rig
 
     cfg = RigViewsConfig(frames_per_view=frames, camera_model=check_camera_model(camera_model))
-    with Console(stderr=True).status("moving the target and grabbing the views ...") as status:
-        tick = lambda done, total: status.update(f"view {done} of {total} grabbed ...")  # noqa: E731
+    with staged_progress() as progress:
+        tick = lambda done, total: progress("views grabbed", done, total)  # noqa: E731
         cal, path, folder = stereo_calibrate_rig(rig, out, views=views, steps=steps, target=target,
                                                  seed=seed, config=cfg, progress=tick)  # fmt: skip
     print_parts(Console(), [*stereo_lines(cal, path), f"views: {folder}"])

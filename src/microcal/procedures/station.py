@@ -14,7 +14,7 @@ and says where the tip arrived and how sure that is; ``where_um()`` measures the
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from types import TracebackType
 from typing import Literal
@@ -25,7 +25,7 @@ from numpy.typing import ArrayLike
 from .._validation import FloatArray, as_array, check_number
 from ..control.closed_loop import ClosedLoop
 from ..control.feedforward import FeedForward, extra_inputs_reader
-from ..control.visual_servo import ServoConfig
+from ..control.visual_servo import ServoConfig, ServoStep
 from ..devices.rig import Rig
 from ..errors import DetectionError, InputError
 from ..geometry import AnyCamera
@@ -112,6 +112,8 @@ class Station:
         Wait after a move before measuring.
     servo : ServoConfig, optional
         The closed loop's settings.
+    on_correction : callable (ServoStep) -> None, optional
+        Called with each measurement of the closed loop as it is made (progress).
 
     Raises
     ------
@@ -128,6 +130,7 @@ class Station:
         frames: int = 10,
         settle_s: float = 1.0,
         servo: ServoConfig | None = None,
+        on_correction: Callable[[ServoStep], None] | None = None,
     ) -> None:
         missing = sorted(set(rig.cameras) - set(cameras))
         if missing:
@@ -147,8 +150,9 @@ class Station:
         self.probe = VisionProbe(rig.cameras, models, rig.board, self.frames)
         method: Literal["optimal", "matrix"] = "optimal" if model.kind == "polynomial" else "matrix"
         self._open = FeedForward(rig.manipulator, model, method, extra, rig.clock)
-        self._closed = ClosedLoop(rig.manipulator, model, self.probe.measure_with_covariance,
-                                  rig.clock, extra, servo, self.settle_s)  # fmt: skip
+        measure = self.probe.measure_with_covariance
+        self._closed = ClosedLoop(rig.manipulator, model, measure, rig.clock, extra, servo,
+                                  self.settle_s, on_correction)  # fmt: skip
         self._d = rig.manipulator.position_um()
 
     def where_um(self, frames: int | None = None) -> tuple[FloatArray, FloatArray]:

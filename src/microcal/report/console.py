@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
@@ -33,16 +34,44 @@ def print_parts(console: Console, parts: list[TextTable | str]) -> None:
 
 
 @contextmanager
-def staged_progress(console: Console | None = None) -> Iterator[Callable[[str, int, int], None]]:
-    """A progress callback (stage, done, total) showing one bar per stage while it runs."""
+def staged_progress(
+    console: Console | None = None, clock: Callable[[], float] = time.monotonic
+) -> Iterator[Callable[[str, int, int], None]]:
+    """A progress callback (stage, done, total).
+
+    On a terminal: one bar per stage while it runs, with its count and the time left. Where
+    the output is not a terminal (a log, a pipe, a notebook): one line per step, ``stage:
+    done/total, elapsed, about ... left``, at most one per percent of a stage (so a long stage
+    writes at most about a hundred lines).
+    """
     from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeRemainingColumn
+
+    out = console or Console(stderr=True)
+    if not out.is_terminal:
+        started: dict[str, float] = {}
+        shown: dict[str, int] = {}
+
+        def lines(stage: str, done: int, total: int) -> None:
+            now = clock()
+            t0 = started.setdefault(stage, now)
+            step = int(100 * done / total) if total > 0 else done
+            if shown.get(stage) == step and done != total:
+                return
+            shown[stage] = step
+            line = f"{stage}: {done}/{total}, {_duration(now - t0)} elapsed"
+            if 0 < done < total:
+                line += f", about {_duration((now - t0) / done * (total - done))} left"
+            out.print(line, markup=False, highlight=False, emoji=False, soft_wrap=True)
+
+        yield lines
+        return
 
     bar = Progress(
         TextColumn("{task.description:<28}"),
         BarColumn(),
         TextColumn("{task.completed}/{task.total}"),
         TimeRemainingColumn(),
-        console=console or Console(stderr=True),
+        console=out,
         transient=True,
     )
     tasks: dict[str, TaskID] = {}
@@ -54,3 +83,13 @@ def staged_progress(console: Console | None = None) -> Iterator[Callable[[str, i
 
     with bar:
         yield progress
+
+
+def _duration(seconds: float) -> str:
+    """``42 s``, ``3 min 05 s``, ``1 h 02 min``."""
+    s = round(seconds)
+    if s < 60:
+        return f"{s} s"
+    if s < 3600:
+        return f"{s // 60} min {s % 60:02d} s"
+    return f"{s // 3600} h {s % 3600 // 60:02d} min"

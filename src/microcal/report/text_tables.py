@@ -27,6 +27,7 @@ from ..thesis.figures import (
 
 if TYPE_CHECKING:
     from ..control.closed_loop import ClosedLoopSummary
+    from ..control.visual_servo import ServoStep
     from ..experiments.demo import DemoResult
     from ..experiments.station_demo import StationDemoResult
     from ..formats.records import ValidationRecord
@@ -392,6 +393,16 @@ def arrival_line(a: Arrival) -> str:
         f"({how}, {a.frames} frames per camera); "
         f"joints ({fmt(f'{v:.3f}' for v in a.d_um.tolist())}) µm"
     )
+
+
+def correction_line(step: ServoStep) -> str:
+    """One measurement of a closed loop, as ``goto`` shows it while the loop goes on."""
+    e = float(np.linalg.norm(step.error_um))
+    then = ("correcting" if np.any(step.correction_um != 0)
+            else "done")  # fmt: skip
+    sure = f"{100 * step.p_within:.0f} % sure of the tolerance"
+    return (f"closed loop, measurement {step.iteration + 1}: {e:.3f} µm from the target "
+            f"({step.frames} frames, {sure}); {then}")  # fmt: skip
 
 
 def _ended(a: Arrival) -> str:

@@ -228,6 +228,32 @@ def run_acquire(request: AcquireRequest) -> Iterator[str]:
             )
 
 
+def disk_use_line(cameras: Any, poses: int, config: AcquisitionConfig) -> str:
+    """The disk a run's images will take, said before it starts: their size before the
+    lossless compression (which saves what the images allow); a region of interest takes a
+    fraction of it.
+
+    ``cameras``: name -> camera (``sensor_size_px``, ``bit_depth``).
+    """
+    per_pose = (
+        sum(
+            c.sensor_size_px[0] * c.sensor_size_px[1] * (1 if c.bit_depth <= 8 else 2)
+            for c in cameras.values()
+        )
+        * config.frames_per_pose
+    )
+    total_gb = poses * per_pose / 1e9
+    sizes = ", ".join(f"{c.sensor_size_px[0]} x {c.sensor_size_px[1]} px" for c in cameras.values())
+    what = (f"{poses} poses x {len(cameras)} camera(s) x {config.frames_per_pose} frame(s) "
+            f"of {sizes}")  # fmt: skip
+    if config.store_roi:
+        return f"images: at most {total_gb:.2g} GB ({what}; only the region around the target)"
+    line = f"images: up to {total_gb:.2g} GB on disk ({what}; less as they compress)"
+    if total_gb > 0.2:
+        line += "; --store roi keeps only the region around the target, a fraction of it"
+    return line
+
+
 @contextlib.contextmanager
 def _run_directory(out: Path, creating: bool) -> Iterator[None]:
     """The run directory for the lock; a new one that the run never began in is removed."""
@@ -311,6 +337,7 @@ def acquire_remaining(
     todo = writer.remaining(pose_ids)
     verb = "resuming" if resume else "starting"
     yield f"{verb} {writer.run_dir}: {len(todo)} of {len(pose_ids)} poses to do"
+    yield disk_use_line(opened.cameras, len(todo), config)
     stop = {"requested": False}
     failed: list[tuple[int, str]] = []
     settles: list[float] = []

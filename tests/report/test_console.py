@@ -1,0 +1,61 @@
+"""Terminal output: progress where the output is a terminal and where it is not."""
+
+from __future__ import annotations
+
+import io
+from types import SimpleNamespace
+
+from rich.console import Console
+
+from microcal.procedures.acquisition import AcquisitionConfig
+from microcal.report.console import staged_progress
+from microcal.workflows.acquire import disk_use_line
+
+
+def _lines(console: Console) -> list[str]:
+    file = console.file
+    assert isinstance(file, io.StringIO)
+    return file.getvalue().splitlines()
+
+
+def test_without_a_terminal_each_step_is_a_line_with_the_time_left():
+    console = Console(file=io.StringIO(), force_terminal=False, width=80)
+    now = iter(float(t) for t in range(100))
+    with staged_progress(console, clock=lambda: next(now)) as progress:
+        for k in range(1, 5):
+            progress("pose accuracy, open loop", k, 4)
+    lines = _lines(console)
+    assert len(lines) == 4
+    assert lines[0] == "pose accuracy, open loop: 1/4, 0 s elapsed, about 0 s left"
+    assert lines[1] == "pose accuracy, open loop: 2/4, 1 s elapsed, about 1 s left"
+    assert lines[3] == "pose accuracy, open loop: 4/4, 3 s elapsed"
+
+
+def test_a_long_stage_writes_about_a_hundred_lines_not_one_per_step():
+    console = Console(file=io.StringIO(), force_terminal=False, width=80)
+    with staged_progress(console) as progress:
+        for k in range(1, 10_001):
+            progress("study", k, 10_000)
+    lines = _lines(console)
+    assert 90 <= len(lines) <= 101
+    assert lines[-1].startswith("study: 10000/10000")
+
+
+def test_on_a_terminal_the_bar_leaves_no_line_behind():
+    console = Console(file=io.StringIO(), force_terminal=True, width=80)
+    with staged_progress(console) as progress:
+        progress("measuring", 1, 2)
+        progress("measuring", 2, 2)
+    assert "measuring: 1/2" not in console.file.getvalue()  # a bar, not lines
+
+
+def test_the_disk_a_run_takes_is_said_before_it_starts():
+    cams = {n: SimpleNamespace(sensor_size_px=(1600, 1200), bit_depth=12) for n in ("a", "b")}
+    full = disk_use_line(cams, 170, AcquisitionConfig(frames_per_pose=20))
+    # 170 poses x 2 cameras x 20 frames x 1600 x 1200 px x 2 bytes = 26.1 GB
+    assert full.startswith("images: up to 26 GB on disk (170 poses x 2 camera(s) x 20 frame(s)")
+    assert "--store roi" in full
+    small = disk_use_line(cams, 2, AcquisitionConfig(frames_per_pose=1))
+    assert "--store roi" not in small
+    roi = disk_use_line(cams, 170, AcquisitionConfig(frames_per_pose=20, store_roi=True))
+    assert roi.startswith("images: at most 26 GB")
