@@ -24,7 +24,7 @@ import pytest
 from microcal import sim
 from microcal.formats.cameras_file import write_cameras
 from support.cli import invoke_microcal
-from support.runs import fails_cleanly, file_hashes, journal_records
+from support.runs import fails_cleanly, file_hashes, journal_records, write_true_cameras
 
 
 def fake_rig(tmp_path, faults: str = "") -> str:
@@ -272,6 +272,29 @@ def test_a_new_run_never_goes_among_a_users_files(tmp_path):
     out = invoke_microcal("acquire", "--rig", "sim", "--poses", 12, "--out", folder)
     fails_cleanly(out, "holds other files (commands.csv, images)", "new or empty directory")
     assert file_hashes(folder) == before
+
+
+def test_a_new_run_may_follow_the_cameras_calibrated_into_its_directory(tmp_path):
+    """The guide's order: stereo-calibrate --out runs/a/cameras.json, then acquire --out
+    runs/a. The cameras (and the views grabbed for them) stay as they were; a file named
+    cameras.json that microcal did not write is still someone else's."""
+    run = tmp_path / "a"
+    run.mkdir()
+    write_true_cameras(run / "cameras.json")
+    (run / "cameras-views").mkdir()
+    (run / "cameras-views" / "steps.csv").write_text("dx_um,dy_um,dz_um\n0,0,0\n")
+    before = file_hashes(run)
+    out = invoke_microcal("acquire", "--rig", "sim", "--poses", 12, "--frames", 1, "--store",
+                          "roi", "--out", run)  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    after = file_hashes(run)
+    assert all(after[k] == v for k, v in before.items())
+    assert (run / "run.json").is_file()
+    other = tmp_path / "b"
+    other.mkdir()
+    (other / "cameras.json").write_text('{"mine": true}')
+    out = invoke_microcal("acquire", "--rig", "sim", "--poses", 12, "--out", other)
+    fails_cleanly(out, "holds other files (cameras.json)", "new or empty directory")
 
 
 @pytest.mark.slow

@@ -19,6 +19,7 @@ from numpy.typing import ArrayLike
 
 from .._validation import FloatArray, did_you_mean
 from ..errors import InputError
+from ..formats.file_lock import lock_path
 from ..formats.outputs import check_writable
 from ..formats.records import RunManifest
 from ..formats.run_directory import HOLDS_A_RUN, MANIFEST, RunDirectory, RunWriter, holds_run
@@ -116,7 +117,9 @@ def check_out(out: Path, resume: bool, dry_run: bool) -> None:
     """Refuse, before any device is opened, a run directory that does not fit the request.
 
     A new run goes into a new or empty directory: never over a run, nor among other files
-    (a user's own commands.csv or images would be replaced).
+    (a user's own commands.csv or images would be replaced). The files of the step before
+    it may be there: the cameras microcal calibrated (cameras.json, and the views it grabbed
+    for them, cameras-views/), which the run never writes over.
     """
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: is a file; choose a directory for the run")
@@ -130,12 +133,36 @@ def check_out(out: Path, resume: bool, dry_run: bool) -> None:
         return
     if holds_run(out):
         raise InputError(f"{out}: {HOLDS_A_RUN}")
-    others = sorted(p.name for p in out.iterdir())
+    others = sorted(p.name for p in out.iterdir() if not _earlier_step(p))
     if others:
         shown = ", ".join(others[:3]) + (", ..." if len(others) > 3 else "")
         raise InputError(
             f"--out {out}: holds other files ({shown}); a new run needs a new or empty directory"
         )
+
+
+#: What ``stereo-calibrate --out RUN/cameras.json`` leaves in a run directory before its run.
+_CAMERAS = "cameras.json"
+_CAMERA_VIEWS = "cameras-views"
+
+
+def _earlier_step(path: Path) -> bool:
+    """Whether ``path`` in a new run's directory is what calibrating the cameras left there:
+    a microcal cameras file named cameras.json, its views' folder, or their locks."""
+    if path.is_symlink():
+        return False
+    if path.name == _CAMERA_VIEWS:
+        return path.is_dir()
+    if path.name == lock_path(_CAMERAS).name:
+        return path.is_file()
+    if path.name != _CAMERAS or not path.is_file():
+        return False
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(4096).decode("utf-8", errors="replace")
+    except OSError:
+        return False
+    return '"format": "microcal.cameras/' in head
 
 
 def plan_for(
