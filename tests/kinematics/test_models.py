@@ -93,6 +93,35 @@ def test_prediction_std_is_positive_and_grows_outside(joints, rng):
     assert np.all(outside > 5 * inside)
 
 
+def test_the_prediction_covariance_matches_the_scatter_of_refitted_models():
+    """Monte Carlo: one design fitted 300 times with fresh noise (0.5 µm); the scatter of the
+    predictions at four poses (their variances and the correlations between the poses)
+    against the covariance propagated from the coefficients (averaged over the fits, as each
+    fit's own noise estimate scatters)."""
+    rng = np.random.default_rng(21)
+    d = rng.uniform([0, 0, 0], [8000, 8000, 4800], (30, 3))
+    truth = thesis_kinematics().static
+    at = np.array([[4000, 4000, 2400], [800, 800, 480], [7200, 800, 4320], [7200, 7200, 480]])
+    preds, covs = [], []
+    for _ in range(300):
+        p = truth.predict_um(d) + rng.normal(0, 0.5, d.shape)
+        m = fit_polynomial_model(d, p, select="all")
+        preds.append(m.predict_um(at))
+        covs.append(m.prediction_covariance_um2(at))
+    assert covs[0].shape == (3, 4, 4)
+    np.testing.assert_allclose(np.diagonal(covs[-1], axis1=1, axis2=2).T,
+                               m.prediction_std_um(at) ** 2, rtol=1e-10)  # fmt: skip
+    cov, scatter = np.mean(covs, axis=0), np.array(preds)
+    for axis in range(3):
+        seen = np.cov(scatter[:, :, axis].T)
+        # variances within 25 % (300 fits: 8 % standard error)
+        np.testing.assert_allclose(np.diag(cov[axis]), np.diag(seen), rtol=0.25)
+        # correlations between the poses within 0.15 (300 fits: 0.06 or less)
+        corr = cov[axis] / np.sqrt(np.outer(np.diag(cov[axis]), np.diag(cov[axis])))
+        seen_corr = seen / np.sqrt(np.outer(np.diag(seen), np.diag(seen)))
+        np.testing.assert_allclose(corr, seen_corr, atol=0.15)
+
+
 @pytest.mark.parametrize(
     ("make", "error", "match"),
     [

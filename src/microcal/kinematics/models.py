@@ -284,6 +284,24 @@ class KinematicModel:
         out: FloatArray = np.sqrt(np.maximum(var, 0.0))
         return out
 
+    def prediction_covariance_um2(self, u: ArrayLike) -> FloatArray:
+        """Covariance between the predictions at several inputs from the coefficients'
+        uncertainty.
+
+        One set of coefficients predicts every input, so their errors reach all the
+        predictions alike: ``cov[a, i, j] = X_i Σ_a X_j^T`` (``X`` the terms at each input,
+        ``Σ_a`` axis a's coefficient covariance). The axes' coefficients are fitted apart
+        and their covariance between axes is not kept: none is given.
+
+        Returns
+        -------
+        cov_um2 : (3, N, N) float
+            Per axis; its diagonals are :meth:`prediction_std_um` squared.
+        """
+        X = design_matrix(self._inputs(u), self.inputs, self.terms)
+        out: FloatArray = np.einsum("nm,amk,jk->anj", X, self.covariance, X)
+        return out
+
     def axis_terms(self, axis: int) -> list[tuple[str, float, float]]:
         """(term name, coefficient, standard error) of the selected terms of one axis."""
         se = np.sqrt(np.maximum(np.diagonal(self.covariance[axis]), 0.0))

@@ -7,15 +7,25 @@ the cameras, and compares the measured position ``p_i`` with the calibration's p
 ``p̂_i``: residuals ``r_i = p_i - p̂_i`` with covariance ``S_i``.
 
 - Against the calibration alone (no reference): ``S_i`` = the measurement's covariance +
-  the model's prediction covariance (its coefficients) + its validation error per axis (the
-  misfit the model leaves, from calibration.json).
+  the model's validation error per axis (the misfit the model leaves, from
+  calibration.json); and the model's prediction covariance (its coefficients), which is
+  shared by the poses: one set of coefficients predicts all of them, so its error moves the
+  ten predictions together and does not average down over them. The residuals' covariance
+  ``V`` (3n x 3n) holds it between the poses. The misfit, too, need not average down: the
+  check approaches every pose from the same side and its poses lie near the corners of the
+  joints' range, where a model from few poses is off in the same way at all of them (an
+  approach-direction term left out, a curvature it lacks). Its validation error per axis
+  is therefore also counted as a bias common to the poses, in the offset's covariance.
 - Against a reference check (the first check after the calibration, same poses): the
   differences ``r_i - r_ref_i``, whose covariance is the two measurements' alone; the
-  model's misfit at each pose cancels, so a smaller change is seen.
+  model's error at each pose, common or not, cancels, so a smaller change is seen.
 
-Two tests, each at level ``alpha``: the weighted mean residual (the offset) against zero,
-``chi2 = m^T C^-1 m`` with 3 degrees of freedom; and the scatter about that mean, ``sum (r_i -
-m)^T S_i^-1 (r_i - m)`` with ``3 (n - 1)``. The verdict: ``refit`` when the scatter is too
+Two tests, each at level ``alpha``, from the generalised least-squares mean ``m`` of the
+residuals (``C0 = (A^T V^-1 A)^-1``, ``m = C0 A^T V^-1 r``, ``A`` ten identities stacked;
+with ``V`` block-diagonal, the weighted mean ``(Σ S_i^-1)^-1 Σ S_i^-1 r_i``): the offset,
+``m^T C^-1 m`` with 3 degrees of freedom, ``C = C0`` + the common misfit; and the scatter
+about it, ``r^T V^-1 r - m^T C0^-1 m`` (``Σ (r_i - m)^T S_i^-1 (r_i - m)`` for a block-diagonal
+``V``) with ``3 (n - 1)``. The verdict: ``refit`` when the scatter is too
 large (the model no longer fits: a scale, an axis, a new error), else ``offset`` when the
 mean is (the device moved as a whole: :func:`offset_updated` re-fits the base offset and only
 that), else ``valid``.
@@ -264,24 +274,59 @@ def compare(
     r = p - predicted
     if reference is None:
         misfit = np.asarray(validation_rms_axis_um, dtype=np.float64) ** 2
-        pred_var = model.prediction_std_um(u) ** 2
-        S = cov + np.einsum("na,ab->nab", pred_var + misfit, np.eye(3))
+        V = _pose_blocks(cov + np.einsum("a,ab->ab", misfit, np.eye(3)))
+        V += _across_poses(model.prediction_covariance_um2(u))
+        common = np.diag(misfit)
         x = r
     else:
         ref_r, ref_cov = reference
-        S = cov + as_array(ref_cov, "reference cov_um2", (n, 3, 3))
+        V = _pose_blocks(cov + as_array(ref_cov, "reference cov_um2", (n, 3, 3)))
+        common = np.zeros((3, 3))
         x = r - as_array(ref_r, "reference residual_um", (n, 3))
-    W = np.linalg.inv(S)
-    C = np.linalg.inv(W.sum(axis=0))
-    m = C @ np.einsum("nab,nb->a", W, x)
+    m, C0, chi2 = _generalised_mean(V, x)
+    C = C0 + common
     offset_chi2 = float(m @ np.linalg.solve(C, m))
-    dev = x - m
-    chi2 = float(np.einsum("na,nab,nb->", dev, W, dev))
     p_fit = float(stats.chi2.sf(chi2, 3 * (n - 1)))
     p_off = float(stats.chi2.sf(offset_chi2, 3))
     verdict: Verdict = "refit" if p_fit < alpha else "offset" if p_off < alpha else "valid"
     return CheckResult(verdict, m, np.sqrt(np.diag(C)), chi2, p_fit, offset_chi2, p_off, d, p,
                        predicted, r, cov, reference is not None)  # fmt: skip
+
+
+def _pose_blocks(cov_um2: FloatArray) -> FloatArray:
+    """(3n, 3n) block-diagonal matrix of the poses' own (n, 3, 3) covariances (pose-major:
+    row ``3 i + axis``)."""
+    n = cov_um2.shape[0]
+    out: FloatArray = np.zeros((3 * n, 3 * n))
+    for i in range(n):
+        out[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] = cov_um2[i]
+    return out
+
+
+def _across_poses(per_axis_um2: FloatArray) -> FloatArray:
+    """(3n, 3n) pose-major matrix of per-axis (3, n, n) covariances between the poses (none
+    between the axes)."""
+    n = per_axis_um2.shape[1]
+    out: FloatArray = np.einsum("aij,ab->iajb", per_axis_um2, np.eye(3)).reshape(3 * n, 3 * n)
+    return out
+
+
+def _generalised_mean(V: FloatArray, x: FloatArray) -> tuple[FloatArray, FloatArray, float]:
+    """The generalised least-squares mean of residuals ``x`` (n, 3) with covariance ``V``
+    (3n, 3n): the mean m (3,), its covariance C (3, 3), and the scatter about it
+    ``x^T V^-1 x - m^T C^-1 m`` (chi² with 3 (n - 1) degrees of freedom). With ``V``
+    block-diagonal, m is the weighted mean ``(Σ S_i^-1)^-1 Σ S_i^-1 x_i`` and the scatter
+    ``Σ (x_i - m)^T S_i^-1 (x_i - m)``."""
+    n = x.shape[0]
+    A = np.tile(np.eye(3), (n, 1))
+    L = np.linalg.cholesky(V)
+    WA = np.linalg.solve(L.T, np.linalg.solve(L, A))  # V^-1 A
+    C = np.linalg.inv(A.T @ WA)
+    C = (C + C.T) / 2
+    flat = x.reshape(-1)
+    m = C @ (WA.T @ flat)
+    z = np.linalg.solve(L, flat - A @ m)
+    return m, C, float(z @ z)
 
 
 def planned_check(
