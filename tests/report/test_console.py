@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 from types import SimpleNamespace
 
+import numpy as np
 from rich.console import Console
 
 from microcal.procedures.acquisition import AcquisitionConfig
@@ -59,3 +60,45 @@ def test_the_disk_a_run_takes_is_said_before_it_starts():
     assert "--store roi" not in small
     roi = disk_use_line(cams, 170, AcquisitionConfig(frames_per_pose=20, store_roi=True))
     assert roi.startswith("images: at most 26 GB")
+
+
+def _printed(table, width: int = 80) -> str:
+    from microcal.report.console import print_table
+
+    console = Console(file=io.StringIO(), width=width, force_terminal=False)
+    print_table(console, table)
+    return console.file.getvalue()
+
+
+def test_a_table_wider_than_80_columns_is_split_and_no_cell_is_cut():
+    from microcal.report.text_tables import TextTable
+
+    rng = np.random.default_rng(3)
+    for trial in range(40):
+        n_cols = int(rng.integers(2, 14))
+        cols = ["camera", *(f"figure {k} µm" for k in range(1, n_cols))]
+        rows = [
+            [
+                f"cam{r}",
+                *(f"{v:.{int(rng.integers(1, 9))}f}" for v in rng.normal(0, 1e4, n_cols - 1)),
+            ]
+            for r in range(3)
+        ]
+        out = _printed(TextTable(f"trial {trial}", cols, rows))
+        assert max(len(line) for line in out.splitlines()) <= 80, out
+        assert "…" not in out, out
+        for row in rows:
+            for cell in row:
+                assert cell in out, (cell, out)  # whole, on one line
+
+
+def test_the_fit_command_prints_within_80_columns(quick_demo, tmp_path):
+    from support.cli import invoke_microcal
+
+    run, _ = quick_demo
+    out = invoke_microcal("fit", run, "-o", tmp_path / "c.json")  # 80 columns
+    assert out.returncode == 0, out.stderr
+    table_lines = [line for line in out.stdout.splitlines() if line[:1] in "┏┃┡│└"]
+    assert table_lines
+    assert max(len(line) for line in table_lines) <= 80
+    assert "…" not in out.stdout

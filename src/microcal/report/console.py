@@ -15,13 +15,48 @@ __all__ = ["print_parts", "print_table", "staged_progress"]
 
 
 def print_table(console: Console, table: TextTable) -> None:
-    """Print a :class:`~microcal.report.text_tables.TextTable`."""
-    out = Table(title=table.title)
-    for i, col in enumerate(table.columns):
-        out.add_column(col, justify="left" if i == 0 and table.first_left else "right")
-    for row in table.rows:
-        out.add_row(*row)
-    console.print(out)
+    """Print a :class:`~microcal.report.text_tables.TextTable` within the console's width.
+
+    A cell is never cut nor wrapped (a number is read whole), nor is a heading. A table wider
+    than the console is printed as several, each with the first column and as many of the
+    others as fit (titled ``(1/2)``, ``(2/2)``).
+    """
+    groups = column_groups(table, console.width)
+    for k, group in enumerate(groups):
+        title = table.title if len(groups) == 1 else f"{table.title} ({k + 1}/{len(groups)})"
+        out = Table(title=title)
+        for i in group:
+            left = i == 0 and table.first_left
+            out.add_column(table.columns[i], justify="left" if left else "right", no_wrap=True,
+                           min_width=_cell_width(table, i))  # fmt: skip
+        for row in table.rows:
+            out.add_row(*(row[i] if i < len(row) else "" for i in group))
+        console.print(out)
+
+
+def _cell_width(table: TextTable, i: int) -> int:
+    """The widest cell of column ``i``, its heading included (neither is wrapped)."""
+    cells = [len(row[i]) for row in table.rows if i < len(row)]
+    return max([*cells, len(table.columns[i]), 1])
+
+
+def column_groups(table: TextTable, width: int) -> list[list[int]]:
+    """The columns of each table printed so that each fits ``width`` characters: the first
+    column in every one, then the others in order, as many as fit (at least one)."""
+    border = 1  # the box's right edge; each column takes its width + 3 (padding, left edge)
+    first = _cell_width(table, 0) + 3
+    groups: list[list[int]] = []
+    current: list[int] = [0]
+    used = border + first
+    for i in range(1, len(table.columns)):
+        need = _cell_width(table, i) + 3
+        if used + need > width and len(current) > 1:
+            groups.append(current)
+            current, used = [0], border + first
+        current.append(i)
+        used += need
+    groups.append(current)
+    return groups
 
 
 def print_parts(console: Console, parts: list[TextTable | str]) -> None:
