@@ -78,6 +78,8 @@ def read_json_object(
     p = Path(path)
     try:
         raw = json.loads(read_regular_text(p, link_ok=link_ok))
+    except FormatError:
+        raise  # a link, a FIFO, a device: safe_open's own line
     except FileNotFoundError:
         raise FormatError(f"{p}: no such file{missing_hint}") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:

@@ -102,6 +102,8 @@ def load_rig(spec: str) -> RigSpec:
     path = Path(spec)
     try:
         data = tomllib.loads(read_regular_text(path, link_ok=True))
+    except FormatError:
+        raise  # a link, a FIFO, a device: safe_open's own line
     except FileNotFoundError:
         raise FormatError(
             f"--rig {spec}: no such file (or use 'sim' for the simulated platform)"
