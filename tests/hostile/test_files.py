@@ -120,26 +120,30 @@ def _png_bomb(path: Path, size_px: int = BOMB_PX) -> Path:
     return path
 
 
-def _tiff_bomb(path: Path, size_px: int = BOMB_PX) -> Path:
-    """A small TIFF whose one strip is declared size_px x size_px grey pixels, deflated."""
-    data = zlib.compress(b"\0" * size_px * 64, 9)
-    tags = [  # (tag, type, value): 3 SHORT, 4 LONG
-        (256, 4, size_px), (257, 4, size_px), (258, 3, 8), (259, 3, 8), (262, 3, 1),
-        (273, 4, 0), (277, 3, 1), (278, 4, size_px), (279, 4, len(data)),
+def _tiff_bomb(path: Path, size_px: int = BOMB_PX, tile_px: int = 1024) -> Path:
+    """A small TIFF that declares size_px x size_px grey pixels: every tile's offset points
+    to one deflated tile of zeros (about 14 KB for 40000 x 40000 px)."""
+    tile = zlib.compress(b"\0" * tile_px * tile_px, 9)
+    n = (-(-size_px // tile_px)) ** 2  # tiles across, squared
+    tags = [  # (tag, type, count, value): 3 SHORT, 4 LONG
+        (256, 4, 1, size_px), (257, 4, 1, size_px), (258, 3, 1, 8), (259, 3, 1, 8),
+        (262, 3, 1, 1), (277, 3, 1, 1), (322, 3, 1, tile_px), (323, 3, 1, tile_px),
+        (324, 4, n, 0), (325, 4, n, 0),
     ]  # fmt: skip
-    ifd_at = 8
-    data_at = ifd_at + 2 + 12 * len(tags) + 4
+    offsets_at = 8 + 2 + 12 * len(tags) + 4
+    counts_at = offsets_at + 4 * n
+    tile_at = counts_at + 4 * n
 
-    def entry(tag: int, kind: int, value: int) -> bytes:
+    def entry(tag: int, kind: int, count: int, value: int) -> bytes:
+        if tag in (324, 325):
+            return struct.pack("<HHII", tag, kind, count, offsets_at if tag == 324 else counts_at)
         if kind == 4:
-            return struct.pack("<HHII", tag, kind, 1, data_at if tag == 273 else value)
-        return struct.pack("<HHIHH", tag, kind, 1, value, 0)
+            return struct.pack("<HHII", tag, kind, count, value)
+        return struct.pack("<HHIHH", tag, kind, count, value, 0)
 
-    entries = b"".join(entry(*t) for t in tags)
-    path.write_bytes(
-        b"II*\0" + struct.pack("<I", ifd_at) + struct.pack("<H", len(tags)) + entries
-        + b"\0\0\0\0" + data
-    )  # fmt: skip
+    ifd = struct.pack("<H", len(tags)) + b"".join(entry(*t) for t in tags) + b"\0\0\0\0"
+    arrays = struct.pack(f"<{n}I", *[tile_at] * n) + struct.pack(f"<{n}I", *[len(tile)] * n)
+    path.write_bytes(b"II*\0" + struct.pack("<I", 8) + ifd + arrays + tile)
     return path
 
 
