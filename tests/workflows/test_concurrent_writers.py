@@ -153,7 +153,8 @@ def calibration(measurements: Path, tmp_path: Path) -> Path:
     [
         ("new.json", "new.json", "--update new.json: is --out too; give the updated calibration its own name"),
         ("new.json", "./new.json", "--update ./new.json: is --out too; give the updated calibration its own name"),
-        ("new.json", "alias.json", "--update alias.json: is --out too; give the updated calibration its own name"),
+        # an output that is a symbolic link is refused as such (microcal never writes through one)
+        ("new.json", "alias.json", "--update alias.json: is a symbolic link, not a regular file; microcal writes only a regular file or a new path: give a file name such as calibration-updated.json"),
         ("check.json", "calibration.checks.jsonl",
          "--update calibration.checks.jsonl: is the calibration's history; give the updated calibration its own name"),
         ("calibration.checks.jsonl", None,

@@ -136,8 +136,11 @@ def write_calibration(path: str | os.PathLike[str], calibration: Calibration) ->
     return write_text_atomic(path, text + "\n")
 
 
-def load_calibration(path: str | os.PathLike[str]) -> Calibration:
+def load_calibration(path: str | os.PathLike[str], *, link_ok: bool = True) -> Calibration:
     """Read and validate calibration.json.
+
+    ``link_ok``: ``path`` may be a symbolic link to the file (one the user named); False for
+    a file a run directory holds (:mod:`.safe_open`).
 
     Raises
     ------
@@ -146,7 +149,7 @@ def load_calibration(path: str | os.PathLike[str]) -> Calibration:
         shape; the message names the key.
     """
     p = Path(path)
-    raw = read_versioned_json(p, CALIBRATION_FORMATS)
+    raw = read_versioned_json(p, CALIBRATION_FORMATS, link_ok=link_ok)
     schema = parse_schema(_CalibrationSchema, raw, p)
     section = raw["manipulators"]  # an object of objects: the schema has checked it
     manipulators = {}

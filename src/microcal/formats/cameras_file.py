@@ -300,9 +300,12 @@ def _check_usable(models: dict[str, AnyCamera], where: str) -> None:
 
 
 def read_cameras(
-    path: str | os.PathLike[str],
+    path: str | os.PathLike[str], *, link_ok: bool = True
 ) -> tuple[dict[str, dict[str, AnyJson]], dict[str, AnyCamera]]:
     """The ``cameras`` object of cameras.json (or of a calibration.json) and its models.
+
+    ``link_ok``: ``path`` may be a symbolic link to the file (one the user named); False for
+    a file a run directory holds (:mod:`.safe_open`).
 
     Raises
     ------
@@ -311,7 +314,10 @@ def read_cameras(
     """
     p = Path(path)
     raw = read_versioned_json(
-        p, (CAMERAS_FORMAT, "microcal.calibration/1"), " (run 'microcal stereo-calibrate' first)"
+        p,
+        (CAMERAS_FORMAT, "microcal.calibration/1"),
+        " (run 'microcal stereo-calibrate' first)",
+        link_ok=link_ok,
     )
     if not raw.get("cameras"):
         raise FormatError(f"{p}: holds no cameras")

@@ -19,6 +19,7 @@ from ..errors import FormatError
 from .atomic import write_text_atomic
 from .file_lock import locked_update
 from .hashing import sha256_file
+from .safe_open import read_regular_text
 
 __all__ = [
     "CHECK_FORMAT",
@@ -38,13 +39,17 @@ def history_path(calibration: str | os.PathLike[str]) -> Path:
 
 
 def read_history(calibration: str | os.PathLike[str]) -> list[dict[str, Any]]:
-    """The checks of this calibration file (its current SHA-256), oldest first."""
+    """The checks of this calibration file (its current SHA-256), oldest first.
+
+    The history is read only from a regular file, never through a symbolic link (microcal
+    writes it: :mod:`.safe_open`).
+    """
     path = history_path(calibration)
     if not path.is_file():
         return []
-    digest = sha256_file(calibration)
+    digest = sha256_file(calibration, link_ok=True)  # the calibration the user named
     out = []
-    for k, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+    for k, line in enumerate(read_regular_text(path).splitlines(), start=1):
         if not line.strip():
             continue
         try:
@@ -69,7 +74,7 @@ def append_history(path: Path, entry: dict[str, Any]) -> None:
     checks adding at once both land)."""
     line = json.dumps(entry, allow_nan=False) + "\n"
     with locked_update(path):
-        old = path.read_text(encoding="utf-8") if path.is_file() else ""
+        old = read_regular_text(path) if path.is_file() else ""
         if old and not old.endswith("\n"):
             old += "\n"
         write_text_atomic(path, old + line)

@@ -17,6 +17,7 @@ from __future__ import annotations
 import csv
 import io
 import os
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -25,6 +26,8 @@ import numpy as np
 from .._validation import FloatArray
 from ..errors import InputError, MicrocalError
 from .atomic import write_text_atomic
+from .quoting import excerpt
+from .safe_open import read_regular_bytes
 
 __all__ = ["JOINT_COLUMNS", "read_joint_csv", "write_joint_csv"]
 
@@ -40,6 +43,7 @@ def read_joint_csv(
     min_rows: int = 1,
     columns: Sequence[str] = JOINT_COLUMNS,
     error: type[MicrocalError] = InputError,
+    link_ok: bool = True,
 ) -> tuple[list[int] | None, FloatArray]:
     """Pose numbers and joint values (N, k) from a CSV file with a header.
 
@@ -62,6 +66,9 @@ def read_joint_csv(
     error : MicrocalError subclass
         What to raise: InputError (default) for a file the user gives, FormatError for a
         file of a run directory.
+    link_ok : bool
+        ``path`` may be a symbolic link to the file (one the user named, the default); False
+        for a file of a run directory (:mod:`.safe_open`).
 
     Returns
     -------
@@ -80,7 +87,7 @@ def read_joint_csv(
     p = Path(path)
     where = f"{what} {p}" if what else str(p)
     try:
-        text = p.read_bytes().decode("utf-8-sig")
+        text = read_regular_bytes(p, link_ok=link_ok).decode("utf-8-sig")
     except FileNotFoundError:
         raise error(f"{where}: no such file") from None
     except UnicodeDecodeError as exc:
@@ -99,7 +106,7 @@ def read_joint_csv(
     if missing:
         raise error(
             f"{where}, line 1: missing column(s) {missing}; expected a CSV with columns "
-            f"{','.join(wanted)}, got {','.join(header)[:200]!r}"
+            f"{','.join(wanted)}, got {_shown_header(header)}"
         )
     use_pose = pose_column is not False and "pose" in header
     index = [header.index(c) for c in columns]
@@ -141,13 +148,24 @@ def read_joint_csv(
     return (poses if use_pose else None), d
 
 
+_COLUMN_NAME = re.compile(r"[A-Za-z0-9_. ()-]{0,32}")
+
+
+def _shown_header(header: list[str]) -> str:
+    """The header found, quoted when it is a line of column names; otherwise only what it is
+    not (the first line of another kind of file is not quoted)."""
+    if len(header) <= 12 and all(_COLUMN_NAME.fullmatch(name) for name in header):
+        return ascii(",".join(header))
+    return f"a first line of {len(header)} cell(s) that is not a header of column names"
+
+
 def _number(cell: str, column: str, where: str, line: int, error: type[MicrocalError]) -> float:
     try:
         value = float(cell.strip())
     except ValueError:
-        raise error(f"{where}, line {line}: {column} = {cell!r} is not a number") from None
+        raise error(f"{where}, line {line}: {column} = {excerpt(cell)} is not a number") from None
     if not np.isfinite(value):
-        raise error(f"{where}, line {line}: {column} = {cell!r} is not a finite number")
+        raise error(f"{where}, line {line}: {column} = {excerpt(cell)} is not a finite number")
     return value
 
 
@@ -155,7 +173,7 @@ def _pose(cell: str, where: str, line: int, error: type[MicrocalError]) -> int:
     try:
         pose = int(cell.strip())
     except ValueError:
-        raise error(f"{where}, line {line}: pose {cell!r} is not a whole number") from None
+        raise error(f"{where}, line {line}: pose {excerpt(cell)} is not a whole number") from None
     if pose < 1:
         raise error(f"{where}, line {line}: pose {pose}; poses are numbered from 1")
     return pose

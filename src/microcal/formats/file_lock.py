@@ -23,13 +23,13 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
-import stat
 import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 from ..errors import FormatError, InputError
+from .safe_open import check_replaceable, open_regular
 
 if sys.platform != "win32":
     import fcntl
@@ -51,25 +51,22 @@ def lock_path(path: str | os.PathLike[str]) -> Path:
 
 
 def _open(lock: Path, target: Path) -> int:
-    """The lock file, opened (created if missing) without following a symbolic link."""
-    flags = os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC
+    """The lock file, opened (created if missing) as a regular file, never through a link."""
     try:
         lock.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(lock, flags, 0o666)
-    except OSError as exc:
-        if exc.errno == errno.ELOOP:
+        return open_regular(lock, os.O_RDWR | os.O_CREAT, 0o666)
+    except FormatError:
+        if os.path.islink(lock):
             raise InputError(
                 f"{lock}: is a symbolic link, where microcal locks {target.name}; remove it"
             ) from None
+        raise _not_a_file(lock, target) from None
+    except OSError as exc:
         if exc.errno == errno.EISDIR:
             raise _not_a_file(lock, target) from None
         raise FormatError(
             f"{target}: cannot be written (its lock file {lock.name}: {exc.strerror or exc})"
         ) from None
-    if not stat.S_ISREG(os.fstat(fd).st_mode):
-        os.close(fd)
-        raise _not_a_file(lock, target)
-    return fd
 
 
 def _not_a_file(lock: Path, target: Path) -> InputError:
@@ -138,9 +135,11 @@ def locked_update(path: str | os.PathLike[str], wait_s: float | None = None) -> 
         Another process held the lock for the whole wait: ``FILE: in use by microcal (PID
         N) for more than 10 s; ...``; or the lock file is a symbolic link or not a file.
     FormatError
-        The lock file cannot be made (no permission, a read-only folder).
+        The lock file cannot be made (no permission, a read-only folder); ``path`` is a
+        symbolic link or a special file (no lock is taken, nothing is written).
     """
     target = Path(path)
+    check_replaceable(target)  # before the lock: a link's lock would lie beside its target
     if sys.platform == "win32":  # pragma: no cover
         yield target
         return

@@ -19,6 +19,8 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 
 from .._version import __version__
 from ..errors import FormatError
+from .quoting import excerpt
+from .safe_open import read_regular_text
 
 __all__ = [
     "FileSchema",
@@ -59,17 +61,25 @@ def parse_schema(schema: type[S], raw: object, where: str | os.PathLike[str]) ->
         raise FormatError(f"{where}: {validation_message(exc)}") from None
 
 
-def read_json_object(path: str | os.PathLike[str], missing_hint: str = "") -> dict[str, object]:
+def read_json_object(
+    path: str | os.PathLike[str], missing_hint: str = "", *, link_ok: bool = False
+) -> dict[str, object]:
     """A file's JSON object, as parsed (its values to be validated by the reader).
+
+    ``link_ok``: the user named the file, which may be a symbolic link to one
+    (:mod:`.safe_open`).
 
     Raises
     ------
     FormatError
-        No such file (with ``missing_hint``), not UTF-8 JSON, or not an object.
+        No such file (with ``missing_hint``), not UTF-8 JSON, or not an object; a symbolic
+        link (unless ``link_ok``), a FIFO or a device.
     """
     p = Path(path)
     try:
-        raw = json.loads(p.read_text(encoding="utf-8"))
+        raw = json.loads(read_regular_text(p, link_ok=link_ok))
+    except FormatError:
+        raise  # a link, a FIFO, a device: safe_open's own line
     except FileNotFoundError:
         raise FormatError(f"{p}: no such file{missing_hint}") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -101,15 +111,19 @@ def check_format(path: str | os.PathLike[str], found: object, formats: tuple[str
         if found_name == name:
             known = ", ".join(_name_and_version(f)[1] for f in formats if f.startswith(name))
             raise FormatError(
-                f"{path}: {name} version {found_version!r} is not one this microcal "
+                f"{path}: {name} version {excerpt(found_version)} is not one this microcal "
                 f"({__version__}) reads; it reads version {known} (a newer microcal may have "
                 f"written this file)"
             )
-    raise FormatError(f"{path}: expected format {formats[0]!r}, got {found!r}")
+    raise FormatError(f"{path}: expected format {formats[0]!r}, got {excerpt(found)}")
 
 
 def read_versioned_json(
-    path: str | os.PathLike[str], formats: tuple[str, ...], missing_hint: str = ""
+    path: str | os.PathLike[str],
+    formats: tuple[str, ...],
+    missing_hint: str = "",
+    *,
+    link_ok: bool = False,
 ) -> dict[str, object]:
     """A JSON object whose ``format`` is one of ``formats`` (the versions this microcal reads),
     as parsed.
@@ -120,7 +134,7 @@ def read_versioned_json(
         No such file (with ``missing_hint``), not JSON, another format, or a version of the
         format that this microcal does not read.
     """
-    raw = read_json_object(path, missing_hint)
+    raw = read_json_object(path, missing_hint, link_ok=link_ok)
     check_format(Path(path), raw.get("format"), formats)
     return raw
 
@@ -140,12 +154,13 @@ def check_json_output(
 
     def foreign(p: Path) -> str | None:
         try:
-            found = json.loads(p.read_text(encoding="utf-8")).get("format")
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError, RecursionError):
+            found = json.loads(read_regular_text(p)).get("format")
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError, AttributeError, RecursionError,
+                FormatError, ValueError):  # fmt: skip
             found = None
         if not isinstance(found, str):
             return "a file microcal did not write"
-        return None if _name_and_version(found)[0] == name else f"a {found} file"
+        return None if _name_and_version(found)[0] == name else f"a {excerpt(found)} file"
 
     return check_output(path, kind=f"a {name} file", foreign=foreign, example=example,
                         option=option)  # fmt: skip

@@ -30,6 +30,8 @@ from .._validation import FloatArray
 from ..errors import FormatError, InputError
 from ..kinematics.extra_inputs import EXTRA_INPUTS, expand_names, extra_input
 from .atomic import write_text_atomic
+from .quoting import excerpt
+from .safe_open import read_regular_text
 
 __all__ = [
     "JOINT_COLUMNS",
@@ -87,8 +89,13 @@ class Measurements:
         return out
 
 
-def read_measurements(path: str | os.PathLike[str], min_poses: int = 1) -> Measurements:
+def read_measurements(
+    path: str | os.PathLike[str], min_poses: int = 1, *, link_ok: bool = True
+) -> Measurements:
     """Read ``measurements.csv``; rows with a status other than ``ok`` are counted, not used.
+
+    ``link_ok``: ``path`` may be a symbolic link to the file (one the user named); False for
+    the file of a run directory (:mod:`.safe_open`).
 
     Raises
     ------
@@ -98,7 +105,7 @@ def read_measurements(path: str | os.PathLike[str], min_poses: int = 1) -> Measu
     """
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        text = read_regular_text(p, link_ok=link_ok)
     except FileNotFoundError:
         raise FormatError(f"{p}: no such file (run 'microcal measure' first)") from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -132,7 +139,8 @@ def _parse_measurements(p: Path, text: str) -> Measurements:
         try:
             pose = int(row["pose"])
         except (TypeError, ValueError):
-            raise FormatError(f"{p}, line {line}: pose {row['pose']!r} is not an integer") from None
+            pose_cell = excerpt(row["pose"])
+            raise FormatError(f"{p}, line {line}: pose {pose_cell} is not an integer") from None
         if not 0 <= pose < 10**9:
             raise FormatError(f"{p}, line {line}: pose {pose} is not a pose number (0 to 10^9)")
         if pose in seen:
@@ -149,13 +157,13 @@ def _parse_measurements(p: Path, text: str) -> Measurements:
         except (TypeError, ValueError):
             bad = [c for c in cols if not _is_number(row[c])]
             raise FormatError(
-                f"{p}, line {line}: {bad[0]} = {row[bad[0]]!r} is not a number"
+                f"{p}, line {line}: {bad[0]} = {excerpt(row[bad[0]])} is not a number"
             ) from None
         if not np.all(np.isfinite(values)):
             column = cols[int(np.flatnonzero(~np.isfinite(values))[0])]
             raise FormatError(
-                f"{p}, line {line}: {column} = {row[column]!r} in a status-ok row (expected a "
-                f"finite number)"
+                f"{p}, line {line}: {column} = {excerpt(row[column])} in a status-ok row "
+                f"(expected a finite number)"
             )
         negative = [c for c, v in zip(cols, values, strict=True) if c in STD_COLUMNS and v < 0]
         if negative:
@@ -182,7 +190,7 @@ def _extra_value(path: Path, line: int, row: dict[str, str], column: str) -> flo
     if text == "" or text.lower() == "nan":
         return float("nan")
     if not _is_number(text) or not np.isfinite(float(text)):
-        raise FormatError(f"{path}, line {line}: {column} = {text!r} is not a number")
+        raise FormatError(f"{path}, line {line}: {column} = {excerpt(text)} is not a number")
     return float(text)
 
 

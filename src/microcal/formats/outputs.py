@@ -8,12 +8,21 @@ says so before it starts, not after an hour of acquisition or a fit.
 from __future__ import annotations
 
 import os
+import stat
 from collections.abc import Callable
 from pathlib import Path
 
 from ..errors import InputError
+from .safe_open import kind_of, opened_regular
 
-__all__ = ["check_output", "check_writable", "foreign_mat", "foreign_report", "foreign_twin_rig"]
+__all__ = [
+    "check_not_special",
+    "check_output",
+    "check_writable",
+    "foreign_mat",
+    "foreign_report",
+    "foreign_twin_rig",
+]
 
 
 def check_output(
@@ -41,9 +50,11 @@ def check_output(
     ------
     InputError
         ``OPTION PATH: is a directory`` / ``holds WHAT, not KIND`` / ``cannot write in DIR``,
-        each with the fix.
+        each with the fix; ``is a FIFO (a device, a symbolic link), not a regular file``:
+        microcal writes only a regular file or a new path (:mod:`.safe_open`).
     """
     p = Path(path)
+    check_not_special(p, option, example)
     if p.is_dir():
         raise InputError(f"{option} {p}: is a directory; give a file name such as {example}")
     held = foreign(p) if p.exists() else None
@@ -54,6 +65,24 @@ def check_output(
         )
     check_writable(p.parent if str(p.parent) else Path("."), f"{option} {p}")
     return p
+
+
+def check_not_special(path: Path, option: str, example: str) -> None:
+    """Refuse an output path that is a symbolic link, a FIFO, a device or a socket.
+
+    It is refused before anything reads it: a FIFO would wait for ever, ``/dev/zero`` would be
+    read without end, and a link would have microcal replace what it points to.
+    """
+    try:
+        st_mode = os.lstat(path).st_mode
+    except OSError:
+        return
+    if stat.S_ISREG(st_mode) or stat.S_ISDIR(st_mode):
+        return
+    raise InputError(
+        f"{option} {path}: is {kind_of(st_mode)}, not a regular file; microcal writes only a "
+        f"regular file or a new path: give a file name such as {example}"
+    )
 
 
 def check_writable(folder: Path, what: str) -> None:
@@ -69,9 +98,9 @@ def check_writable(folder: Path, what: str) -> None:
 
 def _head(path: Path, n: int) -> bytes:
     try:
-        with open(path, "rb") as fh:
+        with opened_regular(path) as fh:
             return fh.read(n)
-    except OSError:
+    except (OSError, ValueError):  # ValueError: FormatError, not a regular file
         return b""
 
 
@@ -97,7 +126,8 @@ def foreign_mat(path: Path) -> str | None:
     import scipy.io
 
     try:
-        data = scipy.io.loadmat(str(path), squeeze_me=True, struct_as_record=False)
+        with opened_regular(path) as fh:
+            data = scipy.io.loadmat(fh, squeeze_me=True, struct_as_record=False)
     except Exception:
         return "a MATLAB file microcal cannot read"
     models = [v for k, v in data.items() if not k.startswith("__")]

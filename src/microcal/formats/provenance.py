@@ -21,7 +21,8 @@ def provenance(
         "software": f"microcal {__version__}",
         "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         "inputs": {
-            name: {"path": str(p), "sha256": sha256_file(p)} for name, p in (inputs or {}).items()
+            name: {"path": str(p), "sha256": sha256_file(p, link_ok=True)}
+            for name, p in (inputs or {}).items()
         },
         **extra,
     }

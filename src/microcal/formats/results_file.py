@@ -51,8 +51,11 @@ def _plain_object(value: Mapping[str, object]) -> dict[str, JsonValue]:
     return {str(k): _plain(v) for k, v in value.items()}
 
 
-def read_results(path: str | os.PathLike[str]) -> Results:
+def read_results(path: str | os.PathLike[str], *, link_ok: bool = True) -> Results:
     """Read and validate results.json as a typed document.
+
+    ``link_ok``: ``path`` may be a symbolic link to the file (one the user named); False for
+    a file a run directory holds (:mod:`.safe_open`).
 
     Raises
     ------
@@ -60,7 +63,7 @@ def read_results(path: str | os.PathLike[str]) -> Results:
         Missing file, not JSON, an unknown format version, or a section of the wrong shape
         (the message names the key).
     """
-    raw = read_versioned_json(path, RESULTS_FORMATS)
+    raw = read_versioned_json(path, RESULTS_FORMATS, link_ok=link_ok)
     return parse_schema(Results, raw, Path(path))
 
 

@@ -60,6 +60,8 @@ from ..devices.rig_spec import (
 )
 from ..errors import FormatError, InputError
 from .json_file import validation_message
+from .quoting import excerpt
+from .safe_open import read_regular_text
 
 __all__ = ["load_rig", "rig_from_record"]
 
@@ -99,7 +101,9 @@ def load_rig(spec: str) -> RigSpec:
         return SimRigSpec()
     path = Path(spec)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(read_regular_text(path, link_ok=True))
+    except FormatError:
+        raise  # a link, a FIFO, a device: safe_open's own line
     except FileNotFoundError:
         raise FormatError(
             f"--rig {spec}: no such file (or use 'sim' for the simulated platform)"
@@ -172,7 +176,9 @@ def _from_data(path: Path, data: Mapping[str, object]) -> RigSpec:
     if driver == "hardware":
         return _hardware(path, data)
     if driver != "sim":
-        raise FormatError(f'{path}: driver {driver!r} is unknown; use driver = "sim" or "hardware"')
+        raise FormatError(
+            f'{path}: driver {excerpt(driver)} is unknown; use driver = "sim" or "hardware"'
+        )
     return _sim(path, data)
 
 
@@ -325,7 +331,9 @@ def _sim(path: Path, data: Mapping[str, object]) -> SimRigSpec:
     if preset not in PRESETS:
         near = did_you_mean(preset, PRESETS).strip()
         hint = f" ({near})" if near else ""
-        raise FormatError(f"{path}: preset: expected one of {list(PRESETS)}, got {preset!r}{hint}")
+        raise FormatError(
+            f"{path}: preset: expected one of {list(PRESETS)}, got {excerpt(preset)}{hint}"
+        )
     try:
         check_overrides(overrides, preset)
         return _spec(SimRigSpec, {**given, "overrides": overrides})

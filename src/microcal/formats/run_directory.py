@@ -35,6 +35,7 @@ from .commands_csv import read_joint_csv, write_joint_csv
 from .hashing import sha256_file
 from .json_file import parse_schema, read_versioned_json
 from .records import RUN_FORMAT, RUN_FORMATS, ImageRecord, JournalLine, RoiRecord, RunManifest
+from .safe_open import open_regular, read_regular_bytes
 
 if TYPE_CHECKING:
     from collections.abc import Mapping, Sequence
@@ -171,7 +172,7 @@ class RunDirectory:
                 f"{path}: edited since the run began (its SHA-256 is not the one "
                 f"{MANIFEST} records); restore the original commands"
             )
-        poses, d = read_joint_csv(path, pose_column=True, error=FormatError)
+        poses, d = read_joint_csv(path, pose_column=True, error=FormatError, link_ok=False)
         assert poses is not None
         return poses, d
 
@@ -209,11 +210,16 @@ class RunDirectory:
                 return candidate
         return None
 
-    def frames(self, pose: int, camera: str) -> list[NDArray[np.generic]]:
+    def frames(
+        self, pose: int, camera: str, size_px: tuple[int, int] | None = None
+    ) -> list[NDArray[np.generic]]:
         """The frames of one camera at one pose, each of the camera's full size.
 
         A stored region is pasted back into a full frame (filled with the region's median
-        grey level) where the journal records one.
+        grey level) where the journal records one. ``size_px``: the camera's image size
+        (width, height), when known; a file's frames and the full frame the journal records
+        may not be larger, and both are bounded before anything is decoded or made
+        (:func:`~microcal.formats.images.check_declared_size`).
 
         Raises
         ------
@@ -224,7 +230,7 @@ class RunDirectory:
             or frame count is not the journal's.
         """
         from ..vision.roi import frames_from_region
-        from .images import read_frames
+        from .images import check_declared_size, read_frames
 
         journal = self.journal()
         line = journal.get(pose)
@@ -236,10 +242,13 @@ class RunDirectory:
         image = line.images.get(camera) if line is not None else None
         if (self.path / JOURNAL).exists():
             self._verify(pose, camera, path, line, image)
-        frames = read_frames(path)
+        frames = read_frames(path, max_size_px=size_px)
         if image is not None and image.frames is not None and len(frames) != image.frames:
             raise FormatError(f"{path}: {len(frames)} frames, the journal records {image.frames}")
         if image is not None and image.roi is not None:
+            where = f"{self.path / JOURNAL}: pose {pose}, camera {camera}"
+            check_declared_size(where, image.roi.full_size_px, len(frames),
+                                frames[0].dtype.itemsize, size_px)  # fmt: skip
             frames = frames_from_region(frames, image.roi.offset_px, image.roi.full_size_px)
         return frames
 
@@ -395,7 +404,7 @@ def _read_journal(path: Path) -> _JournalRead:
     if not path.exists():
         return out
     try:
-        data = path.read_bytes()
+        data = read_regular_bytes(path)
     except OSError as exc:
         raise FormatError(f"{path}: cannot be read ({exc.strerror})") from None
     raws = data.split(b"\n")
@@ -563,7 +572,8 @@ class RunWriter:
         }
         line = json.dumps(data, allow_nan=False)
         journal_line = parse_schema(JournalLine, data, f"journal line of pose {pose}")
-        with open(self.run_dir / JOURNAL, "a", encoding="utf-8") as fh:
+        append = os.O_WRONLY | os.O_APPEND | os.O_CREAT
+        with os.fdopen(open_regular(self.run_dir / JOURNAL, append), "a", encoding="utf-8") as fh:
             fh.write(line + "\n")
             fh.flush()
             os.fsync(fh.fileno())

@@ -16,7 +16,8 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
-from ..errors import InputError
+from ..errors import FormatError, InputError
+from .safe_open import kind_of, open_regular
 
 if sys.platform != "win32":
     import fcntl
@@ -26,9 +27,9 @@ __all__ = ["LOCK_NAME", "run_lock"]
 LOCK_NAME = ".microcal.lock"
 
 
-def _holder(path: Path) -> str:
+def _holder(fd: int) -> str:
     try:
-        pid = path.read_text(encoding="ascii").strip()
+        pid = os.pread(fd, 32, 0).decode("ascii").strip()
     except (OSError, UnicodeDecodeError):
         pid = ""
     return f"PID {pid}" if pid.isdigit() else "another process"
@@ -49,24 +50,31 @@ def run_lock(run_dir: str | os.PathLike[str], command: str) -> Iterator[None]:
     ------
     InputError
         Another process holds the lock: ``RUN_DIR: in use by microcal (PID N); wait for it
-        or stop it``.
+        or stop it``; the lock file is a symbolic link, a FIFO or a device (never followed).
     """
     path = Path(run_dir) / LOCK_NAME
     if sys.platform == "win32":  # pragma: no cover
         yield
         return
     for _ in range(10):  # bounded: a holder that removes the file between open and lock
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fd = open_regular(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except FormatError:
+            what = kind_of(os.lstat(path).st_mode)
+            raise InputError(
+                f"{path}: is {what}, not a regular file, where microcal locks the run; remove it"
+            ) from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
+            holder = _holder(fd)
             os.close(fd)
             raise InputError(
-                f"{run_dir}: in use by microcal ({_holder(path)}); wait for it to end or "
+                f"{run_dir}: in use by microcal ({holder}); wait for it to end or "
                 f"stop it before {command}"
             ) from None
         try:
-            same = os.fstat(fd).st_ino == os.stat(path).st_ino
+            same = os.fstat(fd).st_ino == os.stat(path, follow_symlinks=False).st_ino
         except FileNotFoundError:
             same = False
         if same:

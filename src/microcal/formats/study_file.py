@@ -18,6 +18,7 @@ from ..json_value import JsonRecord, JsonValue
 from .atomic import write_text_atomic
 from .json_file import check_json_output
 from .outputs import check_output
+from .safe_open import opened_regular
 
 __all__ = ["FORMAT", "check_study_folder", "study_platform", "write_study"]
 
@@ -72,8 +73,9 @@ def check_study_folder(out: str | os.PathLike[str]) -> Path:
     check_json_output(folder / "study.json", FORMAT, "study-population/study.json")
 
     def foreign(p: Path) -> str | None:
-        with open(p, encoding="utf-8", errors="replace") as fh:
-            return None if fh.readline().strip() == PAGE_MARK else "a page microcal did not write"
+        with opened_regular(p) as fh:
+            first = fh.readline(4096).decode("utf-8", errors="replace").strip()
+        return None if first == PAGE_MARK else "a page microcal did not write"
 
     check_output(folder / "study.html", kind="a study page", foreign=foreign,
                  example="study-population/study.html")  # fmt: skip

@@ -130,7 +130,7 @@ def _cameras(path: Path) -> CamerasRecord | None:
     if not path.exists():
         return None
     raw = read_versioned_json(path, ("microcal.cameras/1",))
-    cameras = read_cameras(path)[0]
+    cameras = read_cameras(path, link_ok=False)[0]
     for name, cam in cameras.items():
         residuals = cam.get("residuals_px", {})
         if not isinstance(residuals, dict) or not all(map(_rows_of_four, residuals.values())):
@@ -173,15 +173,15 @@ def load_run(run_dir: str | os.PathLike[str]) -> RunData:
         data.commands_um = run.commands()[1]
     data.journal = list(run.journal().values())
     if "measurements.csv" in present:
-        data.measurements = read_measurements(run.measurements_path)
+        data.measurements = read_measurements(run.measurements_path, link_ok=False)
     data.cameras = _cameras(root / "cameras.json")
     if (root / "calibration.json").exists():
-        data.calibration = load_calibration(root / "calibration.json")
+        data.calibration = load_calibration(root / "calibration.json", link_ok=False)
         if data.cameras is None and data.calibration.cameras:
             cameras = {"cameras": data.calibration.cameras}
             data.cameras = parse_schema(CamerasRecord, cameras, root / "calibration.json")
     if (root / "results.json").exists():
-        data.results = read_results(root / "results.json")
+        data.results = read_results(root / "results.json", link_ok=False)
     if data.calibration is not None:
         data.checks = _checks(root / "calibration.json")
     return data

@@ -72,7 +72,7 @@ def add_manipulator(
     if manifest is not None and manifest.device and "device" not in entry.extra:
         entry = dataclasses.replace(entry, extra={**entry.extra, "device": manifest.device})
     with locked_update(out):
-        existing = load_calibration(out) if out.exists() else None
+        existing = load_calibration(out, link_ok=False) if out.exists() else None
         camera_data = existing.cameras if existing else {}
         if cameras is not None:
             camera_data = read_cameras(cameras)[0]

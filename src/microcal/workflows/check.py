@@ -148,7 +148,7 @@ def check_calibration(
         data["update"] = done.to_json()
     write_text_atomic(out_path, json.dumps(data, indent=1, allow_nan=False) + "\n")
     entry = {k: v for k, v in data.items() if k not in ("format", "provenance", "update")}
-    entry |= {"manipulator": name, "calibration_sha256": sha256_file(calibration),
+    entry |= {"manipulator": name, "calibration_sha256": sha256_file(calibration, link_ok=True),
               "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
               "software": f"microcal {__version__}"}  # fmt: skip
     append_history(history_path(calibration), entry)
@@ -306,7 +306,7 @@ class PeriodicCheck:
         entry = result.as_dict()
         entry |= {"flag": _far_from_history(result, history, 3.0), "during": self.run_dir,
                   "after_poses": done, "manipulator": self.entry.name,
-                  "calibration_sha256": sha256_file(self.path),
+                  "calibration_sha256": sha256_file(self.path, link_ok=True),
                   "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
                   "software": f"microcal {__version__}"}  # fmt: skip
         append_history(history_path(self.path), entry)

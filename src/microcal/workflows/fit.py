@@ -198,8 +198,9 @@ def fit(request: FitRequest) -> FitResult:
     """
     r = request
     update.check_fit_outputs(r.out, r.mat, r.manipulator)
-    path = r.source / "measurements.csv" if r.source.is_dir() else r.source
-    meas = read_measurements(path, min_poses=MIN_DESIGN_POSES)
+    in_run = r.source.is_dir()  # a run's file may not be a link; a file the user names may
+    path = r.source / "measurements.csv" if in_run else r.source
+    meas = read_measurements(path, min_poses=MIN_DESIGN_POSES, link_ok=not in_run)
     names, notes = extras_to_fit(r.extra, r.approach, meas)
     inputs = meas.extra_inputs(names, path)
     _check_joint_units(meas, path)

@@ -59,7 +59,7 @@ def _ok_poses(path: Path) -> int | None:
     if not path.exists():
         return None
     try:
-        return int(read_measurements(path).pose.size)
+        return int(read_measurements(path, link_ok=False).pose.size)
     except FormatError as exc:
         raise InputError(
             f"{path}: not a measurements.csv microcal can read ({exc}); microcal replaces only "
@@ -124,10 +124,15 @@ def measure_run(
     notes = [f"warning: {n}; its poses are not measured (acquire --resume acquires them again)"
              for n in [run.damage_note()] if n]  # fmt: skip
     with run_lock(run.path, "measure"):
+
+        def frames(pose: int, camera: str) -> list[Any]:
+            model = models.get(camera)  # the camera's size bounds its images
+            return run.frames(pose, camera, model.image_size_px if model is not None else None)
+
         results = measure_poses(
             poses,
             d,
-            run.frames,
+            frames,
             models,
             board,
             progress=progress,

@@ -18,6 +18,7 @@ import os
 import re
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from ..devices.rig_spec import HardwareRigSpec
 from ..errors import InputError
@@ -174,8 +175,12 @@ def stereo_calibrate_images(
     disp = None
     if known_displacements is not None:
         disp = read_joint_csv(known_displacements, what="--known-displacements", rows=n_views)[1]
+
+    def frames(cam: str, i: int) -> list[Any]:
+        return read_frames(files[cam][i], link_ok=True)  # files the user's patterns name
+
     cal = calibrate_views({cam: [f.name for f in fs] for cam, fs in files.items()},
-                          lambda cam, i: read_frames(files[cam][i]), tgt, displacements_um=disp,
+                          frames, tgt, displacements_um=disp,
                           reference_view=reference_view, lens_model=lens_model,
                           camera_model=check_camera_model(camera_model))  # fmt: skip
     save_stereo_calibration(out, cal, files, known_displacements, tgt.spec)
