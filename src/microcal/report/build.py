@@ -15,7 +15,6 @@ from typing import SupportsFloat
 from urllib.parse import quote
 
 import jinja2
-import markupsafe
 import numpy as np
 
 from .._validation import FloatArray
@@ -658,9 +657,9 @@ def _summary(results: Results) -> Summary:
 def _bounded_text(value: object) -> object:
     """What a template prints, a text from a file cut to MAX_TEXT_CHARS (figures whole; the
     output of the template's own macros was bounded where it was made)."""
-    if isinstance(value, str) and not isinstance(value, figures.FigureUri | markupsafe.Markup):
-        return clip(value)
-    return value
+    if isinstance(value, figures.FigureUri) or hasattr(value, "__html__"):  # markup: bounded
+        return value
+    return clip(value) if isinstance(value, str) else value
 
 
 def _fmt(value: object, digits: int = 2) -> str:
