@@ -271,6 +271,15 @@ def test_a_check_history_of_offsets_without_three_axes_is_one_line(tmp_path, ent
     )
 
 
+@pytest.mark.parametrize(
+    "content", [b"\xff\xfe\x00 not text\n", b"[" * 100_000 + b"\n"], ids=["binary", "nested-deep"]
+)
+def test_a_check_history_that_is_no_text_or_too_deep_is_one_line(tmp_path, content):
+    box = Sandbox.make(tmp_path)
+    history_path(calibration(box.case)).write_bytes(content)
+    refused_cleanly(box, lambda: run_traced("report", box.case), "calibration.checks.jsonl")
+
+
 def test_a_calibrations_matrix_model_that_is_no_model_names_the_file_and_key(tmp_path):
     box = Sandbox.make(tmp_path)
     cal = calibration(box.case)

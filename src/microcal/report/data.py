@@ -173,8 +173,17 @@ def _checks(calibration: Path) -> list[CheckRecord]:
     from ..formats.check_file import history_path, read_history
 
     where = history_path(calibration)
+    try:
+        history = read_history(calibration)
+    except FormatError:
+        raise
+    except (UnicodeDecodeError, RecursionError, ValueError) as exc:  # bytes, nesting, digits
+        raise FormatError(
+            f"{where}: not a history of checks microcal reads ({type(exc).__name__}); move the "
+            "file away to start a new history"
+        ) from None
     checks = []
-    for k, entry in enumerate(read_history(calibration), start=1):
+    for k, entry in enumerate(history, start=1):
         check = parse_schema(CheckRecord, entry, f"{where}, check {k}")
         for key in ("offset_um", "offset_std_um"):
             if len(getattr(check, key)) != 3:
