@@ -13,17 +13,19 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import FormatError
 from ..json_value import JsonRecord, JsonValue
 from .atomic import write_text_atomic
 from .file_lock import locked_update
 from .json_file import parse_schema, read_versioned_json
-from .records import RESULTS_FORMAT, RESULTS_FORMATS, Results
+from .records import RESULTS_FORMAT, RESULTS_FORMATS, DecouplingResult, DeviceResults, Results
 
 __all__ = [
     "RESULTS_FORMAT",
     "Results",
     "load_results",
     "read_results",
+    "shape_problem",
     "update_results",
 ]
 
@@ -60,11 +62,60 @@ def read_results(path: str | os.PathLike[str], *, link_ok: bool = True) -> Resul
     Raises
     ------
     FormatError
-        Missing file, not JSON, an unknown format version, or a section of the wrong shape
-        (the message names the key).
+        Missing file, not JSON, an unknown format version, a section of the wrong shape or a
+        figure of the wrong size (:func:`shape_problem`); the message names the key.
     """
     raw = read_versioned_json(path, RESULTS_FORMATS, link_ok=link_ok)
-    return parse_schema(Results, raw, Path(path))
+    results = parse_schema(Results, raw, Path(path))
+    problem = shape_problem(results)
+    if problem is not None:
+        raise FormatError(f"{path}: {problem}")
+    return results
+
+
+def shape_problem(results: DeviceResults) -> str | None:
+    """The first figure of ``results`` whose shape is not the one microcal writes, as
+    ``key.path: what was expected``, or None.
+
+    The schema types each value; this checks what it cannot: a pose's AP has x, y and z, a
+    decoupling run's ranges and Ω name each axis, its samples are (x, y, z) rows with the
+    moving axis of each. A station's devices are checked as well.
+    """
+    for source, by_condition in (results.pose_accuracy or {}).items():
+        for condition, pa in by_condition.items():
+            for k, pose in enumerate(pa.poses):
+                if len(pose.ap_um) != 3:
+                    return (f"pose_accuracy.{source}.{condition}.poses.{k}.ap_um: expected 3 "
+                            f"values (x, y, z), got {len(pose.ap_um)}")  # fmt: skip
+    for source, runs in (results.decoupling or {}).items():
+        for condition, dc in runs.items():
+            problem = _decoupling_problem(dc)
+            if problem is not None:
+                return f"decoupling.{source}.{condition}.{problem}"
+    if isinstance(results, Results):
+        for name, device in (results.devices or {}).items():
+            problem = shape_problem(device)
+            if problem is not None:
+                return f"devices.{name}.{problem}"
+    return None
+
+
+def _decoupling_problem(dc: DecouplingResult) -> str | None:
+    for key, per_axis, size in (("undesired_um", dc.undesired_um, 2), ("omega", dc.omega, 0)):
+        for axis in "xyz":
+            if axis not in per_axis:
+                return f"{key}: expected the axes x, y and z, {axis} is missing"
+            value = per_axis[axis]
+            if size and (not isinstance(value, list) or len(value) != size):
+                return f"{key}.{axis}: expected [min, max]"
+    if dc.samples_um is None:
+        return None
+    for k, row in enumerate(dc.samples_um):
+        if len(row) != 3:
+            return f"samples_um.{k}: expected 3 values (x, y, z), got {len(row)}"
+    if dc.segment is None or len(dc.segment) != len(dc.samples_um):
+        return "segment: expected the moving axis of each of samples_um"
+    return None
 
 
 def load_results(path: str | os.PathLike[str]) -> dict[str, object]:

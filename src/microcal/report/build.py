@@ -5,11 +5,14 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import os
+import re
+import stat
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import SupportsFloat
+from urllib.parse import quote
 
 import jinja2
 import numpy as np
@@ -24,12 +27,15 @@ from ..formats.cameras_file import (
     RejectedView,
     TurnedView,
 )
+from ..formats.outputs import foreign_report
 from ..formats.records import (
     CheckRecord,
     DecouplingResult,
     DesignRecord,
+    ModelResult,
     PoseAccuracyResult,
     Results,
+    StereoResult,
     ValidationRecord,
 )
 from ..thesis.figures import (
@@ -42,6 +48,7 @@ from ..thesis.figures import (
     VALIDATION_UM,
 )
 from . import figures
+from .bounds import MAX_PANELS, MAX_ROWS, Shown, clip, first, last
 from .data import RunData, load_run
 from .text_tables import is_thesis_rig
 
@@ -106,7 +113,7 @@ class CameraRow:
     rms_px: float | None
     thesis_px: float | None
     views_used: int | None
-    rejected: list[RejectedView]
+    rejected: Shown[RejectedView]
     fx: float
     fy: float
     cx: float
@@ -119,9 +126,13 @@ class CameraRow:
 
 @dataclass(frozen=True)
 class StereoSection:
-    """The stereo calibration: a row per camera, the stereo figures, the figures drawn."""
+    """The stereo calibration: a row per camera, the stereo figures, the figures drawn.
 
-    rows: list[CameraRow]
+    The table shows the first :data:`~.bounds.MAX_ROWS` cameras, the figures the first
+    ``drawn`` (at most :data:`~.bounds.MAX_PANELS`) of all ``n_cameras``.
+    """
+
+    rows: Shown[CameraRow]
     method: str
     baseline_um: float | None
     per_view: str | None
@@ -129,31 +140,34 @@ class StereoSection:
     coverage: str | None
     field: str | None
     uncertainty: str | None
-    turned: list[TurnedView]
-    pairs_rejected: list[RejectedPair]
-    notes: list[str]
+    turned: Shown[TurnedView]
+    pairs_rejected: Shown[RejectedPair]
+    notes: Shown[str]
     angle_deg: float | None
+    n_cameras: int = 0
+    drawn: int = 0
 
 
 def _stereo(data: RunData, thesis: bool) -> StereoSection | None:
     if data.cameras is None:
         return None
     cams = data.cameras.cameras
-    rows: list[CameraRow] = []
+    rows = first(cams.items())
     per_view: dict[str, dict[str, float]] = {}
     residuals: dict[str, FloatArray] = {}
     sizes: dict[str, tuple[int, int]] = {}
     maps: dict[str, FloatArray] = {}
-    for name, c in cams.items():
+    table: list[CameraRow] = []
+    for k, (name, c) in enumerate(rows):
         K = np.asarray(c.K, dtype=float)
         dist = list(c.dist)
-        rows.append(
+        table.append(
             CameraRow(
                 name=name,
                 rms_px=c.rms_px,
                 thesis_px=THESIS_REPROJECTION_PX.get(name) if thesis else None,
                 views_used=c.views_used,
-                rejected=c.views_rejected,
+                rejected=first(c.views_rejected),
                 fx=K[0, 0],
                 fy=K[1, 1],
                 cx=K[0, 2],
@@ -164,6 +178,8 @@ def _stereo(data: RunData, thesis: bool) -> StereoSection | None:
                 diagnostics=c.diagnostics,
             )
         )
+        if k >= MAX_PANELS:
+            continue  # in the table, not in the figures
         umap = c.diagnostics.uncertainty_map_px if c.diagnostics is not None else None
         if umap:
             maps[name] = np.asarray(umap, dtype=float)
@@ -176,7 +192,7 @@ def _stereo(data: RunData, thesis: bool) -> StereoSection | None:
             sizes[name] = c.image_size_px
     stereo = data.cameras.stereo
     return StereoSection(
-        rows=rows,
+        rows=Shown(table, rows.more),
         method=stereo.method,
         baseline_um=stereo.baseline_um,
         per_view=figures.per_view_rms(per_view) if per_view else None,
@@ -186,10 +202,12 @@ def _stereo(data: RunData, thesis: bool) -> StereoSection | None:
         uncertainty=figures.projection_uncertainty(maps, {n: cams[n].image_size_px for n in maps})
         if maps
         else None,
-        turned=stereo.turned_views,
-        pairs_rejected=stereo.views_rejected,
-        notes=stereo.notes,
+        turned=first(stereo.turned_views),
+        pairs_rejected=first(stereo.views_rejected),
+        notes=first(stereo.notes),
         angle_deg=stereo.angle_deg,
+        n_cameras=len(cams),
+        drawn=min(len(cams), MAX_PANELS),
     )
 
 
@@ -215,28 +233,31 @@ class AcquisitionSection:
     max_settle_s: float | None
     design_figure: str | None
     settle_figure: str | None
-    failed: list[FailedRow]
+    failed: Shown[FailedRow]
 
 
 def _acquisition(data: RunData) -> AcquisitionSection | None:
-    if data.commands_um is None and not data.journal:
+    journal = data.journal
+    if data.commands_um is None and not journal.n_poses:
         return None
     models = data.models()  # the last device's own model last
-    last = models[-1].validation if models else None
-    n_fit = last.n_fit if last is not None else None
-    settle = np.array([float(r.settle_s) for r in data.journal if r.settle_s is not None])
-    failed = [FailedRow(r.pose, "acquisition", r.reason or "")
-              for r in data.journal if r.status != "ok"]  # fmt: skip
+    validation = models[-1].validation if models else None
+    n_fit = validation.n_fit if validation is not None else None
+    settle = journal.settle_s
+    failed = [FailedRow(pose, "acquisition", reason) for pose, reason in journal.failed]
+    n_failed = journal.n_failed
     if data.measurements is not None:
-        failed += [
+        measured = first(
             FailedRow(pose, "measurement", reason)
             for pose, reason in sorted(data.measurements.failed_reasons.items())
             if not reason.startswith("acquisition failed")
-        ]
+        )
+        failed += measured.rows
+        n_failed += len(measured.rows) + measured.more
     manifest = data.manifest
     return AcquisitionSection(
         n_commands=None if data.commands_um is None else len(data.commands_um),
-        n_stored=sum(1 for r in data.journal if r.status == "ok"),
+        n_stored=journal.n_ok,
         design=manifest.design if manifest is not None else None,
         settle=manifest.settle if manifest is not None else None,
         frames=manifest.frames_per_pose if manifest is not None else None,
@@ -248,7 +269,7 @@ def _acquisition(data: RunData) -> AcquisitionSection | None:
             else None
         ),
         settle_figure=figures.settle_times(settle) if settle.size else None,
-        failed=failed,
+        failed=Shown(failed[:MAX_ROWS], n_failed - min(len(failed), MAX_ROWS)),
     )
 
 
@@ -286,7 +307,7 @@ class AxisTerms:
     """The selected terms of one axis of {G}: (name, coefficient, standard error) each."""
 
     axis: str
-    terms: list[tuple[str, float, float]]
+    terms: Shown[tuple[str, float, float]]
 
 
 @dataclass(frozen=True)
@@ -305,7 +326,7 @@ class ModelView:
 class ModelsSection:
     """The identified models and their prediction errors at the validation poses."""
 
-    models: list[ModelView]
+    models: Shown[ModelView]
     figure: str | None
 
 
@@ -313,23 +334,24 @@ def _models(data: RunData, thesis: bool) -> ModelsSection | None:
     if data.calibration is None:
         return None
     errors = data.model_errors()
-    models = [
+    shown = first(data.models())
+    views = [
         ModelView(
             kind=found.kind,
-            axes=[AxisTerms(a, found.model.axis_terms(i)) for i, a in enumerate("xyz")],
+            axes=[AxisTerms(a, first(found.model.axis_terms(i))) for i, a in enumerate("xyz")],
             n_terms=int(np.sum(found.model.selected)),
             held=", ".join(f"{j} at {v:g} µm" for j, v in found.model.held_um.items()),
             validation=found.validation,
             thesis=VALIDATION_UM.get(found.kind) if thesis else None,
         )
-        for found in data.models()
+        for found in shown
     ]
     figure = (
         figures.prediction_errors({e.kind: (e.poses, e.errors_um) for e in errors})
         if errors
         else None
     )
-    return ModelsSection(models, figure)
+    return ModelsSection(Shown(views, shown.more), figure)
 
 
 @dataclass(frozen=True)
@@ -414,11 +436,11 @@ class IsoRow:
     value: str
 
 
-def _iso(data: RunData) -> list[IsoRow]:
+def _iso(data: RunData) -> Shown[IsoRow]:
     """ISO 9283's distance, stabilisation and drift rows, where evaluate ran them."""
     results = data.results
     if results is None:
-        return []
+        return Shown([])
     rows = []
     for source, per in (results.distance_accuracy or {}).items():
         rows += [IsoRow("distance AD_P / RD (7.4)", source, c,
@@ -433,7 +455,7 @@ def _iso(data: RunData) -> list[IsoRow]:
                         f"{_fmt(d.drift_ap_um)} µm over "
                         f"{_fmt((d.t_s[-1] - d.t_s[0]) / 3600 if d.t_s else None)} h")
                  for c, d in per_d.items()]  # fmt: skip
-    return rows
+    return first(rows)
 
 
 @dataclass(frozen=True)
@@ -464,8 +486,8 @@ class MeetRow:
 class StationSection:
     """A station demo's devices side by side, and its meet tests."""
 
-    devices: list[DeviceRow]
-    meet: list[MeetRow] = field(default_factory=list)
+    devices: Shown[DeviceRow]
+    meet: Shown[MeetRow] = field(default_factory=lambda: Shown([]))
 
 
 def _station(data: RunData, root: Path) -> StationSection | None:
@@ -473,8 +495,9 @@ def _station(data: RunData, root: Path) -> StationSection | None:
     results = data.results
     if results is None or results.devices is None:
         return None
+    devices = first(results.devices.items())
     rows = []
-    for name, r in results.devices.items():
+    for name, r in devices:
         pa = r.pose_accuracy or {}
 
         def ap(source: str, condition: str, pa: Mapping[str, Mapping[str, PoseAccuracyResult]] = pa
@@ -483,39 +506,68 @@ def _station(data: RunData, root: Path) -> StationSection | None:
             return figures.mean_ap_p_um if figures is not None else None
 
         poly = (r.models or {}).get("polynomial")
-        link = f"{name}/report.html" if (root / name / "report.html").is_file() else ""
+        link = device_report_link(root, name)
         rows.append(DeviceRow(name, poly.validation.mean_um if poly is not None else None,
                               ap("truth", "uncalibrated"), ap("truth", "optimal"),
                               ap("vision", "optimal"), link))  # fmt: skip
+    meet = first((results.meet or {}).items())
     meets = []
-    for mode, m in (results.meet or {}).items():
+    for mode, m in meet:
         vision, truth = m.vision, m.truth
         meets.append(MeetRow(mode, len(m.targets_um),
                              vision.mean_um if vision else None, vision.max_um if vision else None,
                              truth.mean_um if truth else None,
                              truth.max_um if truth else None))  # fmt: skip
-    return StationSection(rows, meets)
+    return StationSection(Shown(rows, devices.more), Shown(meets, meet.more))
+
+
+#: A device's name that may become part of a link: letters, digits, ``_``, ``-`` and ``.``,
+#: not first (no ``..``, no hidden folder, no scheme such as ``javascript:``, no slash).
+_LINKABLE_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,99}")
+
+
+def device_report_link(root: Path, name: str) -> str:
+    """The relative link to a station device's own report, or "" for none.
+
+    A link is made only to a report microcal wrote (its generator tag) as a regular file
+    ``NAME/report.html`` in a folder (not a symbolic link) of the station's directory, and
+    only for a plain name (:data:`_LINKABLE_NAME`): a name from results.json never becomes a
+    link of its own choosing (another scheme, an absolute path, a folder outside).
+    """
+    if not _LINKABLE_NAME.fullmatch(name) or ".." in name:
+        return ""
+    folder, page = root / name, root / name / "report.html"
+    try:
+        if not stat.S_ISDIR(folder.lstat().st_mode) or not stat.S_ISREG(page.lstat().st_mode):
+            return ""
+    except OSError:
+        return ""
+    if foreign_report(page) is not None:
+        return ""
+    return f"{quote(name)}/report.html"
 
 
 @dataclass(frozen=True)
 class ChecksSection:
     """The history of checks of the calibration, and its figure."""
 
-    rows: list[CheckRecord]
+    rows: Shown[CheckRecord]  # the latest; ``more``: the earlier ones left out
     figure: str
 
 
 def _checks(data: RunData) -> ChecksSection | None:
     if not data.checks:
         return None
-    offsets = np.array([c.offset_um for c in data.checks], dtype=np.float64)
-    std = np.array([c.offset_std_um for c in data.checks], dtype=np.float64)
-    verdicts = [c.verdict for c in data.checks]
-    devices = [str(c.manipulator or "m1") for c in data.checks]
-    return ChecksSection(data.checks, figures.check_history(offsets, std, verdicts, devices))
+    shown = last(data.checks)
+    offsets = np.array([c.offset_um for c in shown], dtype=np.float64)
+    std = np.array([c.offset_std_um for c in shown], dtype=np.float64)
+    verdicts = [c.verdict for c in shown]
+    devices = [str(c.manipulator or "m1") for c in shown]
+    figure = figures.check_history(offsets, std, verdicts, devices, first_check=shown.more + 1)
+    return ChecksSection(shown, figure)
 
 
-def _provenance(data: RunData) -> list[tuple[str, str]]:
+def _provenance(data: RunData) -> Shown[tuple[str, str]]:
     rows: list[tuple[str, str]] = [("run directory", str(data.run_dir))]
     manifest, cameras, results = data.manifest, data.cameras, data.results
     sources: tuple[tuple[str, Mapping[str, object] | None], ...] = (
@@ -529,7 +581,7 @@ def _provenance(data: RunData) -> list[tuple[str, str]]:
             rows.append((f"{label}: {key}", _plain(value)))
     if manifest is not None and manifest.rig:
         rows.append(("rig", _plain(manifest.rig)))
-    return rows
+    return first(rows)
 
 
 def _plain(value: object) -> str:
@@ -546,11 +598,13 @@ def build_report(run_dir: str | os.PathLike[str]) -> str:
     """
     data = load_run(run_dir)
     thesis = compares_with_thesis(data)
+    results = data.results if data.results is not None else Results()
     context = {
         "title": f"microcal calibration report: {Path(run_dir).resolve().name}",
         "version": __version__,
         "generated": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
-        "results": data.results if data.results is not None else Results(),
+        "results": results,
+        "summary": _summary(results),
         "stereo": _stereo(data, thesis),
         "acquisition": _acquisition(data),
         "measurement": _measurement(data, thesis),
@@ -574,9 +628,38 @@ def build_report(run_dir: str | os.PathLike[str]) -> str:
         ),
     }
     text = resources.files(__package__).joinpath("report.html.j2").read_text(encoding="utf-8")
-    env = jinja2.Environment(autoescape=True, undefined=jinja2.StrictUndefined)
+    env = jinja2.Environment(
+        autoescape=True, undefined=jinja2.StrictUndefined, finalize=_bounded_text
+    )
     env.filters["f"] = _fmt
+    env.globals["bounded"] = first
     return env.from_string(text).render(**context)
+
+
+@dataclass(frozen=True)
+class Summary:
+    """The rows of the summary table that come from results.json's sections, bounded."""
+
+    stereo: Shown[tuple[str, StereoResult]]
+    models: Shown[tuple[str, ModelResult]]
+    pose_accuracy: Shown[tuple[str, str, PoseAccuracyResult]]
+
+
+def _summary(results: Results) -> Summary:
+    return Summary(
+        stereo=first((results.stereo or {}).items()),
+        models=first((results.models or {}).items()),
+        pose_accuracy=first((source, cond, r) for source, conds in
+                            (results.pose_accuracy or {}).items() for cond, r in conds.items()),
+    )  # fmt: skip
+
+
+def _bounded_text(value: object) -> object:
+    """What a template prints, a text from a file cut to MAX_TEXT_CHARS (figures whole; the
+    output of the template's own macros was bounded where it was made)."""
+    if isinstance(value, figures.FigureUri) or hasattr(value, "__html__"):  # markup: bounded
+        return value
+    return clip(value) if isinstance(value, str) else value
 
 
 def _fmt(value: object, digits: int = 2) -> str:

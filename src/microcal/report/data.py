@@ -14,11 +14,12 @@ from ..formats.calibration_file import Calibration, load_calibration
 from ..formats.cameras_file import CamerasRecord
 from ..formats.json_file import parse_schema, read_versioned_json
 from ..formats.measurements import Measurements, read_measurements
-from ..formats.records import CheckRecord, JournalLine, Results, RunManifest, ValidationRecord
+from ..formats.records import CheckRecord, Results, RunManifest, ValidationRecord
 from ..formats.results_file import read_results
 from ..formats.run_directory import RUN_FILE_NAMES, RunDirectory
 from ..kinematics.extra_inputs import by_symbol
 from ..kinematics.models import KinematicModel
+from .journal_summary import JournalSummary, summarise_journal
 
 __all__ = ["IdentifiedModel", "ModelErrors", "RunData", "load_run"]
 
@@ -55,7 +56,7 @@ class RunData:
     run_dir: Path
     manifest: RunManifest | None = None
     commands_um: FloatArray | None = None  # (N, 3)
-    journal: list[JournalLine] = field(default_factory=list)
+    journal: JournalSummary = field(default_factory=JournalSummary)  # what the report shows
     measurements: Measurements | None = None
     cameras: CamerasRecord | None = None
     calibration: Calibration | None = None
@@ -75,13 +76,24 @@ class RunData:
         A matrix model kept beside a polynomial one (for the matrix compensator) comes first.
         """
         out: list[IdentifiedModel] = []
-        for entry in self.calibration.manipulators.values() if self.calibration else []:
-            matrix = entry.matrix_model
+        calibration = self.calibration
+        for entry in calibration.manipulators.values() if calibration else []:
+            try:
+                matrix = entry.matrix_model
+            except FormatError as exc:
+                where = calibration.path if calibration is not None else "calibration.json"
+                raise FormatError(
+                    f"{where}: manipulators.{entry.name}.matrix_model: not a model's object "
+                    f"({str(exc).partition(':')[2].strip()[:80]})"
+                ) from None
+            where = f"{calibration.path if calibration else 'calibration.json'}: manipulators."
             if matrix is not None and entry.model.kind != "matrix":
-                out.append(IdentifiedModel("matrix", matrix, _validation(entry.matrix_validation)))
-            out.append(
-                IdentifiedModel(entry.model.kind, entry.model, _validation(entry.validation))
-            )
+                found = _validation(
+                    entry.matrix_validation, f"{where}{entry.name}.matrix_validation"
+                )
+                out.append(IdentifiedModel("matrix", matrix, found))
+            found = _validation(entry.validation, f"{where}{entry.name}.validation")
+            out.append(IdentifiedModel(entry.model.kind, entry.model, found))
         return out
 
     def model_errors(self) -> list[ModelErrors]:
@@ -108,11 +120,20 @@ class RunData:
         return out
 
 
-def _validation(validation: object) -> ValidationRecord | None:
+def _validation(validation: object, where: str) -> ValidationRecord | None:
     """A calibration's validation object, typed; None for none (an empty one)."""
     if not validation:
         return None
-    return parse_schema(ValidationRecord, validation, "calibration.json: validation")
+    return parse_schema(ValidationRecord, validation, where)
+
+
+def _grid(value: object) -> bool:
+    """Whether ``value`` is a grid of numbers: rows of one length, at least one of each."""
+    try:
+        grid = np.asarray(value, dtype=np.float64)
+    except (ValueError, TypeError):
+        return False
+    return grid.ndim == 2 and grid.size > 0
 
 
 def _rows_of_four(value: object) -> bool:
@@ -137,6 +158,13 @@ def _cameras(path: Path) -> CamerasRecord | None:
             raise FormatError(
                 f"{path}: cameras.{name}.residuals_px: expected per image rows of [u, v, du, dv] px"
             )
+        diagnostics = cam.get("diagnostics")
+        umap = diagnostics.get("uncertainty_map_px") if isinstance(diagnostics, dict) else None
+        if umap and not _grid(umap):
+            raise FormatError(
+                f"{path}: cameras.{name}.diagnostics.uncertainty_map_px: expected rows of one "
+                "length of numbers (px)"
+            )
     return parse_schema(CamerasRecord, raw, path)
 
 
@@ -145,8 +173,23 @@ def _checks(calibration: Path) -> list[CheckRecord]:
     from ..formats.check_file import history_path, read_history
 
     where = history_path(calibration)
-    return [parse_schema(CheckRecord, entry, f"{where}, check {k}")
-            for k, entry in enumerate(read_history(calibration), start=1)]  # fmt: skip
+    try:
+        history = read_history(calibration)
+    except FormatError:
+        raise
+    except (UnicodeDecodeError, RecursionError, ValueError) as exc:  # bytes, nesting, digits
+        raise FormatError(
+            f"{where}: not a history of checks microcal reads ({type(exc).__name__}); move the "
+            "file away to start a new history"
+        ) from None
+    checks = []
+    for k, entry in enumerate(history, start=1):
+        check = parse_schema(CheckRecord, entry, f"{where}, check {k}")
+        for key in ("offset_um", "offset_std_um"):
+            if len(getattr(check, key)) != 3:
+                raise FormatError(f"{where}, check {k}: {key}: expected 3 values (x, y, z)")
+        checks.append(check)
+    return checks
 
 
 def load_run(run_dir: str | os.PathLike[str]) -> RunData:
@@ -171,7 +214,7 @@ def load_run(run_dir: str | os.PathLike[str]) -> RunData:
     data = RunData(root, manifest=run.manifest)
     if "commands.csv" in present:
         data.commands_um = run.commands()[1]
-    data.journal = list(run.journal().values())
+    data.journal = summarise_journal(root / "journal.jsonl")
     if "measurements.csv" in present:
         data.measurements = read_measurements(run.measurements_path, link_ok=False)
     data.cameras = _cameras(root / "cameras.json")

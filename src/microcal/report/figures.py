@@ -3,6 +3,11 @@
 Each function takes plain arrays and returns a ``data:image/png;base64,...`` string, so the
 HTML stays one self-contained file. Figures use matplotlib's object interface (no pyplot
 state), so building a report touches no global settings.
+
+Names from the run's files (cameras, views, devices) are drawn as plain text: cut to
+:data:`~.bounds.MAX_LABEL_CHARS` characters, their dollar signs escaped so that matplotlib
+never reads them as mathematics. A series of more than :data:`~.bounds.MAX_POINTS` points is
+drawn thinned evenly, and a figure's panels are one per camera given (the caller bounds them).
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from .._validation import FloatArray
+from .bounds import MAX_LABEL_CHARS, MAX_ROWS, clip, thinned
 
 __all__ = [
     "calibration_coverage",
@@ -36,11 +42,22 @@ AXES = "xyz"
 CONDITION_COLOURS = {"uncalibrated": "tab:red", "matrix": "tab:blue", "optimal": "tab:green"}
 
 
-def _uri(fig: Figure) -> str:
+class FigureUri(str):
+    """A figure drawn by this module, as a PNG data URI (the report shows it whole)."""
+
+    __slots__ = ()
+
+
+def _uri(fig: Figure) -> FigureUri:
     FigureCanvasAgg(fig)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=DPI)
-    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+    return FigureUri("data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii"))
+
+
+def label(text: object) -> str:
+    """A name from an input file as a figure's plain text: cut short, no mathematics."""
+    return clip(str(text), MAX_LABEL_CHARS).replace("$", r"\$")
 
 
 def _image_axes(ax: Axes, w: int, h: int, title: str) -> None:
@@ -61,12 +78,14 @@ def per_view_rms(per_view_px: Mapping[str, Mapping[str, float]]) -> str:
     per_view_px : {camera: {view: rms px}}
     """
     fig = Figure(figsize=(4.2 * len(per_view_px), 3.0), layout="constrained")
-    for k, (cam, views) in enumerate(per_view_px.items()):
+    for k, (cam, all_views) in enumerate(per_view_px.items()):
         ax = fig.add_subplot(1, len(per_view_px), k + 1)
+        views = dict(list(all_views.items())[:MAX_ROWS])
         ax.bar(range(len(views)), list(views.values()), color="tab:blue")
-        ax.set_xticks(range(len(views)), list(views), rotation=60, fontsize=7)
+        ax.set_xticks(range(len(views)), [label(v) for v in views], rotation=60, fontsize=7)
         ax.set_ylabel("RMS, px")
-        ax.set_title(f"{cam}: reprojection error per view")
+        cut = f" (first {len(views)} of {len(all_views)})" if len(views) < len(all_views) else ""
+        ax.set_title(f"{label(cam)}: reprojection error per view{cut}")
     return _uri(fig)
 
 
@@ -81,7 +100,8 @@ def calibration_residuals(residuals_px: Mapping[str, FloatArray]) -> str:
     fig = Figure(figsize=(3.6 * len(residuals_px), 3.4), layout="constrained")
     for k, (cam, r) in enumerate(residuals_px.items()):
         ax = fig.add_subplot(1, len(residuals_px), k + 1)
-        ax.scatter(r[:, 2], r[:, 3], s=2, alpha=0.4, color="tab:blue", linewidths=0)
+        drawn = r[thinned(len(r))]
+        ax.scatter(drawn[:, 2], drawn[:, 3], s=2, alpha=0.4, color="tab:blue", linewidths=0)
         lim = max(float(np.abs(r[:, 2:]).max()) * 1.05, 1e-3) if len(r) else 1.0
         ax.set_xlim(-lim, lim)
         ax.set_ylim(-lim, lim)
@@ -90,7 +110,7 @@ def calibration_residuals(residuals_px: Mapping[str, FloatArray]) -> str:
         ax.axvline(0, color="grey", lw=0.5)
         ax.set_xlabel("dx, px")
         ax.set_ylabel("dy, px")
-        ax.set_title(f"{cam}: residuals ({len(r)} points)")
+        ax.set_title(f"{label(cam)}: residuals ({len(r)} points)")
     return _uri(fig)
 
 
@@ -108,8 +128,9 @@ def calibration_coverage(
     for k, (cam, r) in enumerate(residuals_px.items()):
         w, h = image_size_px[cam]
         ax = fig.add_subplot(1, len(residuals_px), k + 1)
-        ax.scatter(r[:, 0], r[:, 1], s=1, color="tab:blue", linewidths=0)
-        _image_axes(ax, w, h, f"{cam}: target points over the {w} x {h} image")
+        drawn = r[thinned(len(r))]
+        ax.scatter(drawn[:, 0], drawn[:, 1], s=1, color="tab:blue", linewidths=0)
+        _image_axes(ax, w, h, f"{label(cam)}: target points over the {w} x {h} image")
     return _uri(fig)
 
 
@@ -137,7 +158,7 @@ def projection_uncertainty(
             cs = ax.contour(gx, gy, m, levels=levels, colors="white", linewidths=0.6)
             ax.clabel(cs, fontsize=7, fmt="%g")
         fig.colorbar(im, ax=ax, label="1-sigma, px")
-        _image_axes(ax, w, h, f"{cam}: projection uncertainty")
+        _image_axes(ax, w, h, f"{label(cam)}: projection uncertainty")
     return _uri(fig)
 
 
@@ -158,9 +179,10 @@ def residual_field(
         ax = fig.add_subplot(1, len(residuals_px), k + 1)
         size = float(np.sqrt(np.mean(np.sum(r[:, 2:] ** 2, axis=1)))) if len(r) else 0.0
         scale = 0.03 * max(w, h) / size if size > 0 else 1.0
-        ax.quiver(r[:, 0], r[:, 1], r[:, 2] * scale, -r[:, 3] * scale, angles="xy",
+        q = r[thinned(len(r))]
+        ax.quiver(q[:, 0], q[:, 1], q[:, 2] * scale, -q[:, 3] * scale, angles="xy",
                   scale_units="xy", scale=1.0, width=0.003, color="tab:red")  # fmt: skip
-        _image_axes(ax, w, h, f"{cam}: residuals over the image (x{scale:.0f})")
+        _image_axes(ax, w, h, f"{label(cam)}: residuals over the image (x{scale:.0f})")
     return _uri(fig)
 
 
@@ -176,17 +198,19 @@ def command_design(d_um: FloatArray, n_fit: int | None) -> str:
     fig = Figure(figsize=(9.5, 3.6), layout="constrained")
     ax = fig.add_subplot(1, 3, 1, projection="3d")
     n = len(d_um) if n_fit is None else n_fit
-    ax.scatter(*d_um[:n].T, s=6, color="tab:blue", label="fit")
+    fit, validate = d_um[:n], d_um[n:]
+    fit, validate = fit[thinned(len(fit))], validate[thinned(len(validate))]
+    ax.scatter(*fit.T, s=6, color="tab:blue", label="fit")
     if n < len(d_um):
-        ax.scatter(*d_um[n:].T, s=6, color="tab:orange", label="validate")
+        ax.scatter(*validate.T, s=6, color="tab:orange", label="validate")
     ax.set_xlabel("dx, µm")
     ax.set_ylabel("dy, µm")
     ax.set_zlabel("dz, µm")
     ax.legend(fontsize=7)
     for k, (i, j) in enumerate(((0, 1), (0, 2))):
         ax2 = fig.add_subplot(1, 3, k + 2)
-        ax2.scatter(d_um[:n, i], d_um[:n, j], s=5, color="tab:blue")
-        ax2.scatter(d_um[n:, i], d_um[n:, j], s=5, color="tab:orange")
+        ax2.scatter(fit[:, i], fit[:, j], s=5, color="tab:blue")
+        ax2.scatter(validate[:, i], validate[:, j], s=5, color="tab:orange")
         ax2.set_xlabel(f"d{AXES[i]}, µm")
         ax2.set_ylabel(f"d{AXES[j]}, µm")
     return _uri(fig)
@@ -235,7 +259,8 @@ def prediction_errors(errors: Mapping[str, tuple[np.ndarray, FloatArray]]) -> st
     colours = {"matrix": "tab:blue", "polynomial": "tab:green"}
     for kind, (poses, err) in errors.items():
         colour = colours.get(kind, "tab:grey")
-        ax.plot(poses, err, "o-", ms=3, lw=0.8, color=colour, label=f"{kind}")
+        drawn = thinned(len(err))
+        ax.plot(poses[drawn], err[drawn], "o-", ms=3, lw=0.8, color=colour, label=label(kind))
         ax.axhline(float(np.mean(err)), color=colour, ls="--", lw=0.8)
     ax.set_xlabel("validation pose")
     ax.set_ylabel("prediction error, µm")
@@ -260,6 +285,7 @@ def decoupling(condition: str, runs: Mapping[str, tuple[FloatArray, np.ndarray]]
         ax = fig.add_subplot(1, 3, moving + 1)
         for k, (source, (samples_um, segment)) in enumerate(runs.items()):
             idx = np.flatnonzero(segment == moving)
+            idx = idx[thinned(idx.size)]
             if not idx.size:
                 continue
             p = samples_um[idx]
@@ -273,14 +299,14 @@ def decoupling(condition: str, runs: Mapping[str, tuple[FloatArray, np.ndarray]]
                         ms=2.5,
                         lw=0.8,
                         color=colours[axis],
-                        label=f"{AXES[axis]} ({source})",
+                        label=f"{AXES[axis]} ({label(source)})",
                     )
         ax.axhline(0, color="grey", lw=0.5)
         ax.set_xlabel(f"{AXES[moving]} travel, µm")
         ax.set_ylabel("undesired, µm")
         ax.set_title(f"moving {AXES[moving]}", fontsize=9)
         ax.legend(fontsize=7, loc="upper left")
-    fig.suptitle(f"decoupling, {condition}", fontsize=10)
+    fig.suptitle(f"decoupling, {label(condition)}", fontsize=10)
     return _uri(fig)
 
 
@@ -289,6 +315,7 @@ def check_history(
     std_um: FloatArray,
     verdicts: list[str],
     devices: list[str] | None = None,
+    first_check: int = 1,
 ) -> str:
     """Offset found by each check of a calibration, per axis, with ±2 standard deviations.
 
@@ -298,22 +325,24 @@ def check_history(
     verdicts : n str
     devices : n str, optional
         The device each check was of; with more than one, each check's tick names it.
+    first_check : int
+        The number of the first check drawn (the history's earlier checks left out).
     """
     fig = Figure(figsize=(7.0, 3.0), layout="constrained")
     ax = fig.add_subplot(1, 1, 1)
-    k = np.arange(1, len(offsets_um) + 1)
+    k = np.arange(first_check, first_check + len(offsets_um))
     for a, (axis, colour) in enumerate(zip("xyz", ("tab:red", "tab:green", "tab:blue"),
                                            strict=True)):  # fmt: skip
         ax.errorbar(k + (a - 1) * 0.08, offsets_um[:, a], yerr=2 * std_um[:, a], fmt="o",
                     ms=3, color=colour, label=axis, capsize=2)  # fmt: skip
     for i, verdict in enumerate(verdicts):
         if verdict != "valid":
-            ax.annotate(verdict, (k[i], float(np.max(offsets_um[i]))), fontsize=7,
+            ax.annotate(label(verdict), (k[i], float(np.max(offsets_um[i]))), fontsize=7,
                         textcoords="offset points", xytext=(0, 6), ha="center")  # fmt: skip
     ax.axhline(0.0, color="grey", lw=0.6)
     ax.set_xticks(k)
     if devices is not None and len(set(devices)) > 1:
-        ax.set_xticks(k, [f"{i}\n{name}" for i, name in zip(k, devices, strict=True)])
+        ax.set_xticks(k, [f"{i}\n{label(name)}" for i, name in zip(k, devices, strict=True)])
     ax.set_xlabel("check")
     ax.set_ylabel("offset, µm (±2 std)")
     ax.legend(fontsize=8)

@@ -1,0 +1,108 @@
+"""What the report shows of a run's journal, read one line at a time.
+
+A journal may hold millions of lines; the report needs only how many poses were stored, the
+settle time of each and the first failures, so it reads the journal as a stream and keeps
+those (a few numbers per pose), never the lines themselves. The lines it counts are those
+:meth:`~microcal.formats.run_directory.RunDirectory.journal` keeps: each line that is a
+journal line, the first for its pose.
+"""
+
+from __future__ import annotations
+
+import json
+from array import array
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .._validation import FloatArray
+from ..errors import FormatError
+from ..formats.json_file import parse_schema
+from ..formats.records import JournalLine
+from .bounds import MAX_ROWS
+
+__all__ = ["MAX_LINE_BYTES", "JournalSummary", "summarise_journal"]
+
+#: The longest journal line read (a pose's line is about a kilobyte); a longer one is damaged.
+MAX_LINE_BYTES = 1 << 20
+
+
+@dataclass
+class JournalSummary:
+    """The journal's poses as the report shows them.
+
+    Attributes
+    ----------
+    n_poses : int
+        Poses journaled (intact lines, one per pose).
+    n_ok : int
+        Poses stored (status ``ok``).
+    settle_s : (n,) float
+        The settle time of every pose that records one, in journal order.
+    failed : list of (pose, reason)
+        The first :data:`~.bounds.MAX_ROWS` poses that failed, in journal order.
+    n_failed : int
+        All poses that failed.
+    """
+
+    n_poses: int = 0
+    n_ok: int = 0
+    settle_s: FloatArray = field(default_factory=lambda: np.zeros(0))
+    failed: list[tuple[int, str]] = field(default_factory=list)
+    n_failed: int = 0
+
+
+def _lines(path: Path) -> Iterator[bytes | None]:
+    """The file's lines without their line ends; None for a line over MAX_LINE_BYTES."""
+    with path.open("rb") as f:
+        while True:
+            raw = f.readline(MAX_LINE_BYTES + 1)
+            if not raw:
+                return
+            if len(raw) > MAX_LINE_BYTES and not raw.endswith(b"\n"):
+                while raw and not raw.endswith(b"\n"):  # the rest of the long line, skipped
+                    raw = f.readline(MAX_LINE_BYTES)
+                yield None
+                continue
+            yield raw.removesuffix(b"\n")
+
+
+def summarise_journal(path: Path) -> JournalSummary:
+    """The summary of ``path`` (an empty one when there is no journal).
+
+    Raises
+    ------
+    FormatError
+        The journal exists but cannot be read.
+    """
+    out = JournalSummary()
+    if not path.exists():
+        return out
+    seen: set[int] = set()
+    settle = array("d")
+    try:
+        for raw in _lines(path):
+            if raw is None or not raw.strip():
+                continue
+            try:
+                line = parse_schema(JournalLine, json.loads(raw), path)
+            except (FormatError, UnicodeDecodeError, RecursionError, ValueError):
+                continue  # a damaged line: the run's readers name it, the report skips it
+            if line.pose in seen:
+                continue
+            seen.add(line.pose)
+            out.n_poses += 1
+            if line.settle_s is not None:
+                settle.append(float(line.settle_s))
+            if line.status == "ok":
+                out.n_ok += 1
+            else:
+                out.n_failed += 1
+                if len(out.failed) < MAX_ROWS:
+                    out.failed.append((line.pose, line.reason or ""))
+    except OSError as exc:
+        raise FormatError(f"{path}: cannot be read ({exc.strerror})") from None
+    out.settle_s = np.frombuffer(settle, dtype=np.float64).copy() if settle else np.zeros(0)
+    return out
