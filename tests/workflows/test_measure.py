@@ -125,7 +125,9 @@ def test_temperature_flows_from_acquisition_through_measure_to_fit(tmp_path):
     out = invoke_microcal("fit", run, "--temperature", "--out", tmp_path / "cal.json")
     assert out.returncode == 0, out.stderr
     model = json.loads((tmp_path / "cal.json").read_text())["manipulators"]["m1"]["model"]
-    assert model["inputs"] == ["dx", "dy", "dz", "T"]
+    # the run's approach directions join by default (fit says so)
+    assert model["inputs"] == ["dx", "dy", "dz", "T", "sx", "sy", "sz"]
+    assert "note: fitting the direction terms sx, sy, sz" in out.stdout
 
 
 def one_line_error(out, message):

@@ -116,7 +116,7 @@ def test_stereo_calibrate_with_a_fixed_lens_model(stereo_images, tmp_path):
 @pytest.mark.parametrize(
     ("existing", "message"),
     [
-        ('{"format": "microcal.calibration/1", "cameras": {}}', "holds a microcal.calibration/1 file"),
+        ('{"format": "microcal.calibration/1", "cameras": {}}', "holds a 'microcal.calibration/1' file"),
         ("x,y\n1,2\n", "holds a file microcal did not write"),
     ],
 )  # fmt: skip

@@ -83,6 +83,9 @@ def staged_progress(
 
     out = console or Console(stderr=True)
     if not out.is_terminal:
+        # lines go with the command's other output: standard error keeps to the one line
+        # of an error
+        out = console if console is not None and not console.stderr else Console()
         started: dict[str, float] = {}
         shown: dict[str, int] = {}
 

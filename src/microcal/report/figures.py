@@ -17,9 +17,11 @@ import io
 from collections.abc import Mapping, Sequence
 
 import numpy as np
+from matplotlib.artist import Artist
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.layout_engine import ConstrainedLayoutEngine
 
 from .._validation import FloatArray
 from .bounds import MAX_LABEL_CHARS, MAX_ROWS, clip, thinned
@@ -124,14 +126,32 @@ def calibration_coverage(
     residuals_px : {camera: (N, 4) float}
     image_size_px : {camera: (width, height)}
     """
-    fig = Figure(figsize=(4.0 * len(residuals_px), 3.3), layout="constrained")
+    fig = Figure(figsize=(4.3 * len(residuals_px), 3.3), layout="constrained")
     for k, (cam, r) in enumerate(residuals_px.items()):
         w, h = image_size_px[cam]
         ax = fig.add_subplot(1, len(residuals_px), k + 1)
-        drawn = r[thinned(len(r))]
-        ax.scatter(drawn[:, 0], drawn[:, 1], s=1, color="tab:blue", linewidths=0)
+        counts, xe, ye = _cells(r[:, 0], r[:, 1], w, h)
+        shown = np.ma.masked_equal(counts, 0)  # cells without a point stay white
+        im = ax.pcolormesh(xe, ye, shown, cmap="Blues", vmin=0, shading="flat")
+        fig.colorbar(im, ax=ax, label="points per cell")
         _image_axes(ax, w, h, f"{label(cam)}: target points over the {w} x {h} image")
     return _uri(fig)
+
+
+#: Cells across an image's longer side in the coverage and residual maps.
+CELLS_ACROSS = 16
+
+
+def _cells(
+    x: FloatArray, y: FloatArray, w: int, h: int, weights: FloatArray | None = None
+) -> tuple[np.ndarray, FloatArray, FloatArray]:
+    """Points binned on a grid of square cells over a w x h image: (rows, cols) sums (counts
+    without ``weights``) and the cells' edges in x and y, px."""
+    side = max(w, h) / CELLS_ACROSS
+    xe = np.linspace(0, w, max(1, round(w / side)) + 1)
+    ye = np.linspace(0, h, max(1, round(h / side)) + 1)
+    sums, _, _ = np.histogram2d(y, x, bins=(ye, xe), weights=weights)
+    return sums, xe, ye
 
 
 def projection_uncertainty(
@@ -173,17 +193,41 @@ def residual_field(
         Detected x, y and residual dx, dy of every target point used.
     image_size_px : {camera: (width, height)}
     """
-    fig = Figure(figsize=(4.0 * len(residuals_px), 3.3), layout="constrained")
+    fig = Figure(figsize=(4.0 * len(residuals_px), 3.5), layout="constrained")
     for k, (cam, r) in enumerate(residuals_px.items()):
         w, h = image_size_px[cam]
         ax = fig.add_subplot(1, len(residuals_px), k + 1)
-        size = float(np.sqrt(np.mean(np.sum(r[:, 2:] ** 2, axis=1)))) if len(r) else 0.0
-        scale = 0.03 * max(w, h) / size if size > 0 else 1.0
-        q = r[thinned(len(r))]
-        ax.quiver(q[:, 0], q[:, 1], q[:, 2] * scale, -q[:, 3] * scale, angles="xy",
-                  scale_units="xy", scale=1.0, width=0.003, color="tab:red")  # fmt: skip
-        _image_axes(ax, w, h, f"{label(cam)}: residuals over the image (x{scale:.0f})")
+        n, xe, ye = _cells(r[:, 0], r[:, 1], w, h)
+        sx = _cells(r[:, 0], r[:, 1], w, h, r[:, 2])[0]
+        sy = _cells(r[:, 0], r[:, 1], w, h, r[:, 3])[0]
+        seen = n > 0
+        mean_x = np.where(seen, sx / np.maximum(n, 1), 0.0)
+        mean_y = np.where(seen, sy / np.maximum(n, 1), 0.0)
+        cx, cy = np.meshgrid((xe[:-1] + xe[1:]) / 2, (ye[:-1] + ye[1:]) / 2)
+        longest = float(np.max(np.hypot(mean_x, mean_y)[seen])) if seen.any() else 0.0
+        key_px = _round_key(longest)
+        scale = 0.8 * (xe[1] - xe[0]) / key_px  # the key's length fills most of a cell
+        arrows = ax.quiver(cx[seen], cy[seen], mean_x[seen] * scale, -mean_y[seen] * scale,
+                           angles="xy", scale_units="xy", scale=1.0, width=0.006,
+                           color="tab:red")  # fmt: skip
+        ax.plot(cx[seen], cy[seen], ".", ms=1.5, color="grey")  # cells with points
+        _image_axes(ax, w, h, f"{label(cam)}: mean residual per cell")
+        ax.title.set_horizontalalignment("left")
+        ax.title.set_x(0.0)
+        ax.quiverkey(arrows, 0.86, 1.04, key_px * scale, f"{key_px:g} px", labelpos="E",
+                     coordinates="axes", fontproperties={"size": 8})  # fmt: skip
     return _uri(fig)
+
+
+def _round_key(value: float) -> float:
+    """A round length for an arrow key near ``value`` (1, 2 or 5 times a power of ten)."""
+    if not value > 0:
+        return 1.0
+    exponent = np.floor(np.log10(value))
+    for m in (1.0, 2.0, 5.0, 10.0):
+        if m * 10**exponent >= value * 0.7:
+            return float(m * 10**exponent)
+    return float(10 ** (exponent + 1))
 
 
 def command_design(d_um: FloatArray, n_fit: int | None) -> str:
@@ -195,7 +239,7 @@ def command_design(d_um: FloatArray, n_fit: int | None) -> str:
     n_fit : int, optional
         The first ``n_fit`` poses fit the model; the rest validate.
     """
-    fig = Figure(figsize=(9.5, 3.6), layout="constrained")
+    fig = Figure(figsize=(10.5, 3.6), layout=ConstrainedLayoutEngine(wspace=0.08))
     ax = fig.add_subplot(1, 3, 1, projection="3d")
     n = len(d_um) if n_fit is None else n_fit
     fit, validate = d_um[:n], d_um[n:]
@@ -203,10 +247,12 @@ def command_design(d_um: FloatArray, n_fit: int | None) -> str:
     ax.scatter(*fit.T, s=6, color="tab:blue", label="fit")
     if n < len(d_um):
         ax.scatter(*validate.T, s=6, color="tab:orange", label="validate")
-    ax.set_xlabel("dx, µm")
-    ax.set_ylabel("dy, µm")
-    ax.set_zlabel("dz, µm")
-    ax.legend(fontsize=7)
+    ax.set_xlabel("dx, µm", fontsize=8, labelpad=2)
+    ax.set_ylabel("dy, µm", fontsize=8, labelpad=2)
+    ax.set_zlabel("dz, µm", fontsize=8, labelpad=2)
+    ax.tick_params(labelsize=7, pad=0)
+    ax.set_box_aspect(None, zoom=0.82)
+    fig.legend(loc="outside lower center", ncols=2, fontsize=8)
     for k, (i, j) in enumerate(((0, 1), (0, 2))):
         ax2 = fig.add_subplot(1, 3, k + 2)
         ax2.scatter(fit[:, i], fit[:, j], s=5, color="tab:blue")
@@ -264,7 +310,7 @@ def prediction_errors(errors: Mapping[str, tuple[np.ndarray, FloatArray]]) -> st
         ax.axhline(float(np.mean(err)), color=colour, ls="--", lw=0.8)
     ax.set_xlabel("validation pose")
     ax.set_ylabel("prediction error, µm")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     return _uri(fig)
 
 
@@ -279,7 +325,7 @@ def decoupling(condition: str, runs: Mapping[str, tuple[FloatArray, np.ndarray]]
         Per source ("vision", "truth"): the positions along the path, µm, and the axis moving
         at each sample. The first source is drawn solid, the others dashed.
     """
-    fig = Figure(figsize=(9.5, 2.9), layout="constrained")
+    fig = Figure(figsize=(10.5, 2.9), layout="constrained")
     colours = {0: "tab:red", 1: "tab:blue", 2: "tab:green"}
     for moving in range(3):
         ax = fig.add_subplot(1, 3, moving + 1)
@@ -305,7 +351,13 @@ def decoupling(condition: str, runs: Mapping[str, tuple[FloatArray, np.ndarray]]
         ax.set_xlabel(f"{AXES[moving]} travel, µm")
         ax.set_ylabel("undesired, µm")
         ax.set_title(f"moving {AXES[moving]}", fontsize=9)
-        ax.legend(fontsize=7, loc="upper left")
+    handles: dict[str, Artist] = {}
+    for ax in fig.axes:
+        for handle, text in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(text, handle)
+    if handles:
+        fig.legend(handles=list(handles.values()), labels=list(handles),
+                   loc="outside right upper", fontsize=7)  # fmt: skip
     fig.suptitle(f"decoupling, {label(condition)}", fontsize=10)
     return _uri(fig)
 
@@ -345,5 +397,5 @@ def check_history(
         ax.set_xticks(k, [f"{i}\n{label(name)}" for i, name in zip(k, devices, strict=True)])
     ax.set_xlabel("check")
     ax.set_ylabel("offset, µm (±2 std)")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     return _uri(fig)
