@@ -190,3 +190,16 @@ def test_the_report_shows_the_check_history_and_the_iso_characteristics(tmp_path
     assert ">refit<" not in html  # the line of another calibration file is not its history
     assert "distance AD_P / RD (7.4)" in html
     assert "0.20 / 0.40 µm over 5000 µm" in html
+
+
+def test_the_glossary_of_the_report_is_the_documentations():
+    """Every term the report explains is in docs/glossary.md with the same meaning."""
+    from pathlib import Path
+
+    from microcal.report.glossary import GLOSSARY
+
+    page = (Path(__file__).parents[2] / "docs" / "glossary.md").read_text(encoding="utf-8")
+    for term, meaning in GLOSSARY.items():
+        assert f"- **{term}**: {meaning}" in page, term
+    for word in ("oracle", "vAP", "sx sy sz", "uncalibrated", "matrix", "optimal"):
+        assert any(word in term for term in GLOSSARY), word

@@ -50,6 +50,7 @@ from ..thesis.figures import (
 from . import figures
 from .bounds import MAX_PANELS, MAX_ROWS, Shown, clip, first, last
 from .data import RunData, load_run
+from .glossary import GLOSSARY
 from .text_tables import is_thesis_rig
 
 __all__ = ["build_report", "compares_with_thesis", "write_report"]
@@ -616,6 +617,7 @@ def build_report(run_dir: str | os.PathLike[str]) -> str:
         "station": _station(data, Path(run_dir)),
         "provenance": _provenance(data),
         "rig": _rig_text(data),
+        "glossary": GLOSSARY,
         "thesis": (
             {
                 "reprojection": THESIS_REPROJECTION_PX,
