@@ -203,3 +203,36 @@ def test_the_glossary_of_the_report_is_the_documentations():
         assert f"- **{term}**: {meaning}" in page, term
     for word in ("oracle", "vAP", "sx sy sz", "uncalibrated", "matrix", "optimal"):
         assert any(word in term for term in GLOSSARY), word
+
+
+def test_files_kept_beside_the_run_are_named_and_the_report_is_complete(quick_demo, tmp_path):
+    """One cameras.json and calibration.json for several devices' runs, beside them (the
+    station layout of docs/hardware.md): named with --cameras and --calibration, the report
+    shows the stereo calibration as from the run's own files."""
+    import shutil
+
+    from support.cli import invoke_microcal
+
+    run, _ = quick_demo
+    beside = tmp_path / "runs" / "m1"
+    shutil.copytree(run, beside)
+    for name in ("cameras.json", "calibration.json"):
+        (beside / name).rename(tmp_path / name)
+    (beside / "report.html").unlink()
+    bare = invoke_microcal("report", beside)
+    assert bare.returncode == 0, bare.stderr
+    page = (beside / "report.html").read_text(encoding="utf-8")
+    assert "No cameras.json in this run directory" in page
+    assert "--cameras FILE" in page
+    named = invoke_microcal("report", beside, "--cameras", tmp_path / "cameras.json",
+                            "--calibration", tmp_path / "calibration.json")  # fmt: skip
+    assert named.returncode == 0, named.stderr
+    page = (beside / "report.html").read_text(encoding="utf-8")
+    assert "Method: known displacements" in page
+    assert "No cameras.json" not in page
+    assert "reprojection residuals over the image" in page  # the figures from cameras.json
+    assert "No calibration.json" not in page
+    missing = invoke_microcal("report", beside, "--cameras", tmp_path / "nothere.json")
+    assert missing.returncode == 2
+    assert "--cameras" in missing.stderr
+    assert "no such file" in missing.stderr

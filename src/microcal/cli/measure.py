@@ -40,18 +40,30 @@ def measure(
 
 _ReportDir = Annotated[Path, Argument(help="Run directory (any of its files).")]
 _ReportOut = Annotated[Path | None, Option("--out", "-o", help="Default RUN_DIR/report.html.")]
+_ReportCameras = Annotated[Path | None, Option(help="cameras.json kept outside the run directory.")]
+_ReportCalibration = Annotated[
+    Path | None, Option(help="calibration.json kept outside the run directory.")
+]
+_ReportResults = Annotated[Path | None, Option(help="results.json kept outside the run directory.")]
 
 
 @app.command(short_help="Write a run's calibration report (one HTML file).")
-def report(run_dir: _ReportDir, out: _ReportOut = None) -> None:
+def report(
+    run_dir: _ReportDir, out: _ReportOut = None, cameras: _ReportCameras = None,
+    calibration: _ReportCalibration = None, results: _ReportResults = None,
+) -> None:  # fmt: skip
     """Write the calibration report of a run: one self-contained HTML file with its figures.
 
     It shows what the run directory holds: the stereo calibration, the command design, the
     measurement uncertainty, the models and their validation errors, the pose-accuracy and
-    decoupling tests, failed poses and provenance.
+    decoupling tests, failed poses and provenance. Files kept beside the run rather than in
+    it (one cameras.json and calibration.json for the runs of several devices) are named with
+    --cameras, --calibration and --results.
 
-    Example: microcal report demo-out
+    Example: microcal report runs/m1 --cameras cameras.json --calibration calibration.json
     """
+    from ..workflows.report import ReportInputs
     from ..workflows.report import report as write
 
-    print(f"wrote {write(run_dir, out)}")
+    inputs = ReportInputs(cameras=cameras, calibration=calibration, results=results)
+    print(f"wrote {write(run_dir, out, inputs)}")

@@ -14,13 +14,14 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from .build import build_report, write_report
-    from .data import RunData, load_run
+    from .data import ReportInputs, RunData, load_run
 
-__all__ = ["RunData", "build_report", "load_run", "write_report"]
+__all__ = ["ReportInputs", "RunData", "build_report", "load_run", "write_report"]
 _WHERE = {
     "build_report": ".build",
     "write_report": ".build",
     "RunData": ".data",
+    "ReportInputs": ".data",
     "load_run": ".data",
 }
 

@@ -49,7 +49,7 @@ from ..thesis.figures import (
 )
 from . import figures
 from .bounds import MAX_PANELS, MAX_ROWS, Shown, clip, first, last
-from .data import RunData, load_run
+from .data import ReportInputs, RunData, load_run
 from .glossary import GLOSSARY
 from .text_tables import is_thesis_rig
 
@@ -589,7 +589,7 @@ def _plain(value: object) -> str:
     return json.dumps(value, sort_keys=True) if isinstance(value, dict | list) else str(value)
 
 
-def build_report(run_dir: str | os.PathLike[str]) -> str:
+def build_report(run_dir: str | os.PathLike[str], inputs: ReportInputs | None = None) -> str:
     """The report of a run directory as one self-contained HTML page.
 
     Sections whose files are missing say so instead of failing, so a report can be made at
@@ -597,7 +597,7 @@ def build_report(run_dir: str | os.PathLike[str]) -> str:
     The thesis's figures stand beside the run's only for a run on the simulator's thesis
     preset (`compares_with_thesis`); any other run is reported with its own figures alone.
     """
-    data = load_run(run_dir)
+    data = load_run(run_dir, inputs)
     thesis = compares_with_thesis(data)
     results = data.results if data.results is not None else Results()
     context = {
@@ -677,8 +677,11 @@ def _fmt(value: object, digits: int = 2) -> str:
 
 
 def write_report(
-    run_dir: str | os.PathLike[str], out: str | os.PathLike[str] | None = None
+    run_dir: str | os.PathLike[str],
+    out: str | os.PathLike[str] | None = None,
+    inputs: ReportInputs | None = None,
 ) -> Path:
-    """Build the report and write it atomically (default: ``RUN_DIR/report.html``)."""
+    """Build the report and write it atomically (default: ``RUN_DIR/report.html``);
+    ``inputs`` names files kept outside the run directory."""
     path = Path(out) if out is not None else Path(run_dir) / "report.html"
-    return write_text_atomic(path, build_report(run_dir))
+    return write_text_atomic(path, build_report(run_dir, inputs))

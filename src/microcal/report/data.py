@@ -21,11 +21,22 @@ from ..kinematics.extra_inputs import by_symbol
 from ..kinematics.models import KinematicModel
 from .journal_summary import JournalSummary, summarise_journal
 
-__all__ = ["IdentifiedModel", "ModelErrors", "RunData", "load_run"]
+__all__ = ["IdentifiedModel", "ModelErrors", "ReportInputs", "RunData", "load_run"]
 
 #: The files a report reads, in the order a run produces them (the run directory's files
 #: but its images and the report itself).
 RUN_FILES = tuple(name for name in RUN_FILE_NAMES if name not in ("images", "report.html"))
+
+
+@dataclass(frozen=True)
+class ReportInputs:
+    """Files of a run kept outside its directory, named by the user (each may be a link):
+    the cameras.json, calibration.json and results.json the report reads instead of the run
+    directory's own."""
+
+    cameras: Path | None = None
+    calibration: Path | None = None
+    results: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -144,14 +155,14 @@ def _rows_of_four(value: object) -> bool:
     return rows.ndim == 2 and rows.shape[1] == 4
 
 
-def _cameras(path: Path) -> CamerasRecord | None:
+def _cameras(path: Path, link_ok: bool = False) -> CamerasRecord | None:
     """cameras.json as read, after its cameras load (a malformed one fails here, named)."""
     from ..formats.cameras_file import read_cameras
 
-    if not path.exists():
+    if not path.exists() and not path.is_symlink():
         return None
-    raw = read_versioned_json(path, ("microcal.cameras/1",))
-    cameras = read_cameras(path, link_ok=False)[0]
+    cameras = read_cameras(path, link_ok=link_ok)[0]
+    raw = read_versioned_json(path, ("microcal.cameras/1",), link_ok=link_ok)
     for name, cam in cameras.items():
         residuals = cam.get("residuals_px", {})
         if not isinstance(residuals, dict) or not all(map(_rows_of_four, residuals.values())):
@@ -192,8 +203,9 @@ def _checks(calibration: Path) -> list[CheckRecord]:
     return checks
 
 
-def load_run(run_dir: str | os.PathLike[str]) -> RunData:
-    """Read every report input that a run directory holds.
+def load_run(run_dir: str | os.PathLike[str], inputs: ReportInputs | None = None) -> RunData:
+    """Read every report input that a run directory holds, and the files ``inputs`` names
+    outside it (in their place).
 
     Raises
     ------
@@ -207,7 +219,8 @@ def load_run(run_dir: str | os.PathLike[str]) -> RunData:
         raise InputError(f"{root}: not a directory (expected a run directory)")
     run = RunDirectory(root)
     present = {path.name for path in run.files() if path.parent == root} & set(RUN_FILES)
-    if not present:
+    given = inputs or ReportInputs()
+    if not present and given == ReportInputs():
         raise InputError(
             f"{root}: holds none of {', '.join(RUN_FILES)}; is this a microcal run directory?"
         )
@@ -217,14 +230,28 @@ def load_run(run_dir: str | os.PathLike[str]) -> RunData:
     data.journal = summarise_journal(root / "journal.jsonl")
     if "measurements.csv" in present:
         data.measurements = read_measurements(run.measurements_path, link_ok=False)
-    data.cameras = _cameras(root / "cameras.json")
-    if (root / "calibration.json").exists():
-        data.calibration = load_calibration(root / "calibration.json", link_ok=False)
+    if given.cameras is not None:
+        data.cameras = _cameras(_given(given.cameras, "--cameras"), link_ok=True)
+    else:
+        data.cameras = _cameras(root / "cameras.json")
+    calibration = given.calibration or root / "calibration.json"
+    if given.calibration is not None or calibration.exists():
+        data.calibration = load_calibration(_given(calibration, "--calibration"),
+                                            link_ok=given.calibration is not None)  # fmt: skip
         if data.cameras is None and data.calibration.cameras:
             cameras = {"cameras": data.calibration.cameras}
-            data.cameras = parse_schema(CamerasRecord, cameras, root / "calibration.json")
-    if (root / "results.json").exists():
-        data.results = read_results(root / "results.json", link_ok=False)
+            data.cameras = parse_schema(CamerasRecord, cameras, calibration)
+    results = given.results or root / "results.json"
+    if given.results is not None or results.exists():
+        data.results = read_results(_given(results, "--results"),
+                                    link_ok=given.results is not None)  # fmt: skip
     if data.calibration is not None:
-        data.checks = _checks(root / "calibration.json")
+        data.checks = _checks(calibration)
     return data
+
+
+def _given(path: Path, option: str) -> Path:
+    """A file the user named for the report: it must exist (a clear line otherwise)."""
+    if not path.exists():
+        raise InputError(f"{option} {path}: no such file")
+    return path

@@ -6,14 +6,15 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..formats.outputs import check_output, foreign_report
-from ..report import write_report
+from ..report import ReportInputs, write_report
 
-__all__ = ["report"]
+__all__ = ["ReportInputs", "report"]
 
 
-def report(run_dir: Path, out: Path | None = None) -> Path:
+def report(run_dir: Path, out: Path | None = None, inputs: ReportInputs | None = None) -> Path:
     """Write the report of the run directory ``run_dir`` to ``out`` (default
-    ``run_dir/report.html``); returns its path.
+    ``run_dir/report.html``); returns its path. ``inputs``: files kept outside the run
+    directory (its own cameras.json, calibration.json and results.json otherwise).
 
     Raises
     ------
@@ -24,4 +25,4 @@ def report(run_dir: Path, out: Path | None = None) -> Path:
         raise InputError(f"{run_dir}: not a directory (expected a run directory)")
     target = out if out is not None else run_dir / "report.html"
     check_output(target, kind="a microcal report", foreign=foreign_report, example="report.html")
-    return write_report(run_dir, target)
+    return write_report(run_dir, target, inputs)
