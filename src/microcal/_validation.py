@@ -7,6 +7,7 @@ with a message naming the argument, the expected shape and the shape that was gi
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Sequence
 
 import numpy as np
@@ -14,7 +15,17 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import InputError
 
-__all__ = ["FloatArray", "as_array", "as_rows", "check_number", "did_you_mean"]
+__all__ = [
+    "EXCERPT_CHARS",
+    "NAME_PATTERN",
+    "FloatArray",
+    "as_array",
+    "as_rows",
+    "check_number",
+    "did_you_mean",
+    "excerpt",
+    "name_problem",
+]
 
 FloatArray = NDArray[np.float64]
 
@@ -195,3 +206,41 @@ def did_you_mean(value: object, choices: Sequence[str], *, quote: bool = True) -
     if not near:
         return ""
     return f"did you mean {near[0]!r}? " if quote else f"did you mean {near[0]}? "
+
+
+#: What the name of a camera or a device may be: it becomes part of file names
+#: (``images/top_0001.tiff``) and of pages, so it is a plain word (no ``/``, no ``..``).
+NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
+
+
+#: Most characters of a file's text a message quotes.
+EXCERPT_CHARS = 40
+
+
+def excerpt(value: object, limit: int = EXCERPT_CHARS) -> str:
+    """A short, escaped quotation of ``value`` (from a file) for a one-line message.
+
+    ``value`` as Python writes it (a string quoted: ``'abc'``) with every control and
+    non-ASCII character escaped, and at most ``limit`` characters of a string (``...`` marks
+    a cut): the file may be anything (another program's data, a secret a link points to),
+    and the message lands in terminals and logs.
+    """
+    if not isinstance(value, str):
+        shown = ascii(value)
+        return shown if len(shown) <= limit else shown[:limit] + "..."
+    quoted = ascii(value[:limit])
+    return quoted + "..." if len(value) > limit else quoted
+
+
+def name_problem(name: object) -> str | None:
+    """Why ``name`` cannot be a camera's or a device's name, or None when it can.
+
+    A name is 1 to 64 letters, digits, ``_``, ``.`` and ``-``, beginning with a letter or
+    a digit, without ``..`` (:data:`NAME_PATTERN`).
+    """
+    if isinstance(name, str) and NAME_PATTERN.fullmatch(name) and ".." not in name:
+        return None
+    return (
+        f"{excerpt(name)} is not a name (expected 1 to 64 letters, digits, '_', '.' or '-', "
+        "beginning with a letter or digit, without '..')"
+    )

@@ -18,7 +18,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from .._validation import FloatArray
+from .._validation import FloatArray, name_problem
 from ..errors import InputError
 from ..json_value import JsonValue
 from .aravis_camera import PIXEL_FORMATS  # the driver's module loads Aravis only when opened
@@ -459,7 +459,13 @@ class HardwareRigSpec:
             if not isinstance(spec, str):
                 raise InputError(f"boards.{name}: expected a target spec string, got {spec!r}")
             parse_target(spec)
+        for name in self.cameras:
+            problem = name_problem(name)
+            if problem is not None:  # it becomes a file name (images/NAME_0001.tiff)
+                raise InputError(f"cameras: {problem}; name the camera e.g. top or side")
         for name in self.manipulators:
+            if name_problem(name) is not None:
+                raise InputError(f"manipulators: {name_problem(name)}; name it e.g. m2 or p1")
             taken = name in ("m1", "manipulator", "target_stage") or name in self.cameras
             if taken or not name.replace("_", "").replace("-", "").isalnum():
                 raise InputError(

@@ -17,6 +17,7 @@ import numpy as np
 from pydantic import Field
 from pydantic import JsonValue as AnyJson
 
+from .._validation import name_problem
 from ..errors import FormatError, InputError
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..kinematics.models import KinematicModel
@@ -154,6 +155,9 @@ def load_calibration(path: str | os.PathLike[str], *, link_ok: bool = True) -> C
     section = raw["manipulators"]  # an object of objects: the schema has checked it
     manipulators = {}
     for name in schema.manipulators:
+        problem = name_problem(name)
+        if problem is not None:
+            raise FormatError(f"{p}: manipulators: {problem}")
         data = section[name] if isinstance(section, dict) else None
         if not isinstance(data, dict):
             raise FormatError(f"{p}: manipulators.{name}: expected an object")

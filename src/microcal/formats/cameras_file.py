@@ -18,6 +18,7 @@ import numpy as np
 from pydantic import Field, ValidationError
 from pydantic import JsonValue as AnyJson
 
+from .._validation import name_problem
 from ..errors import FormatError, InputError
 from ..geometry.affine_camera import AffineCamera
 from ..geometry.camera_kinds import AnyCamera
@@ -210,6 +211,10 @@ def _parse(data: Mapping[str, object], where: str) -> _Cameras:
 
 def _models(parsed: _Cameras, where: str) -> dict[str, AnyCamera]:
     models: dict[str, AnyCamera] = {}
+    for name in parsed.cameras:  # a camera's name becomes a file name (images/NAME_0001.tiff)
+        problem = name_problem(name)
+        if problem is not None:
+            raise FormatError(f"{where}: cameras: {problem}")
     for name, cam in parsed.cameras.items():
         _check_uncertainties(cam, f"{where}: cameras.{name}")
         kind = cam.get("model", DEFAULT_CAMERA_MODEL)

@@ -23,10 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validation import FloatArray
+from .._validation import FloatArray, excerpt
 from ..errors import InputError, MicrocalError
 from .atomic import write_text_atomic
-from .quoting import excerpt
 from .safe_open import read_regular_bytes
 
 __all__ = ["JOINT_COLUMNS", "read_joint_csv", "write_joint_csv"]

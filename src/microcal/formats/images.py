@@ -23,9 +23,9 @@ import numpy as np
 import tifffile
 from numpy.typing import NDArray
 
+from .._validation import excerpt
 from ..errors import FormatError
 from .atomic import write_atomic
-from .quoting import excerpt
 from .safe_open import opened_regular
 
 __all__ = ["MAX_IMAGE_BYTES", "check_declared_size", "read_frames", "write_tiff"]

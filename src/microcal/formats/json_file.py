@@ -17,9 +17,9 @@ from typing import TypeVar
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
+from .._validation import excerpt
 from .._version import __version__
 from ..errors import FormatError
-from .quoting import excerpt
 from .safe_open import read_regular_text
 
 __all__ = [

@@ -26,11 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validation import FloatArray
+from .._validation import FloatArray, excerpt
 from ..errors import FormatError, InputError
 from ..kinematics.extra_inputs import EXTRA_INPUTS, expand_names, extra_input
 from .atomic import write_text_atomic
-from .quoting import excerpt
 from .safe_open import read_regular_text
 
 __all__ = [

@@ -18,13 +18,17 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 from pydantic import JsonValue as AnyJson
 
+from .._validation import name_problem
 from ..json_value import JsonValue
 from .json_file import FileSchema
 
 __all__ = [
+    "MAX_FRAMES_PER_POSE",
+    "MAX_FRAME_PIXELS",
+    "MAX_FRAME_SIDE_PX",
     "RESULTS_FORMAT",
     "RESULTS_FORMATS",
     "RUN_FORMAT",
@@ -58,6 +62,15 @@ RUN_FORMAT: Final = "microcal.run/1"
 RUN_FORMATS = (RUN_FORMAT,)  # the versions of run.json this microcal reads
 RESULTS_FORMAT: Final = "microcal.results/1"
 RESULTS_FORMATS = (RESULTS_FORMAT,)
+
+# What a run's files may declare, checked before anything is allocated from it (a run
+# directory is data that is copied and shared):
+#: The most frames a pose stores per camera (run.json's ``frames_per_pose``, ``--frames``).
+MAX_FRAMES_PER_POSE: Final = 100
+#: The largest full frame a stored region is pasted back into: each side, px ...
+MAX_FRAME_SIDE_PX: Final = 32768
+#: ... and in all, px (a 134-megapixel sensor).
+MAX_FRAME_PIXELS: Final = 2**27
 
 
 # --- the journal ---------------------------------------------------------------------------
@@ -185,6 +198,30 @@ class RunManifest(FileSchema):
     manipulator: str | None = None  # the rig's device the run moved (None: m1)
     #: Joints the device holds still and their value, µm (an X-Y positioner's ``dz``).
     held_joints_um: dict[str, float] | None = None
+
+    @field_validator("cameras")
+    @classmethod
+    def _camera_names(cls, cameras: list[str]) -> list[str]:
+        for name in cameras:  # each becomes a file name (images/NAME_0001.tiff)
+            problem = name_problem(name)
+            if problem is not None:
+                raise ValueError(problem)
+        return cameras
+
+    @field_validator("manipulator")
+    @classmethod
+    def _device_name(cls, name: str | None) -> str | None:
+        problem = None if name is None else name_problem(name)
+        if problem is not None:
+            raise ValueError(problem)
+        return name
+
+    @field_validator("frames_per_pose")
+    @classmethod
+    def _frames(cls, frames: int | None) -> int | None:
+        if frames is not None and not 1 <= frames <= MAX_FRAMES_PER_POSE:
+            raise ValueError(f"expected 1 to {MAX_FRAMES_PER_POSE} frames per camera and pose")
+        return frames
 
     def to_json(self) -> dict[str, JsonValue]:
         """The object of run.json: ``format`` first, then the keys that were given."""

@@ -43,7 +43,7 @@ from typing import Any, TypeVar
 
 from pydantic import BaseModel, ConfigDict, ValidationError, field_validator
 
-from .._validation import did_you_mean
+from .._validation import did_you_mean, excerpt, name_problem
 from ..devices.rig_spec import (
     LEGACY_MM_CAMERA_RECORD,
     LEGACY_MM_STAGE_RECORD,
@@ -60,7 +60,6 @@ from ..devices.rig_spec import (
 )
 from ..errors import FormatError, InputError
 from .json_file import validation_message
-from .quoting import excerpt
 from .safe_open import read_regular_text
 
 __all__ = ["load_rig", "rig_from_record"]
@@ -117,7 +116,7 @@ def load_rig(spec: str) -> RigSpec:
     except (RecursionError, ValueError) as exc:  # nested too deep, an integer of 4300 digits
         raise FormatError(f"{path}: not a rig file microcal reads ({type(exc).__name__})") from None
     try:
-        return _from_data(path, data)
+        return _from_data(path, data, from_file=True)
     except RecursionError:
         raise FormatError(f"{path}: settings nested too deep for a rig file") from None
 
@@ -170,11 +169,12 @@ def _drop_legacy(device: object, legacy: Mapping[str, object]) -> None:
                 del device[key]
 
 
-def _from_data(path: Path, data: Mapping[str, object]) -> RigSpec:
-    """The spec of a rig's settings: a rig file's tables as parsed, or a recorded rig."""
+def _from_data(path: Path, data: Mapping[str, object], from_file: bool = False) -> RigSpec:
+    """The spec of a rig's settings: a rig file's tables as parsed (``from_file``), or a
+    recorded rig."""
     driver = data.get("driver")
     if driver == "hardware":
-        return _hardware(path, data)
+        return _hardware(path, data, from_file)
     if driver != "sim":
         raise FormatError(
             f'{path}: driver {excerpt(driver)} is unknown; use driver = "sim" or "hardware"'
@@ -350,7 +350,38 @@ def _check_target(path: Path, key: str, spec: str) -> None:
         raise FormatError(f"{path}: {key}: {exc}") from None
 
 
-def _hardware(path: Path, data: Mapping[str, object]) -> HardwareRigSpec:
+def _check_names(path: Path, data: Mapping[str, object]) -> None:
+    """The cameras' and the further devices' names become file names: plain words only."""
+    for table in ("cameras", "manipulators"):
+        named = data.get(table)
+        for name in named if isinstance(named, dict) else ():
+            problem = name_problem(name)
+            if problem is not None:
+                raise FormatError(f"{path}: {table}: {problem}")
+
+
+def _config_beside(path: Path, config: str) -> str:
+    """A rig file's Micro-Manager configuration: a file in the rig file's folder or below it
+    (relative to the rig file, no ``..``, not absolute), as an absolute path."""
+    relative = Path(config)
+    folder = path.parent.resolve()
+    resolved = (folder / relative).resolve()
+    if (
+        "\0" in config
+        or relative.is_absolute()
+        or ".." in relative.parts
+        or (not resolved.is_relative_to(folder))
+    ):
+        raise FormatError(
+            f"{path}: micromanager.config: {excerpt(config)} is not a file beside the rig "
+            "file; give its path relative to the rig file, inside its folder (copy the "
+            "configuration there)"
+        )
+    return str(resolved)
+
+
+def _hardware(path: Path, data: Mapping[str, object], from_file: bool = False) -> HardwareRigSpec:
+    _check_names(path, data)
     _check_keys(path, "", data, _Hardware)
     _check_keys(path, "manipulator.", data.get("manipulator"), _Manipulator)
     _check_keys(path, "micromanager.", data.get("micromanager"), _MicroManager)
@@ -382,7 +413,9 @@ def _hardware(path: Path, data: Mapping[str, object]) -> HardwareRigSpec:
         config = rig.micromanager.config
         if "\0" in (config or ""):
             raise FormatError(f"{path}: micromanager.config: a file name cannot hold a NUL")
-        if config is not None and not Path(config).is_absolute():
+        if config is not None and from_file:
+            mm["config"] = _config_beside(path, config)
+        elif config is not None and not Path(config).is_absolute():
             mm["config"] = str((path.parent / config).resolve())
         try:
             micromanager = _spec(MicroManagerSpec, mm)

@@ -22,19 +22,31 @@ from __future__ import annotations
 import json
 import os
 import re
+import stat
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .._validation import FloatArray
+from .._validation import FloatArray, excerpt, name_problem
 from ..errors import FormatError, InputError
 from .atomic import write_text_atomic
 from .commands_csv import read_joint_csv, write_joint_csv
 from .hashing import sha256_file
 from .json_file import parse_schema, read_versioned_json
-from .records import RUN_FORMAT, RUN_FORMATS, ImageRecord, JournalLine, RoiRecord, RunManifest
+from .records import (
+    MAX_FRAME_PIXELS,
+    MAX_FRAME_SIDE_PX,
+    MAX_FRAMES_PER_POSE,
+    RUN_FORMAT,
+    RUN_FORMATS,
+    ImageRecord,
+    JournalLine,
+    RoiRecord,
+    RunManifest,
+)
 from .safe_open import open_regular, read_regular_bytes
 
 if TYPE_CHECKING:
@@ -74,6 +86,8 @@ RUN_FILE_NAMES = (
     "report.html",
 )
 IMAGE_SUFFIXES = (".tiff", ".tif", ".png", ".jpg", ".jpeg")
+#: Where a resume keeps the images of poses it acquires again (``images/_set_aside/TIME/``).
+SET_ASIDE = "_set_aside"
 
 
 class RunDirectory:
@@ -202,7 +216,16 @@ class RunDirectory:
         return f"{self.path / JOURNAL}: {described}{more}"
 
     def image_path(self, camera: str, pose: int) -> Path | None:
-        """The image file of a camera at a pose (``images/CAMERA_0001.tiff``), if present."""
+        """The image file of a camera at a pose (``images/CAMERA_0001.tiff``), if present.
+
+        Raises
+        ------
+        FormatError
+            ``camera`` is not a name (a path, ``..``): the file stays inside ``images/``.
+        """
+        problem = name_problem(camera)
+        if problem is not None:
+            raise FormatError(f"camera {problem}")
         stem = self.path / IMAGES / f"{camera}_{pose:04d}"
         for suffix in IMAGE_SUFFIXES:
             candidate = stem.with_suffix(suffix)
@@ -246,6 +269,12 @@ class RunDirectory:
         if image is not None and image.frames is not None and len(frames) != image.frames:
             raise FormatError(f"{path}: {len(frames)} frames, the journal records {image.frames}")
         if image is not None and image.roi is not None:
+            (x0, y0), (w, h) = image.roi.offset_px, image.roi.full_size_px
+            if any(x0 + f.shape[1] > w or y0 + f.shape[0] > h for f in frames):
+                raise FormatError(
+                    f"{path}: its region at ({x0}, {y0}) does not fit in the {w} x {h} frame "
+                    f"the journal records (images.{camera}.full_size_px)"
+                )
             where = f"{self.path / JOURNAL}: pose {pose}, camera {camera}"
             check_declared_size(where, image.roi.full_size_px, len(frames),
                                 frames[0].dtype.itemsize, size_px)  # fmt: skip
@@ -393,6 +422,8 @@ class _JournalRead:
 
 
 _POSE_BYTES = re.compile(rb'"pose"\s*:\s*(\d{1,9})')
+#: An image file's name in ``images/``: camera, pose (4 digits or more), suffix.
+_IMAGE_NAME = re.compile(r"(.+)_(\d{4,9})(\.[A-Za-z]+)")
 
 
 def _read_journal(path: Path) -> _JournalRead:
@@ -425,6 +456,7 @@ def _read_journal(path: Path) -> _JournalRead:
             reason = str(exc).rpartition(f"line {number}: ")[2]
             out.damaged.append(DamagedLine(number, reason, pose))
             continue
+        check_journal_line(line, f"{path}, line {number}")
         if line.pose in out.lines:
             out.damaged.append(DamagedLine(number, f"pose {line.pose} again", line.pose))
             continue
@@ -433,14 +465,60 @@ def _read_journal(path: Path) -> _JournalRead:
     return out
 
 
+def check_journal_line(line: JournalLine, where: str) -> None:
+    """Refuse a journal line that reaches outside its run or declares sizes beyond reason.
+
+    Each camera is a name, its image is this pose's file in ``images/`` (nothing else is
+    opened from a journal: no other folder, no ``..``, no absolute path), and a stored
+    region's full frame and frame count are bounded before anything is allocated from them.
+
+    Raises
+    ------
+    FormatError
+        ``WHERE: images.CAMERA.KEY: problem``, with the fix.
+    """
+    fix = "restore the journal, or delete the line and resume to acquire the pose again"
+    for cam, image in line.images.items():
+        problem = name_problem(cam)
+        if problem is not None:
+            raise FormatError(f"{where}: images: camera {problem}; {fix}")
+        key = f"{where}: images.{cam}"
+        stem = f"{IMAGES}/{cam}_{line.pose:04d}"
+        if not (image.file.startswith(stem) and image.file[len(stem) :] in IMAGE_SUFFIXES):
+            raise FormatError(
+                f"{key}.file: {excerpt(image.file)} is not this pose's image ({stem}.tiff); a "
+                f"run's files stay inside it: {fix}"
+            )
+        if image.frames is not None and not 1 <= image.frames <= MAX_FRAMES_PER_POSE:
+            raise FormatError(
+                f"{key}.frames: {image.frames} (expected 1 to {MAX_FRAMES_PER_POSE}); {fix}"
+            )
+        if image.roi is not None:
+            _check_region(image.roi, key, fix)
+
+
+def _check_region(roi: RoiRecord, key: str, fix: str) -> None:
+    """A stored region's offset and full frame: bounded before a frame is made of them."""
+    (x0, y0), (w, h) = roi.offset_px, roi.full_size_px
+    sides = 8 <= w <= MAX_FRAME_SIDE_PX and 8 <= h <= MAX_FRAME_SIDE_PX
+    if not (sides and w * h <= MAX_FRAME_PIXELS):
+        raise FormatError(
+            f"{key}.full_size_px: {w} x {h} is not a camera's frame (each side 8 to "
+            f"{MAX_FRAME_SIDE_PX} px, at most {MAX_FRAME_PIXELS} px in all); {fix}"
+        )
+    if not (0 <= x0 < w and 0 <= y0 < h):
+        raise FormatError(f"{key}.offset_px: ({x0}, {y0}) is not inside the {w} x {h} frame; {fix}")
+
+
 class RunWriter:
     """Writes a run directory so that a crash at any instant loses at most the pose in progress.
 
     Images are written to a temporary name and renamed; the journal line of a pose is
     appended, flushed and synced only after its images. On resume, every recorded image is
     checked against its SHA-256, a damaged journal line (one cut by a stop, or changed) is
-    dropped and its pose acquired again (the intact lines after it are kept), temporary
-    files a stop left are removed, and images without a journal line are overwritten; each
+    dropped and its pose acquired again (the intact lines after it are kept, the journal as
+    it was is kept aside), temporary files a stop left are removed, and images without a
+    journal line are moved aside (``images/_set_aside/TIME/``), never written over; each
     repair is listed in :attr:`repairs`.
     """
 
@@ -448,8 +526,10 @@ class RunWriter:
         self.run_dir = Path(run_dir)
         self.manifest = manifest
         self.done: dict[int, JournalLine] = {}
-        #: What resuming mended: damaged journal lines dropped, temporary files removed.
+        #: What resuming mended: damaged journal lines dropped, temporary files removed,
+        #: images of poses acquired again kept aside.
         self.repairs: list[str] = []
+        self._aside: Path | None = None
 
     # --- creating and resuming ---------------------------------------------------------
     @classmethod
@@ -500,8 +580,8 @@ class RunWriter:
             raise FormatError(f"{path}: not a run directory of microcal (no {MANIFEST})")
         if manifest.rig != rig:
             raise FormatError(
-                f"{path}: this run was made with another rig ({manifest.rig}); "
-                f"resume it with that rig"
+                f"{path}: this run was made with another rig (its {MANIFEST} records other "
+                "settings); resume it with that rig"
             )
         commands = path / COMMANDS
         if not commands.is_file():
@@ -513,24 +593,27 @@ class RunWriter:
         return writer
 
     def _read_journal(self) -> None:
+        """Check the journal and its images, then mend what a stop left (see the class)."""
         path = self.run_dir / JOURNAL
-        self._remove_temporary_files()
-        if not path.exists():
-            return
         read = _read_journal(path)
         for pose, line in read.lines.items():
             for cam, image in line.images.items():
-                file = self.run_dir / image.file
+                file = self.run_dir / image.file  # inside images/: check_journal_line
                 if not file.is_file() or sha256_file(file) != image.sha256:
                     raise FormatError(
                         f"{file}: missing or changed since it was recorded (camera {cam}, "
                         f"pose {pose}); restore it before resuming"
                     )
+        self._remove_temporary_files()
         self.done = read.lines
+        self._set_aside_unrecorded()
         for damaged in read.damaged:
             again = "" if damaged.pose in read.lines else "; its pose is acquired again"
             self.repairs.append(f"{path}: dropped {damaged.describe()}{again}")
         if read.damaged:
+            kept = self._set_aside_folder() / JOURNAL
+            kept.write_bytes(path.read_bytes())
+            self.repairs.append(f"kept the journal as it was in {kept}")
             # Rewrite the journal with its intact lines only, so appends stay well-formed.
             write_text_atomic(path, "".join(g.decode() + "\n" for g in read.good))
 
@@ -543,6 +626,53 @@ class RunWriter:
                 if tmp.is_file() and not tmp.is_symlink():
                     tmp.unlink()
                     self.repairs.append(f"removed {tmp}, left by a stop while it was written")
+
+    def _set_aside_unrecorded(self) -> None:
+        """Move the image files of poses the journal does not hold (a damaged line, a stop
+        between a pose's images and its line) aside: acquiring the pose again never writes
+        over a file."""
+        folder = self.run_dir / IMAGES
+        if not folder.is_dir():
+            return
+        loose: dict[Path, int] = {}
+        for file in sorted(folder.iterdir()):
+            named = _IMAGE_NAME.fullmatch(file.name)
+            if named is None or named.group(3).lower() not in IMAGE_SUFFIXES:
+                continue
+            pose = int(named.group(2))
+            if pose not in self.done and not stat.S_ISDIR(file.lstat().st_mode):
+                loose[file] = pose
+        if loose:
+            self._move_aside(list(loose), sorted(set(loose.values())))
+
+    def _set_aside_folder(self) -> Path:
+        """This writer's folder of files kept aside (``images/_set_aside/TIME``), made once."""
+        if self._aside is None:
+            stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime())
+            base = self.run_dir / IMAGES / SET_ASIDE
+            base.mkdir(parents=True, exist_ok=True)
+            for n in range(1, 1000):
+                folder = base / (stamp if n == 1 else f"{stamp}-{n}")
+                try:
+                    folder.mkdir()
+                except FileExistsError:
+                    continue
+                self._aside = folder
+                break
+            else:
+                raise FormatError(f"{base}: cannot make a folder to keep images aside in")
+        return self._aside
+
+    def _move_aside(self, files: list[Path], poses: list[int]) -> None:
+        """Move ``files`` (the images of ``poses``) into the set-aside folder, and say so."""
+        folder = self._set_aside_folder()
+        for file in files:
+            os.rename(file, folder / file.name)
+        shown = ", ".join(map(str, poses[:5])) + (", ..." if len(poses) > 5 else "")
+        self.repairs.append(
+            f"kept {len(files)} image file(s) of pose(s) {shown}, which the journal does not "
+            f"record, aside in {folder}; the pose(s) are acquired again"
+        )
 
     # --- writing -------------------------------------------------------------------------
     def store(
@@ -558,7 +688,12 @@ class RunWriter:
 
         images: dict[str, ImageRecord] = {}
         for cam, cam_frames in frames.items():
+            problem = name_problem(cam)
+            if problem is not None:
+                raise FormatError(f"camera {problem}")
             rel = f"{IMAGES}/{cam}_{pose:04d}.tiff"
+            if os.path.lexists(self.run_dir / rel):  # never written over: kept, and said so
+                self._move_aside([self.run_dir / rel], [pose])
             write_tiff(self.run_dir / rel, list(cam_frames))
             roi = record.roi_px.get(cam)
             images[cam] = ImageRecord(

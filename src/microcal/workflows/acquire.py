@@ -21,7 +21,7 @@ from .._validation import FloatArray, did_you_mean
 from ..errors import InputError
 from ..formats.file_lock import lock_path
 from ..formats.outputs import check_writable
-from ..formats.records import RunManifest
+from ..formats.records import MAX_FRAMES_PER_POSE, RunManifest
 from ..formats.run_directory import HOLDS_A_RUN, MANIFEST, RunDirectory, RunWriter, holds_run
 from ..formats.run_lock import run_lock
 from ..formats.run_manifest import new_manifest
@@ -43,6 +43,7 @@ __all__ = [
     "AcquireRequest",
     "acquire_remaining",
     "check_out",
+    "check_same_rig",
     "plan_for",
     "run_acquire",
 ]
@@ -217,6 +218,11 @@ def run_acquire(request: AcquireRequest) -> Iterator[str]:
         check_poses(str(req.design), cast(int, req.poses))
     elif request.poses is not None and manifest is None:
         raise InputError(f"--poses: design {req.design} has its own poses; leave --poses out")
+    if not 1 <= cast(int, req.frames) <= MAX_FRAMES_PER_POSE:
+        raise InputError(
+            f"--frames: expected 1 to {MAX_FRAMES_PER_POSE} frames per camera and pose, "
+            f"got {req.frames}"
+        )
     if req.store not in ("full", "roi"):
         raise InputError(f"--store: expected 'full' or 'roi', got {req.store!r}")
     mode, fixed_s = parse_settle(str(req.settle))
@@ -225,9 +231,11 @@ def run_acquire(request: AcquireRequest) -> Iterator[str]:
     if req.check_every is not None:
         parse_every(req.check_every)
     if manifest is not None and request.rig is None:
-        spec = rig_from_record(manifest.rig, str(out / MANIFEST))
+        spec = rig_from_record(_simulated_record(out, manifest), str(out / MANIFEST))
     else:
         spec = load_rig(str(req.rig))
+    if manifest is not None:
+        check_same_rig(out, manifest.rig, spec.to_dict())  # before any device is opened
     config = AcquisitionConfig(settle=mode, fixed_s=fixed_s, frames_per_pose=cast(int, req.frames),
                                store_roi=req.store == "roi")  # fmt: skip
     with open_rig(spec, str(req.manipulator)) as opened:
@@ -279,6 +287,36 @@ def disk_use_line(cameras: Any, poses: int, config: AcquisitionConfig) -> str:
     if total_gb > 0.2:
         line += "; --store roi keeps only the region around the target, a fraction of it"
     return line
+
+
+def _simulated_record(out: Path, manifest: RunManifest) -> object:
+    """The rig run.json records, for a resume without ``--rig``: the simulator only.
+
+    A run directory is data that is copied and shared: a hardware rig it records could name
+    any module to import and any address to connect to, so it is never opened from there.
+    """
+    record = manifest.rig
+    if isinstance(record, dict) and record.get("driver") != "sim":
+        raise InputError(
+            f"{out / MANIFEST}: this run was made on a hardware rig, and a resume opens no "
+            "device a run directory names; pass --rig with the rig file the run was started with"
+        )
+    return record
+
+
+def check_same_rig(out: Path, recorded: object, rig: object) -> None:
+    """Refuse a resume on a rig other than the one run.json records (records compared).
+
+    Raises
+    ------
+    InputError
+        Another rig: the message names the run, not the record's contents.
+    """
+    if recorded != rig:
+        raise InputError(
+            f"{out}: this run was made with another rig (its {MANIFEST} records other "
+            "settings); resume it with that rig: --rig with the rig file the run was started with"
+        )
 
 
 @contextlib.contextmanager
@@ -361,6 +399,7 @@ def acquire_remaining(
     from ..formats.check_file import history_path
 
     yield from writer.repairs
+    said = len(writer.repairs)
     todo = writer.remaining(pose_ids)
     verb = "resuming" if resume else "starting"
     yield f"{verb} {writer.run_dir}: {len(todo)} of {len(pose_ids)} poses to do"
@@ -406,6 +445,7 @@ def acquire_remaining(
            f"({size_mb:.1f} MB); mean settle {mean_settle:.2f} s ({settle})")  # fmt: skip
     for pose, reason in failed:
         yield f"pose {pose} failed: {reason}"
+    yield from writer.repairs[said:]  # an image found where a pose's image went, kept aside
     if periodic is not None and periodic.results:
         verdicts = ", ".join(r.verdict for r in periodic.results)
         yield (f"{len(periodic.results)} checks of {periodic.path} during the run: {verdicts} "

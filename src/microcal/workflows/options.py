@@ -10,7 +10,7 @@ from typing import Literal
 
 import numpy as np
 
-from .._validation import FloatArray, did_you_mean
+from .._validation import FloatArray, did_you_mean, name_problem
 from ..devices.rig_spec import RigSpec, SimRigSpec
 from ..errors import InputError
 
@@ -87,6 +87,9 @@ def parse_images(specs: list[str], *, at_least: int = 2) -> dict[str, list[Path]
             raise InputError(
                 f"--images: expected CAMERA=GLOB such as top='cal/top_*.tiff', got {spec!r}"
             )
+        problem = name_problem(name)
+        if problem is not None:  # the camera's name in cameras.json and in file names
+            raise InputError(f"--images: camera {problem}")
         if name in out:
             raise InputError(f"--images: camera {name!r} is given twice")
         files = sorted(Path(p) for p in glob.glob(pattern))
