@@ -164,10 +164,11 @@ def test_a_device_name_never_becomes_a_link_of_its_own(tmp_path, name):
 def test_names_from_every_file_are_text_in_the_page_and_in_its_figures(tmp_path):
     box = Sandbox.make(tmp_path)
     hostile = MARKUP + MATH
-    cams = cameras([hostile, "side"], stereo={"method": hostile, "notes": [hostile],
+    # a camera's name must be a name (refused below); every other text is shown as text
+    cams = cameras(["top", "side"], stereo={"method": hostile, "notes": [hostile],
                    "views_rejected": [{"view": hostile, "reason": hostile}]})  # fmt: skip
-    cams["cameras"][hostile]["per_view_rms_px"] = {hostile: 0.1, "v2": 0.2}
-    cams["cameras"][hostile]["views_rejected"] = [{"image": hostile, "reason": hostile}]
+    cams["cameras"]["top"]["per_view_rms_px"] = {hostile: 0.1, "v2": 0.2}
+    cams["cameras"]["top"]["views_rejected"] = [{"image": hostile, "reason": hostile}]
     cams["provenance"] = {hostile: hostile}
     write_json(box.case / "cameras.json", cams)
     write_json(box.case / "results.json", results(
@@ -189,6 +190,12 @@ def test_names_from_every_file_are_text_in_the_page_and_in_its_figures(tmp_path)
     assert not [a for a in page.attributes if a[0].startswith("on")], page.attributes
     assert all(OWN_LINK.fullmatch(link) for link in page.links), page.links
     assert "&lt;script&gt;alert(1)&lt;/script&gt;" in text
+
+
+def test_a_camera_named_with_markup_is_not_a_name(tmp_path):
+    box = Sandbox.make(tmp_path)
+    write_json(box.case / "cameras.json", cameras([MARKUP, "side"]))
+    refused_cleanly(box, lambda: run_traced("report", box.case), "cameras.json", "is not a name")
 
 
 # --- 2. files of shapes the report cannot show: one line naming the file and the key -------

@@ -103,13 +103,14 @@ class FitResult:
 
 
 def extras_to_fit(
-    names: tuple[str, ...], approach: bool | None, meas: Measurements
+    names: tuple[str, ...], approach: bool | None, meas: Measurements, model: str = "polynomial"
 ) -> tuple[list[str], tuple[str, ...]]:
     """The extra inputs to fit and the note that says what was chosen by default.
 
     ``approach`` None adds each joint's approach direction that the measurements recorded at
     every pose and that can be identified from them (both signs often enough, not following
-    the joints); True adds all three (refused if not recorded); False none.
+    the joints); True adds all three (refused if not recorded); False none. The matrix model
+    (``model``) takes no extra input, so None adds none to it.
 
     Raises
     ------
@@ -124,7 +125,7 @@ def extras_to_fit(
         return chosen, ()
     if approach is True:
         return chosen + [n for n in APPROACH_INPUTS if n not in given], ()
-    if given:
+    if given or model != "polynomial":
         return chosen, ()
     found = []
     for name in APPROACH_INPUTS:
@@ -201,7 +202,7 @@ def fit(request: FitRequest) -> FitResult:
     in_run = r.source.is_dir()  # a run's file may not be a link; a file the user names may
     path = r.source / "measurements.csv" if in_run else r.source
     meas = read_measurements(path, min_poses=MIN_DESIGN_POSES, link_ok=not in_run)
-    names, notes = extras_to_fit(r.extra, r.approach, meas)
+    names, notes = extras_to_fit(r.extra, r.approach, meas, r.model)
     inputs = meas.extra_inputs(names, path)
     _check_joint_units(meas, path)
     repeated = _repeated_rows_note(meas, path)
