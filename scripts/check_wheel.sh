@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Build microcal's wheel, install it (with its dependencies from the package index) in a
+# Build microcal's wheel and sdist (a wheel built from the sdist must hold the same files),
+# install the wheel (with its dependencies from the package index) in a
 # fresh virtual environment outside the source tree, and run the installed command:
 # `microcal --version` and `microcal demo --quick`, then check the files the demo writes and
 # that the wheel carries every file of src/microcal (templates and other package data).
@@ -43,6 +44,18 @@ if missing:
 data = sorted(n for n in expected if not n.endswith(".py"))
 print(f"check_wheel: the wheel has all {len(expected)} files of src/microcal, data: {data}")
 EOF
+
+# the source distribution: built, then a wheel built from it holds the same files
+"${pip[@]}" install build
+"$tmp/venv/bin/python" -m build --sdist --outdir "$tmp/sdist" "$root" > "$tmp/sdist.log" 2>&1 \
+    || { tail -n 30 "$tmp/sdist.log" >&2; fail "the sdist does not build"; }
+sdists=("$tmp"/sdist/microcal-*.tar.gz)
+[ "${#sdists[@]}" = 1 ] && [ -f "${sdists[0]}" ] || fail "expected one sdist in $tmp/sdist"
+"${pip[@]}" wheel --no-deps --wheel-dir "$tmp/from-sdist" "${sdists[0]}"
+from_sdist=("$tmp"/from-sdist/microcal-*.whl)
+"$tmp/venv/bin/python" -c 'import sys, zipfile; names = [set(zipfile.ZipFile(w).namelist()) for w in sys.argv[1:]]; sys.exit(names[0] != names[1])' "$wheel" "${from_sdist[0]}" \
+    || fail "the wheel built from the sdist holds other files than the wheel"
+echo "check_wheel: built $(basename "${sdists[0]}"); the wheel built from it holds the same files"
 
 "${pip[@]}" install "$wheel"
 cd "$tmp"  # outside the source tree: the installed package, not src/, is what runs
