@@ -371,6 +371,85 @@ def run_block(block: Block, sandbox: Path, demo_run: Path | None, monkeypatch) -
     return {}
 
 
+# --- docs/guide.md, section 3: the whole calibration, once per session (first: the longest) ---
+
+GUIDE = "docs/guide.md"
+
+
+def _guide_block(number: int) -> Block:
+    return next(b for b in BLOCKS if b.page == GUIDE and b.number == number)
+
+
+def render_known_displacement_views(sandbox: Path, rig_file: str) -> None:
+    """What the guide's first command reads: cal/top_NN.tiff, cal/side_NN.tiff (8 frames each)
+    of the dot grid lifted 0 to 4 mm, and cal/steps.csv, rendered by the rig's simulator."""
+    import tifffile
+
+    from microcal.errors import FrameError
+    from microcal.formats.rig_file import load_rig
+    from microcal.sim import platform
+    from microcal.sim.render import Placement
+    from microcal.vision.targets import parse_target
+
+    spec = load_rig(str(sandbox / rig_file))
+    plat = platform(spec.preset, seed=spec.seed, overrides=dict(spec.overrides))  # type: ignore[union-attr]
+    plat.scene.show_board = False
+    steps_um = [0.0, 1000.0, 2000.0, 3000.0, 4000.0]
+    (sandbox / "cal").mkdir()
+    grid = parse_target("dotgrid:40x30:250")
+    for k, z in enumerate(steps_um):
+        plat.scene.fixed = Placement(grid, np.eye(3), np.array([0.0, 0.0, z]))
+        for name, cam in plat.cameras.items():
+            frames = []
+            while len(frames) < 8:
+                with contextlib.suppress(FrameError):  # the rig's frame drops: grab again
+                    frames.append(cam.grab())
+            tifffile.imwrite(sandbox / "cal" / f"{name}_{k:02d}.tiff", np.stack(frames))
+    rows = "".join(f"0,0,{z}\n" for z in steps_um)
+    (sandbox / "cal" / "steps.csv").write_text("dx_um,dy_um,dz_um\n" + rows, encoding="utf-8")
+
+
+@pytest.fixture(scope="session")
+def guide_run(tmp_path_factory) -> tuple[Path, dict[str, str]]:
+    """docs/guide.md's section 3 run as written, once per session, in a sandbox holding the
+    rig file of section 1 (myrig.toml) and the calibration views of step 1: (sandbox, output
+    of every command)."""
+    from support.shared import made_once
+
+    def make(root: Path) -> None:
+        sandbox = root / "sandbox"
+        sandbox.mkdir()
+        (sandbox / "myrig.toml").write_text(_guide_block(0).body, encoding="utf-8")
+        render_known_displacement_views(sandbox, "myrig.toml")
+        outputs = run_shell(_guide_block(1), sandbox, None)
+        (root / "outputs.json").write_text(json.dumps(outputs), encoding="utf-8")
+
+    root = made_once(tmp_path_factory, "guide-section-3", make)
+    return root / "sandbox", json.loads((root / "outputs.json").read_text(encoding="utf-8"))
+
+
+@pytest.mark.slow
+def test_the_guide_calibrates_and_checks_the_simulated_rig(guide_run):
+    sandbox, outputs = guide_run
+    assert _guide_block(0).kind == "sim"
+    assert _guide_block(1).kind == "sim"
+    commands = list(outputs)
+    acquire = next(c for c in commands if c.startswith("microcal acquire") and "--poses" in c)
+    assert "--poses 170" in acquire
+    for name in ("cameras.json", "measurements.csv", "calibration.json", "results.json",
+                 "report.html", "check.json"):  # fmt: skip
+        assert (sandbox / "runs" / "a" / name).is_file(), name
+    report = re.sub(r"<[^>]+>", " ", (sandbox / "runs/a/report.html").read_text("utf-8"))
+    report = re.sub(r"\s+", " ", report)
+    assert "Stereo calibration Method: known displacements" in report, "no cameras found"
+    assert "Method: -" not in report
+    assert re.search(r"baseline \d+ µm", report), "the report shows no stereo baseline"
+    first_check = next(c for c in commands if c.startswith("microcal check"))
+    assert outputs[first_check].startswith("valid"), outputs[first_check]
+    run_b = json.loads((sandbox / "runs/b/run.json").read_text("utf-8"))
+    assert run_b["design"]["poses"] == 170
+
+
 # --- the tests ---------------------------------------------------------------------------------
 
 
@@ -469,82 +548,3 @@ def test_file_block_is_read_by_its_reader(block, tmp_path):
     path = tmp_path / name
     path.write_text(block.body, encoding="utf-8")
     FILE_READERS[name](path)
-
-
-# --- docs/guide.md, section 3: the whole calibration, once per session -------------------------
-
-GUIDE = "docs/guide.md"
-
-
-def _guide_block(number: int) -> Block:
-    return next(b for b in BLOCKS if b.page == GUIDE and b.number == number)
-
-
-def render_known_displacement_views(sandbox: Path, rig_file: str) -> None:
-    """What the guide's first command reads: cal/top_NN.tiff, cal/side_NN.tiff (8 frames each)
-    of the dot grid lifted 0 to 4 mm, and cal/steps.csv, rendered by the rig's simulator."""
-    import tifffile
-
-    from microcal.errors import FrameError
-    from microcal.formats.rig_file import load_rig
-    from microcal.sim import platform
-    from microcal.sim.render import Placement
-    from microcal.vision.targets import parse_target
-
-    spec = load_rig(str(sandbox / rig_file))
-    plat = platform(spec.preset, seed=spec.seed, overrides=dict(spec.overrides))  # type: ignore[union-attr]
-    plat.scene.show_board = False
-    steps_um = [0.0, 1000.0, 2000.0, 3000.0, 4000.0]
-    (sandbox / "cal").mkdir()
-    grid = parse_target("dotgrid:40x30:250")
-    for k, z in enumerate(steps_um):
-        plat.scene.fixed = Placement(grid, np.eye(3), np.array([0.0, 0.0, z]))
-        for name, cam in plat.cameras.items():
-            frames = []
-            while len(frames) < 8:
-                with contextlib.suppress(FrameError):  # the rig's frame drops: grab again
-                    frames.append(cam.grab())
-            tifffile.imwrite(sandbox / "cal" / f"{name}_{k:02d}.tiff", np.stack(frames))
-    rows = "".join(f"0,0,{z}\n" for z in steps_um)
-    (sandbox / "cal" / "steps.csv").write_text("dx_um,dy_um,dz_um\n" + rows, encoding="utf-8")
-
-
-@pytest.fixture(scope="session")
-def guide_run(tmp_path_factory) -> tuple[Path, dict[str, str]]:
-    """docs/guide.md's section 3 run as written, once per session, in a sandbox holding the
-    rig file of section 1 (myrig.toml) and the calibration views of step 1: (sandbox, output
-    of every command)."""
-    from support.shared import made_once
-
-    def make(root: Path) -> None:
-        sandbox = root / "sandbox"
-        sandbox.mkdir()
-        (sandbox / "myrig.toml").write_text(_guide_block(0).body, encoding="utf-8")
-        render_known_displacement_views(sandbox, "myrig.toml")
-        outputs = run_shell(_guide_block(1), sandbox, None)
-        (root / "outputs.json").write_text(json.dumps(outputs), encoding="utf-8")
-
-    root = made_once(tmp_path_factory, "guide-section-3", make)
-    return root / "sandbox", json.loads((root / "outputs.json").read_text(encoding="utf-8"))
-
-
-@pytest.mark.slow
-def test_the_guide_calibrates_and_checks_the_simulated_rig(guide_run):
-    sandbox, outputs = guide_run
-    assert _guide_block(0).kind == "sim"
-    assert _guide_block(1).kind == "sim"
-    commands = list(outputs)
-    acquire = next(c for c in commands if c.startswith("microcal acquire") and "--poses" in c)
-    assert "--poses 170" in acquire
-    for name in ("cameras.json", "measurements.csv", "calibration.json", "results.json",
-                 "report.html", "check.json"):  # fmt: skip
-        assert (sandbox / "runs" / "a" / name).is_file(), name
-    report = re.sub(r"<[^>]+>", " ", (sandbox / "runs/a/report.html").read_text("utf-8"))
-    report = re.sub(r"\s+", " ", report)
-    assert "Stereo calibration Method: known displacements" in report, "no cameras found"
-    assert "Method: -" not in report
-    assert re.search(r"baseline \d+ µm", report), "the report shows no stereo baseline"
-    first_check = next(c for c in commands if c.startswith("microcal check"))
-    assert outputs[first_check].startswith("valid"), outputs[first_check]
-    run_b = json.loads((sandbox / "runs/b/run.json").read_text("utf-8"))
-    assert run_b["design"]["poses"] == 170
