@@ -10,12 +10,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._validation import FloatArray
+from ..errors import DeviceTimeoutError, FrameError
 from ..geometry import AnyCamera
 from .measurement import measure_one
 from .roi import RoiPredictor
 from .targets import Target
 
 __all__ = ["FrameSource", "VisionProbe"]
+
+#: Times a frame is grabbed again after a dropped frame or a timeout (as acquisition does).
+GRAB_RETRIES = 3
 
 
 class FrameSource(Protocol):
@@ -50,7 +54,7 @@ class VisionProbe:
     ) -> tuple[FloatArray, FloatArray]:
         """Position in {G} (3,) µm and its covariance (3, 3) µm² from ``frames`` frames per
         camera; NaN when the board is not found."""
-        grabbed = {n: [cam.grab() for _ in range(frames)] for n, cam in self.cameras.items()}
+        grabbed = {n: [_grab(cam) for _ in range(frames)] for n, cam in self.cameras.items()}
         rois = {
             n: self._predictors.setdefault(n, RoiPredictor()).predict(d_um) for n in self.cameras
         }
@@ -61,3 +65,15 @@ class VisionProbe:
             if n in m.corners_px:
                 self._predictors[n].add(d_um, m.corners_px[n])
         return m.p_um, m.cov_um2
+
+
+def _grab(camera: FrameSource) -> NDArray[np.generic]:
+    """One frame, grabbed again up to :data:`GRAB_RETRIES` times after a dropped frame or a
+    timeout; the last such error is raised."""
+    for attempt in range(GRAB_RETRIES + 1):
+        try:
+            return camera.grab()
+        except (FrameError, DeviceTimeoutError):
+            if attempt == GRAB_RETRIES:
+                raise
+    raise AssertionError("unreachable")
