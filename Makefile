@@ -42,7 +42,7 @@ $(error $(PYTHON_MISSING))
 endif
 endif
 
-.PHONY: help demo test lint docs bench clean
+.PHONY: help demo test test-docs lint docs bench clean
 
 help:  ## list the targets
 	@grep -E '^[a-z]+:.*##' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-6s %s\n", $$1, $$2}'
@@ -59,8 +59,11 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)  ## run the calibration demo on the simulated platform
 	$(BIN)/microcal demo
 
-test: $(STAMP)  ## run the test suite
-	$(BIN)/python -m pytest -n $(JOBS) -q
+test: $(STAMP)  ## run the test suite (the long documentation examples: make test-docs)
+	$(BIN)/python -m pytest -n $(JOBS) -q -m "not docs_long"
+
+test-docs: $(STAMP)  ## run the documentation examples that take minutes (whole calibrations)
+	$(BIN)/python -m pytest -n $(JOBS) -q -m docs_long tests/docs
 
 lint: $(STAMP)  ## ruff (lint and format check) and mypy
 	$(BIN)/ruff check src tests benchmarks scripts

@@ -504,6 +504,7 @@ def test_block_runs(block, request, tmp_path, monkeypatch):
 
 
 @pytest.mark.slow
+@pytest.mark.docs_long
 @pytest.mark.parametrize(
     "block", [p for p in _params(RUN_KINDS, costly=True) if p.id != "docs/guide.md:1"]
 )
