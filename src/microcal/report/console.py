@@ -24,7 +24,9 @@ def print_table(console: Console, table: TextTable) -> None:
     groups = column_groups(table, console.width)
     for k, group in enumerate(groups):
         title = table.title if len(groups) == 1 else f"{table.title} ({k + 1}/{len(groups)})"
-        out = Table(title=title)
+        if title:  # a line of its own, wrapped between words, not squeezed into the box
+            console.print(title, markup=False, highlight=False, emoji=False, style="italic")
+        out = Table()
         for i in group:
             left = i == 0 and table.first_left
             out.add_column(table.columns[i], justify="left" if left else "right", no_wrap=True,

@@ -22,6 +22,7 @@ from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.layout_engine import ConstrainedLayoutEngine
+from matplotlib.ticker import MaxNLocator
 
 from .._validation import FloatArray
 from .bounds import MAX_LABEL_CHARS, MAX_ROWS, clip, thinned
@@ -273,6 +274,7 @@ def measurement_uncertainty(std_um: FloatArray) -> str:
     for k in range(3):
         ax = fig.add_subplot(1, 3, k + 1)
         ax.hist(std_um[:, k], bins=25, color="tab:blue")
+        ax.xaxis.set_major_locator(MaxNLocator(4))  # labels apart however narrow the spread
         ax.set_xlabel(f"std {AXES[k]}, µm")
         ax.set_ylabel("poses")
     return _uri(fig)
@@ -350,14 +352,14 @@ def decoupling(condition: str, runs: Mapping[str, tuple[FloatArray, np.ndarray]]
         ax.axhline(0, color="grey", lw=0.5)
         ax.set_xlabel(f"{AXES[moving]} travel, µm")
         ax.set_ylabel("undesired, µm")
-        ax.set_title(f"moving {AXES[moving]}", fontsize=9)
+        ax.set_title(f"moving {AXES[moving]}", fontsize=10)
     handles: dict[str, Artist] = {}
     for ax in fig.axes:
         for handle, text in zip(*ax.get_legend_handles_labels(), strict=True):
             handles.setdefault(text, handle)
     if handles:
         fig.legend(handles=list(handles.values()), labels=list(handles),
-                   loc="outside right upper", fontsize=7)  # fmt: skip
+                   loc="outside right upper", fontsize=9)  # fmt: skip
     fig.suptitle(f"decoupling, {label(condition)}", fontsize=10)
     return _uri(fig)
 
