@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 from pathlib import Path
 from typing import Annotated
 
@@ -40,9 +42,12 @@ def study(
     from ..workflows.study import study as run
 
     console = Console()
+    started = time.monotonic()
 
     def tick(done: int, total: int, run: SeedRun) -> None:
-        console.print(f"seed {run.seed}: done ({done}/{total}, {run.wall_s:.1f} s)")
+        spent = time.monotonic() - started
+        left = f", about {spent / done * (total - done):.0f} s left" if done < total else ""
+        console.print(f"seed {run.seed}: done ({done}/{total}, {run.wall_s:.1f} s{left})")
 
     config = StudyConfig(poses=poses, render=render, design=design, closed_loop=closed_loop,
                          tolerance_um=tolerance_um, prior=prior)  # fmt: skip
