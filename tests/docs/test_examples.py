@@ -429,6 +429,7 @@ def guide_run(tmp_path_factory) -> tuple[Path, dict[str, str]]:
 
 
 @pytest.mark.slow
+@pytest.mark.docs_long
 def test_the_guide_calibrates_and_checks_the_simulated_rig(guide_run):
     sandbox, outputs = guide_run
     assert _guide_block(0).kind == "sim"
