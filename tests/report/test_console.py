@@ -102,3 +102,16 @@ def test_the_fit_command_prints_within_80_columns(quick_demo, tmp_path):
     assert table_lines
     assert max(len(line) for line in table_lines) <= 80
     assert "…" not in out.stdout
+
+
+def test_a_column_no_row_fills_takes_no_room():
+    from microcal.report.text_tables import TextTable
+
+    table = TextTable("cams", ["camera", "RMS px", "held-out px"], [["top", "0.06", ""],
+                      ["side", "0.05", " "]])  # fmt: skip
+    out = _printed(table)
+    assert "held-out" not in out
+    assert "0.06" in out
+    assert "top" in out
+    kept = _printed(TextTable("cams", ["camera", "held-out px"], [["top", ""], ["side", "0.1"]]))
+    assert "held-out" in kept

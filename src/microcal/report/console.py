@@ -21,6 +21,7 @@ def print_table(console: Console, table: TextTable) -> None:
     than the console is printed as several, each with the first column and as many of the
     others as fit (titled ``(1/2)``, ``(2/2)``).
     """
+    table = without_empty_columns(table)
     groups = column_groups(table, console.width)
     for k, group in enumerate(groups):
         title = table.title if len(groups) == 1 else f"{table.title} ({k + 1}/{len(groups)})"
@@ -34,6 +35,21 @@ def print_table(console: Console, table: TextTable) -> None:
         for row in table.rows:
             out.add_row(*(row[i] if i < len(row) else "" for i in group))
         console.print(out)
+
+
+def without_empty_columns(table: TextTable) -> TextTable:
+    """The table without the columns (but the first) whose every cell is empty: a figure no
+    row has (a lens model's held-out error when the model was fixed) takes no room."""
+
+    def shown(i: int) -> bool:
+        return any(i < len(r) and r[i].strip() for r in table.rows)
+
+    keep = [i for i in range(len(table.columns)) if i == 0 or not table.rows or shown(i)]
+    if len(keep) == len(table.columns):
+        return table
+    return TextTable(table.title, [table.columns[i] for i in keep],
+                     [[r[i] if i < len(r) else "" for i in keep] for r in table.rows],
+                     table.first_left)  # fmt: skip
 
 
 def _cell_width(table: TextTable, i: int) -> int:
