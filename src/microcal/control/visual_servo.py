@@ -118,13 +118,20 @@ class ServoResult:
         return len(self.steps) - 1
 
 
-def probability_within(error_um: FloatArray, cov_um2: FloatArray, radius_um: float) -> float:
-    """P(|x| <= radius) for x ~ N(error, cov), from the module's fixed normal draws."""
+def _draws_of(cov_um2: FloatArray) -> FloatArray:
+    """The module's fixed normal draws as N(0, cov) (4000, 3) µm (a covariance that is not
+    positive definite by its diagonal alone)."""
     try:
         L = np.linalg.cholesky(cov_um2)
     except np.linalg.LinAlgError:
         L = np.diag(np.sqrt(np.maximum(np.diagonal(cov_um2), 0.0)))
-    x = error_um + _DRAWS @ L.T
+    out: FloatArray = _DRAWS @ L.T
+    return out
+
+
+def probability_within(error_um: FloatArray, cov_um2: FloatArray, radius_um: float) -> float:
+    """P(|x| <= radius) for x ~ N(error, cov), from the module's fixed normal draws."""
+    x = error_um + _draws_of(cov_um2)
     return float(np.mean(np.sum(x * x, axis=1) <= radius_um**2))
 
 
@@ -135,11 +142,7 @@ def smallest_confirmable_um(cov_um2: FloatArray, confidence: float) -> float:
     Even a tip exactly on its target is confirmed within a smaller tolerance with a lower
     probability only; a loop asked for less ends on its iteration cap.
     """
-    try:
-        L = np.linalg.cholesky(cov_um2)
-    except np.linalg.LinAlgError:
-        L = np.diag(np.sqrt(np.maximum(np.diagonal(cov_um2), 0.0)))
-    radii = np.linalg.norm(_DRAWS @ L.T, axis=1)
+    radii = np.linalg.norm(_draws_of(cov_um2), axis=1)
     return float(np.quantile(radii, confidence))
 
 
