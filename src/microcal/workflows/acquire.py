@@ -18,8 +18,10 @@ from typing import Any, cast
 from numpy.typing import ArrayLike
 
 from .._validation import FloatArray, did_you_mean
-from ..errors import InputError
+from ..errors import InputError, MicrocalError
+from ..formats.cameras_file import CAMERAS_FORMAT
 from ..formats.file_lock import lock_path
+from ..formats.json_file import read_versioned_json
 from ..formats.outputs import check_writable
 from ..formats.records import MAX_FRAMES_PER_POSE, RunManifest
 from ..formats.run_directory import HOLDS_A_RUN, MANIFEST, RunDirectory, RunWriter, holds_run
@@ -159,11 +161,10 @@ def _earlier_step(path: Path) -> bool:
     if path.name != _CAMERAS or not path.is_file():
         return False
     try:
-        with path.open("rb") as fh:
-            head = fh.read(4096).decode("utf-8", errors="replace")
-    except OSError:
+        read_versioned_json(path, (CAMERAS_FORMAT,))
+    except MicrocalError:
         return False
-    return '"format": "microcal.cameras/' in head
+    return True
 
 
 def plan_for(
