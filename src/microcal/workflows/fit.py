@@ -128,11 +128,11 @@ def extras_to_fit(
     if given or model != "polynomial":
         return chosen, ()
     found = []
+    moving = meas.d_um[:, np.ptp(meas.d_um, axis=0) > 0]  # the joints that move
     for name in APPROACH_INPUTS:
         values = meas.extra.get(name)
-        ok = meas.d_um[:, np.ptp(meas.d_um, axis=0) > 0]
         if (values is not None and np.all(np.isfinite(values))
-                and identifiability_problem(name, values, ok) is None):  # fmt: skip
+                and identifiability_problem(name, values, moving) is None):  # fmt: skip
             found.append(name)
     if not found:
         return chosen, ()
