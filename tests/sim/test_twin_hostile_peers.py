@@ -21,13 +21,21 @@ import numpy as np
 import pytest
 
 from microcal.devices.smaract_mcs2 import MCS2Manipulator
-from microcal.devices.twin_camera import FrameClient, TwinCamera
 from microcal.devices.twin_protocol import KIND_FRAME, encode_error, encode_frame
 from microcal.errors import DeviceError, FrameError, InputError
 from microcal.sim import platform
 from microcal.sim.frame_server import FramePeer
 from microcal.sim.scaled_clock import ScaledClock
 from microcal.sim.twin import Twin
+
+
+def _twin_camera():
+    """The twin's camera module (its cameras are Micro-Manager devices: microcal[mm])."""
+    pytest.importorskip("pymmcore_plus", reason="the twin's cameras need microcal[mm]")
+    from microcal.devices import twin_camera
+
+    return twin_camera
+
 
 WITHIN_S = 1.0  # "answers within 1 s": a behavioural bound (a blocked server takes 60 s)
 LIMITS_UM = [[-500.0, 8500.0], [-500.0, 8500.0], [-500.0, 5300.0]]
@@ -96,7 +104,7 @@ def mcs2_position_um(port: int) -> np.ndarray:
 
 def frames_info(port: int) -> dict:
     """A real client: the twin's cameras' client asks for INFO."""
-    client = FrameClient(HOST, port, timeout_s=2.0)
+    client = _twin_camera().FrameClient(HOST, port, timeout_s=2.0)
     try:
         return client.info()
     finally:
@@ -245,7 +253,7 @@ def test_a_long_exposure_does_not_hold_up_the_other_devices(netns):
             assert took < WITHIN_S, f"INFO answered after {took:.2f} s"
             cameras = {c["name"]: c for c in info["cameras"]}
             assert cameras["top"]["exposure_ms"] == 60000.0
-            client = FrameClient(HOST, served.frames_port, timeout_s=2.0)
+            client = _twin_camera().FrameClient(HOST, served.frames_port, timeout_s=2.0)
             try:
                 frame, took = timed(client.grab, "side")  # the other camera's frame
             finally:
@@ -357,7 +365,7 @@ HUGE = b"OK 200000 200000 uint16 80000000000\r\n"  # 74.5 GiB announced
 
 def test_a_frame_larger_than_the_protocols_limit_is_refused_before_anything_is_allocated(netns):
     with HostileFrameServer({"GRAB": HUGE}, stream_bytes=64 << 20) as hostile:
-        client = FrameClient(HOST, hostile.port, timeout_s=2.0)
+        client = _twin_camera().FrameClient(HOST, hostile.port, timeout_s=2.0)
         rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
         tracemalloc.start()
         try:
@@ -390,7 +398,7 @@ def test_a_frame_larger_than_the_protocols_limit_is_refused_before_anything_is_a
 )  # fmt: skip
 def test_a_frame_header_inconsistent_with_its_shape_is_refused_at_once(netns, header, says):
     with HostileFrameServer({"GRAB": header + b"\r\n"}) as hostile:
-        client = FrameClient(HOST, hostile.port, timeout_s=3.0)
+        client = _twin_camera().FrameClient(HOST, hostile.port, timeout_s=3.0)
         try:
             t0 = time.monotonic()
             with pytest.raises(DeviceError) as refused:
@@ -419,9 +427,9 @@ def test_the_cameras_refuse_a_sensor_or_frame_other_than_announced(netns):
         load(UniMMCore(), HOST, hostile.port, timeout_s=2.0)
     # a frame of another shape than the camera's sensor
     with HostileFrameServer({"GRAB": b"OK 1 4 uint8 4\r\n\x01\x02\x03\x04"}) as hostile:
-        client = FrameClient(HOST, hostile.port, timeout_s=2.0)
+        client = _twin_camera().FrameClient(HOST, hostile.port, timeout_s=2.0)
         try:
-            cam = TwinCamera(client, "top", (4, 4), "uint8", 20.0)
+            cam = _twin_camera().TwinCamera(client, "top", (4, 4), "uint8", 20.0)
             buffer = np.zeros((4, 4), np.uint8)
             with pytest.raises(
                 DeviceError, match=r"a 1 x 4 uint8 frame from camera 'top' of 4 x 4 uint8"
