@@ -29,8 +29,9 @@ class SharedCamera(Camera):
     """
 
     def __init__(self, inner: Camera) -> None:
-        super().__init__(inner.name, inner.sensor_size_px, inner.pixel_size_um, inner.bit_depth,
-                         inner.exposure_s)  # fmt: skip
+        super().__init__(
+            inner.name, inner.sensor_size_px, inner.pixel_size_um, inner.bit_depth, inner.exposure_s
+        )
         self.inner = inner
         self._lock = threading.Lock()
         self._latest: NDArray[np.unsignedinteger] | None = None

@@ -17,5 +17,8 @@ def ui_available() -> str | None:
         import starlette  # noqa: F401
         import uvicorn  # noqa: F401
     except ImportError as exc:
-        return f"the station page needs Starlette and uvicorn ({exc}); install: pip install 'microcal[ui]'"
+        return (
+            f"the station page needs Starlette and uvicorn ({exc}); "
+            "install: pip install 'microcal[ui]'"
+        )
     return None

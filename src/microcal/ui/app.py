@@ -75,13 +75,18 @@ class _Guard(BaseHTTPMiddleware):
     async def dispatch(self, request: Request, call_next: RequestResponseEndpoint) -> Response:
         host = request.headers.get("host", "")
         if self.hosts and host not in self.hosts:
-            return _error(403, f"refused: this station answers to {', '.join(sorted(self.hosts))}, not {host!r}")
+            return _error(
+                403,
+                f"refused: this station answers to {', '.join(sorted(self.hosts))}, not {host!r}",
+            )
         from_query = request.query_params.get("token")
         if self.token is not None and not (
             token_matches(from_query, self.token)
             or token_matches(request.cookies.get(TOKEN_COOKIE), self.token)
         ):
-            return _error(403, "refused: this station needs its token in the URL (printed when it started)")
+            return _error(
+                403, "refused: this station needs its token in the URL (printed when it started)"
+            )
         if request.method == "POST":
             origin = request.headers.get("origin")
             if origin is not None and origin not in {f"http://{host}", f"https://{host}"}:
@@ -106,8 +111,12 @@ def _point(value: object, what: str, n: int) -> list[float]:
     return [_number(v, what) for v in value]
 
 
-def create_app(live: LiveStation, token: str | None = None, hosts: frozenset[str] = frozenset(),
-               control: Control | None = None) -> Starlette:  # fmt: skip
+def create_app(
+    live: LiveStation,
+    token: str | None = None,
+    hosts: frozenset[str] = frozenset(),
+    control: Control | None = None,
+) -> Starlette:
     """The station page's application around an opened :class:`LiveStation`.
 
     Parameters
@@ -132,7 +141,9 @@ def create_app(live: LiveStation, token: str | None = None, hosts: frozenset[str
         try:
             data = json.loads(raw or b"{}")
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise InputError(f"request body: not JSON ({exc.msg if hasattr(exc, 'msg') else exc})") from None
+            raise InputError(
+                f"request body: not JSON ({exc.msg if hasattr(exc, 'msg') else exc})"
+            ) from None
         if not isinstance(data, dict):
             raise InputError("request body: expected a JSON object")
         return data
@@ -142,7 +153,9 @@ def create_app(live: LiveStation, token: str | None = None, hosts: frozenset[str
     def guarded(handler: Handler, controlling: bool = False) -> Handler:
         async def run(request: Request) -> Response:
             if controlling and not lease.controls(client_of(request)):
-                return _error(403, "refused: another browser controls this station; this one watches")
+                return _error(
+                    403, "refused: another browser controls this station; this one watches"
+                )
             try:
                 return await handler(request)
             except MicrocalError as exc:
@@ -154,8 +167,9 @@ def create_app(live: LiveStation, token: str | None = None, hosts: frozenset[str
         html = (_STATIC / "index.html").read_text(encoding="utf-8")
         response = HTMLResponse(html, headers={"Cache-Control": "no-store"})
         if client_of(request) is None:
-            response.set_cookie(CLIENT_COOKIE, secrets.token_urlsafe(16), httponly=True,
-                                samesite="strict")  # fmt: skip
+            response.set_cookie(
+                CLIENT_COOKIE, secrets.token_urlsafe(16), httponly=True, samesite="strict"
+            )
         return response
 
     def role(request: Request) -> str:
@@ -183,7 +197,9 @@ def create_app(live: LiveStation, token: str | None = None, hosts: frozenset[str
         camera = request.path_params["camera"]
         q = request.query_params
         try:
-            x, y, size = (int(float(q.get(k, d))) for k, d in (("x", "0"), ("y", "0"), ("size", "160")))
+            x, y, size = (
+                int(float(q.get(k, d))) for k, d in (("x", "0"), ("y", "0"), ("size", "160"))
+            )
         except ValueError:
             raise InputError("zoom: expected x, y and size as numbers of px") from None
         data = await run_in_threadpool(live.frame_jpeg, camera, 640, (x, y, size))
@@ -204,7 +220,9 @@ def create_app(live: LiveStation, token: str | None = None, hosts: frozenset[str
         data = await body(request)
         clicks, std = data.get("clicks"), data.get("std_px", {})
         if not isinstance(clicks, dict) or not isinstance(std, dict):
-            raise InputError("target: expected {\"clicks\": {camera: [x, y]}, \"std_px\": {camera: px}}")
+            raise InputError(
+                'target: expected {"clicks": {camera: [x, y]}, "std_px": {camera: px}}'
+            )
         points = {str(k): _point(v, f"click in {k}", 2) for k, v in clicks.items()}
         stds = {str(k): _number(v, f"std_px of {k}") for k, v in std.items()}
         if any(not s > 0 for s in stds.values()):

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import socket
+import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 from ..errors import InputError
 from ..workflows.live import LiveStation, open_live_station
@@ -23,14 +26,14 @@ class StationServer:
     url: str
     token: str | None
     live: LiveStation
-    server: object  # uvicorn.Server
-    thread: object | None = None  # threading.Thread when started by start_server
+    server: Any  # uvicorn.Server
+    thread: threading.Thread | None = None  # when started by start_server
 
     def stop(self) -> None:
         """Stop serving, stop any move and close the rig."""
-        self.server.should_exit = True  # type: ignore[attr-defined]
+        self.server.should_exit = True
         if self.thread is not None:
-            self.thread.join(10.0)  # type: ignore[attr-defined]
+            self.thread.join(10.0)
         self.live.close()
 
 
@@ -42,12 +45,14 @@ def _bind(host: str, port: int) -> socket.socket:
         sock.bind((host, port))
     except OSError as exc:
         sock.close()
-        raise InputError(f"--host {host} --port {port}: cannot listen there ({exc.strerror or exc})") from None
+        raise InputError(
+            f"--host {host} --port {port}: cannot listen there ({exc.strerror or exc})"
+        ) from None
     sock.listen(64)
     return sock
 
 
-def _prepare(live: LiveStation, host: str, port: int) -> tuple[object, socket.socket, str, str | None]:
+def _prepare(live: LiveStation, host: str, port: int) -> tuple[Any, socket.socket, str, str | None]:
     import uvicorn
 
     if not 0 <= port <= 65535:
@@ -56,7 +61,9 @@ def _prepare(live: LiveStation, host: str, port: int) -> tuple[object, socket.so
     sock = _bind(host, port)
     bound = sock.getsockname()[1]
     shown = f"[{host}]" if ":" in host else host
-    hosts = frozenset({f"{shown}:{bound}"} | ({f"localhost:{bound}"} if is_loopback(host) else set()))
+    hosts = frozenset(
+        {f"{shown}:{bound}"} | ({f"localhost:{bound}"} if is_loopback(host) else set())
+    )
     app = create_app(live, token, hosts)
     config = uvicorn.Config(app, log_level="warning", access_log=False, lifespan="off")
     url = f"http://{shown}:{bound}/" + (f"?token={token}" if token else "")
@@ -66,12 +73,13 @@ def _prepare(live: LiveStation, host: str, port: int) -> tuple[object, socket.so
 def start_server(live: LiveStation, host: str = "127.0.0.1", port: int = 0) -> StationServer:
     """Serve ``live`` in a thread of this process (tests, benchmarks); ``port`` 0 takes a
     free one. Stop it with :meth:`StationServer.stop`."""
-    import threading
-    import time
-
     server, sock, url, token = _prepare(live, host, port)
-    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True,  # type: ignore[attr-defined]
-                              name="microcal-ui-server")  # fmt: skip
+    thread = threading.Thread(
+        target=server.run,
+        kwargs={"sockets": [sock]},
+        daemon=True,
+        name="microcal-ui-server",
+    )
     thread.start()
     deadline = time.monotonic() + 10.0
     while not getattr(server, "started", False):
@@ -96,8 +104,8 @@ def serve(
     address (with the token when ``host`` is not loopback) once the server listens."""
     live = open_live_station(rig, calibration, manipulator=manipulator, seed=seed, frames=frames)
     try:
-        server, sock, url, token = _prepare(live, host, port)
+        server, sock, url, _ = _prepare(live, host, port)
         announce(url)
-        server.run(sockets=[sock])  # type: ignore[attr-defined]
+        server.run(sockets=[sock])
     finally:
         live.close()

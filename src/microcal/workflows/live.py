@@ -59,7 +59,7 @@ MAX_REGION_PX = 512
 FRESH_S = 0.05
 
 
-class _Stopped(MicrocalError):
+class _StoppedError(MicrocalError):
     """The stop control ended a closed loop between two corrections."""
 
 
@@ -86,9 +86,13 @@ class ClickTarget:
 
     def as_dict(self) -> dict[str, Any]:
         """Plain dict for JSON."""
-        return {"target_um": self.target_um.tolist(), "cov_um2": self.cov_um2.tolist(),
-                "std_um": np.sqrt(np.diagonal(self.cov_um2)).tolist(),
-                "residual_px": self.residual_px, "refusal": self.refusal}  # fmt: skip
+        return {
+            "target_um": self.target_um.tolist(),
+            "cov_um2": self.cov_um2.tolist(),
+            "std_um": np.sqrt(np.diagonal(self.cov_um2)).tolist(),
+            "residual_px": self.residual_px,
+            "refusal": self.refusal,
+        }
 
 
 def _ellipse(q: FloatArray, cov_px2: FloatArray) -> dict[str, float]:
@@ -141,11 +145,14 @@ class LiveStation:
         self.manipulator = GuardedManipulator(rig.manipulator)
         self.cameras = {n: SharedCamera(c) for n, c in rig.cameras.items()}
         device = dataclasses.replace(
-            rig, manipulator=self.manipulator, cameras=dict(self.cameras),
+            rig,
+            manipulator=self.manipulator,
+            cameras=dict(self.cameras),
             manipulators={**rig.manipulators, rig.selected: self.manipulator},
-        )  # fmt: skip
-        self.station = Station(device, calibration, models, frames=frames, settle_s=settle_s,
-                               on_correction=self._step)  # fmt: skip
+        )
+        self.station = Station(
+            device, calibration, models, frames=frames, settle_s=settle_s, on_correction=self._step
+        )
         self.description = description
         self.truth = rig.truth
         self.models: dict[str, AnyCamera] = {n: models[n] for n in rig.cameras}
@@ -168,8 +175,10 @@ class LiveStation:
         """What the page is built from: the cameras, the target kind, the device, its limits."""
         rig = self.station.rig
         return {
-            "cameras": [{"name": n, "width_px": m.image_size_px[0], "height_px": m.image_size_px[1]}
-                        for n, m in self.models.items()],  # fmt: skip
+            "cameras": [
+                {"name": n, "width_px": m.image_size_px[0], "height_px": m.image_size_px[1]}
+                for n, m in self.models.items()
+            ],
             "target": {"kind": rig.board.kind, "spec": rig.board.spec},
             "manipulator": rig.selected,
             "axes": list(self.manipulator.axes),
@@ -285,8 +294,11 @@ class LiveStation:
         with self._lock:
             measured, target = self._measured, self._target
         out: dict[str, dict[str, Any]] = {n: {} for n in self.models}
-        for key, value in (("predicted", (p, cov)), ("measured", measured),
-                           ("target", None if target is None else (target.target_um, target.cov_um2))):  # fmt: skip
+        for key, value in (
+            ("predicted", (p, cov)),
+            ("measured", measured),
+            ("target", None if target is None else (target.target_um, target.cov_um2)),
+        ):
             if value is None:
                 continue
             for n, e in self._project(*value).items():
@@ -329,8 +341,11 @@ class LiveStation:
             rig's page does not offer yet), an unknown camera, clicks whose rays do not meet.
         """
         if len(clicks_px) < 2:
-            how = ("click in a second view, on the epipolar line" if len(self.models) >= 2
-                   else "a one-camera rig takes the depth from the focal plane, not offered yet")  # fmt: skip
+            how = (
+                "click in a second view, on the epipolar line"
+                if len(self.models) >= 2
+                else "a one-camera rig takes the depth from the focal plane, not offered yet"
+            )
             raise InputError(f"target: a click gives a ray, not a point; {how}")
         names = [self._camera(n).name for n in clicks_px]
         cams = [self.models[n] for n in names]
@@ -340,8 +355,10 @@ class LiveStation:
         p, cov, _ = triangulate_views(cams, q, [s**2 * np.eye(2) for s in std])
         if not np.all(np.isfinite(p)):
             raise InputError("target: the clicks' rays do not meet; click on the epipolar line")
-        residual = {n: float(np.linalg.norm(m.project(p)[0] - r))
-                    for n, m, r in zip(names, cams, raw, strict=True)}  # fmt: skip
+        residual = {
+            n: float(np.linalg.norm(m.project(p)[0] - r))
+            for n, m, r in zip(names, cams, raw, strict=True)
+        }
         target = ClickTarget(p[0], cov[0], residual, self.refusal(p[0]))
         with self._lock:
             self._target = target
@@ -400,14 +417,15 @@ class LiveStation:
             self.manipulator.resume()
             self._activity, self._error, self._message = activity, "", ""
             self.moves_started += 1
-            self._worker = threading.Thread(target=self._run, args=(work,), daemon=True,
-                                            name="microcal-station-move")  # fmt: skip
+            self._worker = threading.Thread(
+                target=self._run, args=(work,), daemon=True, name="microcal-station-move"
+            )
             self._worker.start()
 
     def _run(self, work: Callable[[], None]) -> None:
         try:
             work()
-        except _Stopped:
+        except _StoppedError:
             self._finish(error="stopped by the stop control")
         except MicrocalError as exc:
             text = str(exc)
@@ -434,10 +452,11 @@ class LiveStation:
         with self._lock:
             self._joints = np.asarray(step.d_um, dtype=np.float64)
             self._measured = (step.measured_um, step.cov_um2)
-            self._message = (f"correction {step.iteration}: error "
-                             f"{np.linalg.norm(step.error_um):.2f} µm")  # fmt: skip
+            self._message = (
+                f"correction {step.iteration}: error {np.linalg.norm(step.error_um):.2f} µm"
+            )
         if self.manipulator.halted:
-            raise _Stopped("stopped by the stop control")
+            raise _StoppedError("stopped by the stop control")
 
     def _go(self, target: FloatArray, mode: Literal["open", "closed"], tol: float | None) -> None:
         started = time.perf_counter()
@@ -445,8 +464,10 @@ class LiveStation:
         self._arrived(arrival, time.perf_counter() - started)
 
     def _arrived(self, a: Arrival, took_s: float) -> None:
-        out: dict[str, Any] = a.as_dict() | {"took_s": took_s,
-                                              "residual_um": float(np.linalg.norm(a.error_um))}  # fmt: skip
+        out: dict[str, Any] = a.as_dict() | {
+            "took_s": took_s,
+            "residual_um": float(np.linalg.norm(a.error_um)),
+        }
         if self.truth is not None:
             true = np.asarray(self.truth(), dtype=np.float64)
             out["truth_um"] = true.tolist()
@@ -545,8 +566,14 @@ def open_live_station(
     c = open_calibrated_rig(rig, calibration, manipulator=manipulator, seed=seed)
     try:
         description = "; ".join(f"{k}: {v}" for k, v in c.opened.description.items())
-        return LiveStation(c.device, c.entry, c.models, description, frames=frames,
-                           settle_s=1.0 if settle_s is None else settle_s)  # fmt: skip
+        return LiveStation(
+            c.device,
+            c.entry,
+            c.models,
+            description,
+            frames=frames,
+            settle_s=1.0 if settle_s is None else settle_s,
+        )
     except BaseException:
         c.opened.close()
         raise
