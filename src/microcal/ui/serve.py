@@ -53,17 +53,19 @@ def _bind(host: str, port: int) -> socket.socket:
 
 
 def _prepare(live: LiveStation, host: str, port: int) -> tuple[Any, socket.socket, str, str | None]:
+    """The server, its listening socket, the address to print and the token (None on
+    loopback, where the ``Host`` header is checked instead: see :mod:`.access`)."""
     import uvicorn
 
     if not 0 <= port <= 65535:
         raise InputError(f"--port: expected 0 to 65535, got {port}")
-    token = None if is_loopback(host) else new_token()
+    loopback = is_loopback(host)
+    token = None if loopback else new_token()
     sock = _bind(host, port)
     bound = sock.getsockname()[1]
-    shown = f"[{host}]" if ":" in host else host
-    hosts = frozenset(
-        {f"{shown}:{bound}"} | ({f"localhost:{bound}"} if is_loopback(host) else set())
-    )
+    shown = socket.gethostname() if host in ("0.0.0.0", "::", "") else host
+    shown = f"[{shown}]" if ":" in shown else shown
+    hosts = frozenset({f"{shown}:{bound}", f"localhost:{bound}"}) if loopback else frozenset()
     app = create_app(live, token, hosts)
     config = uvicorn.Config(app, log_level="warning", access_log=False, lifespan="off")
     url = f"http://{shown}:{bound}/" + (f"?token={token}" if token else "")
