@@ -190,8 +190,9 @@ function showState(s) {
   $("predicted").textContent = `${fmt(s.predicted_um, 1)}`;
   $("measured").textContent = fmt(s.measured_um, 2);
   $("message").textContent = s.message;
-  const errors = Object.entries(s.camera_errors).map(([n, m]) => `${n}: ${m}`);
-  if (s.error || errors.length) say([s.error, ...errors].filter(Boolean).join("; "));
+  const errors = Object.entries(s.camera_errors).map(([n, m]) => (m.startsWith(`${n}:`) ? m : `${n}: ${m}`));
+  const lines = [...new Set([s.error, ...errors].filter(Boolean))];
+  if (lines.length) say(lines.join("; "));
   for (const [n, value] of Object.entries(s.sharpness)) {
     const v = station.views[n];
     if (v) v.node.querySelector(".sharpness").value = value;
