@@ -38,3 +38,4 @@ def ui(
     say = lambda url: print(f"station page: {url}", flush=True)  # noqa: E731
     serve(rig, calibration, host=host, port=port, manipulator=manipulator, seed=seed,
           frames=frames, announce=say)  # fmt: skip
+    print("station page stopped")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import threading
 import time
@@ -102,12 +103,14 @@ def serve(
     frames: int = 5,
     announce: Callable[[str], None] = print,
 ) -> None:
-    """Open the rig and serve its page until interrupted (Ctrl-C); ``announce`` is given the
-    address (with the token when ``host`` is not loopback) once the server listens."""
+    """Open the rig and serve its page until interrupted (Ctrl-C, which returns normally after
+    any move is stopped and the rig closed); ``announce`` is given the address (with the token
+    when ``host`` is not loopback) once the server listens."""
     live = open_live_station(rig, calibration, manipulator=manipulator, seed=seed, frames=frames)
     try:
         server, sock, url, _ = _prepare(live, host, port)
         announce(url)
-        server.run(sockets=[sock])
+        with contextlib.suppress(KeyboardInterrupt):  # Ctrl-C is how the page is stopped
+            server.run(sockets=[sock])
     finally:
         live.close()
