@@ -499,13 +499,11 @@ class LiveStation:
 
     def state(self) -> dict[str, Any]:
         """What the page shows besides the frames: device, activity, results, errors."""
-        if not self.moving:
-            try:
-                joints = self.manipulator.position_um()
-                with self._lock:
-                    self._joints = joints
-            except MicrocalError as exc:
-                with self._lock:
+        with self._lock:  # no move starts meanwhile: one thread talks to the device at a time
+            if not self.moving:
+                try:
+                    self._joints = self.manipulator.position_um()
+                except MicrocalError as exc:
                     self._error = str(exc)
         p, cov = self.predicted_um()
         with self._lock:
