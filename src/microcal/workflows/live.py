@@ -55,8 +55,10 @@ CHI2_2_95 = 5.991464547107979
 #: Largest width of a view sent to the page, px, and of a full-resolution region.
 MAX_VIEW_WIDTH_PX = 2048
 MAX_REGION_PX = 512
-#: Frames the probe grabbed within this time are shown instead of grabbing again, s.
+#: Frames the probe grabbed within this time are shown instead of grabbing again, s (while
+#: a move runs: the frames it measures, as long as they are this recent).
 FRESH_S = 0.05
+MOVING_FRESH_S = 0.5
 
 
 class _StoppedError(MicrocalError):
@@ -206,7 +208,11 @@ class LiveStation:
             The camera failed (its error in words); the page shows it.
         """
         cam = self._camera(camera)
-        frame = cam.latest(FRESH_S) if cam.busy() else None
+        # while a move measures, show the probe's frames rather than grab more between them
+        moving = self.moving
+        frame = None
+        if moving or cam.busy():
+            frame = cam.latest(MOVING_FRESH_S if moving else FRESH_S)
         if frame is None:
             try:
                 frame = cam.grab()

@@ -5,6 +5,7 @@
 
 const VIEW_WIDTH_PX = 640;
 const ZOOM_PX = 160;
+const MAX_FPS = 20;  // per camera: the views need no more, the camera's time goes to measuring
 const COLORS = { predicted: "#4cc3ff", measured: "#5fd38d", target: "#ff5fd2",
   limits: "rgba(230, 200, 76, 0.55)", epipolar: "#ff9f43", click: "#ffffff" };
 
@@ -97,6 +98,7 @@ async function frameLoop(v, lane) {
   const error = v.node.querySelector(".camera-error");
   for (;;) {
     const seq = (v.asked = (v.asked || 0) + 1);
+    const started = performance.now();
     try {
       const r = await fetch(url, { cache: "no-store" });
       if (!r.ok) {
@@ -114,6 +116,7 @@ async function frameLoop(v, lane) {
       station.frames[v.cam.name] += 1;
       error.textContent = "";
       draw(v);
+      await sleep(Math.max(0, 2000 / MAX_FPS - (performance.now() - started)));  // two lanes
     } catch (err) {
       error.textContent = `no answer from the station (${err.message})`;
       await sleep(1000 + 100 * lane);
