@@ -174,3 +174,16 @@ def test_a_lost_camera_is_told_in_words_and_the_server_goes_on(live):
     assert live.wait(30.0)
     assert "no frame within 2 s" in browser.get("/api/state").json()["error"]
     np.testing.assert_allclose(live.manipulator.position_um(), before, atol=0.5)
+
+
+def test_the_report_is_served_in_an_origin_of_its_own(live, tmp_path):
+    browser = _browser(create_app(live, hosts=HOSTS))
+    r = browser.get("/report")
+    assert r.status_code == 400
+    assert r.json() == {"error": "report: there is no report.html beside the calibration"}
+    (tmp_path / "report.html").write_text("<h1>report</h1>", encoding="utf-8")
+    live.report = tmp_path / "report.html"
+    r = browser.get("/report")
+    assert r.status_code == 200
+    assert r.text == "<h1>report</h1>"
+    assert r.headers["content-security-policy"] == "sandbox allow-scripts"

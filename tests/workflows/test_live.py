@@ -175,3 +175,40 @@ def test_one_camera_is_the_same_station_with_other_data(calibration):
     finally:
         live.close()
         c.opened.close()
+
+
+def test_the_calibrations_health_its_checks_and_the_report_beside_it(tmp_path):
+    from microcal.errors import FormatError
+    from microcal.formats.check_file import append_history, history_path
+    from microcal.formats.hashing import sha256_file
+
+    cal = write_truth_calibration(tmp_path / "calibration.json")
+    digest = sha256_file(cal, link_ok=True)
+    for when, verdict, offset in (("2026-12-01T09:00:00+00:00", "valid", [0.1, 0.0, 0.2]),
+                                  ("2026-12-03T09:00:00+00:00", "offset", [2.0, 1.0, 0.5])):  # fmt: skip
+        append_history(history_path(cal), {"calibration_sha256": digest, "manipulator": "m1",
+                                           "created": when, "verdict": verdict, "offset_um": offset,
+                                           "flag": False, "poses": []})  # fmt: skip
+    (tmp_path / "report.html").write_text("<h1>report</h1>", encoding="utf-8")
+    live = open_live_station("sim", str(cal), seed=0, frames=1)
+    try:
+        health = live.layout()["health"]
+        assert [c["verdict"] for c in health["checks"]] == ["valid", "offset"]
+        assert health["checks"][1]["offset_um"] == [2.0, 1.0, 0.5]
+        assert health["validation_rms_um"] == 0.0
+        assert health["report"] is True
+        assert live.report_html() == b"<h1>report</h1>"
+        (tmp_path / "report.html").unlink()
+        (tmp_path / "report.html").symlink_to(cal)
+        with pytest.raises(FormatError):
+            live.report_html()
+    finally:
+        live.close()
+    history_path(cal).write_text("not json\n", encoding="utf-8")
+    live = open_live_station("sim", str(cal), seed=0, frames=1)
+    try:
+        health = live.layout()["health"]
+        assert health["checks"] == []
+        assert "line 1 is not JSON" in health["history_error"]
+    finally:
+        live.close()

@@ -12,6 +12,7 @@ The routes (all under the token when there is one):
 ``GET /api/overlays``      per camera: predicted and measured tip, target, soft limits
 ``GET /api/frame/CAM``     a JPEG of the camera, ``?w=640`` px wide
 ``GET /api/zoom/CAM``      a full-resolution region, ``?x=&y=&size=``
+``GET /report``            the latest report.html beside the calibration (sandboxed)
 ``POST /api/claim``        take control if nobody has it
 ``POST /api/epipolar``     ``{"camera", "x_px", "y_px"}``: the click's curves in the others
 ``POST /api/target``       ``{"clicks": {CAM: [x, y]}, "std_px": {CAM: s}}``: the 3D target
@@ -205,6 +206,11 @@ def create_app(
         data = await run_in_threadpool(live.frame_jpeg, camera, 640, (x, y, size))
         return Response(data, media_type="image/jpeg", headers={"Cache-Control": "no-store"})
 
+    async def report(request: Request) -> Response:
+        data = await run_in_threadpool(live.report_html)
+        # its own opaque origin: nothing in the report can use this page's controls
+        return HTMLResponse(data, headers={"Content-Security-Policy": "sandbox allow-scripts"})
+
     async def claim(request: Request) -> Response:
         client = client_of(request)
         if client is None:
@@ -254,6 +260,7 @@ def create_app(
         Route("/api/overlays", guarded(overlays)),
         Route("/api/frame/{camera}", guarded(frame)),
         Route("/api/zoom/{camera}", guarded(zoom)),
+        Route("/report", guarded(report)),
         Route("/api/claim", guarded(claim), methods=["POST"]),
         Route("/api/epipolar", guarded(epipolar), methods=["POST"]),
         Route("/api/target", guarded(target, controlling=True), methods=["POST"]),

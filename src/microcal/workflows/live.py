@@ -21,6 +21,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Literal
 
 import cv2
@@ -33,6 +34,9 @@ from ..devices.guarded_manipulator import GuardedManipulator
 from ..devices.rig import Rig
 from ..devices.shared_camera import SharedCamera
 from ..errors import InputError, LimitError, MicrocalError
+from ..formats.calibration_file import load_calibration
+from ..formats.check_file import of_device, read_history
+from ..formats.safe_open import read_regular_bytes
 from ..geometry import AnyCamera, triangulate_views
 from ..geometry.epipolar import epipolar_curve_px
 from ..kinematics.extra_inputs import default_extra_inputs
@@ -44,6 +48,7 @@ __all__ = [
     "CLICK_STD_DISPLAY_PX",
     "ClickTarget",
     "LiveStation",
+    "calibration_health",
     "open_live_station",
 ]
 
@@ -132,6 +137,10 @@ class LiveStation:
         Frames per camera of each measurement.
     settle_s : float
         Wait after a move before measuring.
+    health : mapping, optional
+        The calibration's health (:func:`calibration_health`), shown as it is.
+    report : path, optional
+        The latest report.html, served on request (:meth:`report_html`).
     """
 
     def __init__(
@@ -143,7 +152,11 @@ class LiveStation:
         *,
         frames: int = 5,
         settle_s: float = 1.0,
+        health: Mapping[str, Any] | None = None,
+        report: Path | None = None,
     ) -> None:
+        self.health = dict(health or {})
+        self.report = report
         self.manipulator = GuardedManipulator(rig.manipulator)
         self.cameras = {n: SharedCamera(c) for n, c in rig.cameras.items()}
         device = dataclasses.replace(
@@ -188,7 +201,22 @@ class LiveStation:
             "rig": self.description,
             "simulated": self.truth is not None,
             "click_to_target": "rays" if len(self.models) >= 2 else "focal plane",
+            "health": self.health | {"report": self.report is not None},
         }
+
+    def report_html(self) -> bytes:
+        """The latest report.html beside the calibration (a regular file, never a link).
+
+        Raises
+        ------
+        InputError
+            There is none.
+        FormatError
+            It is not a regular file.
+        """
+        if self.report is None:
+            raise InputError("report: there is no report.html beside the calibration")
+        return read_regular_bytes(self.report)
 
     def frame_jpeg(
         self,
@@ -537,6 +565,26 @@ class LiveStation:
         self.station.close()
 
 
+def calibration_health(
+    calibration: str | Path, name: str, single: bool, validation: Mapping[str, object]
+) -> dict[str, Any]:
+    """When the calibration was made, its validation RMS and its checks (oldest first: when,
+    the verdict, the offset and whether it was flagged); a history that cannot be read is
+    said in ``history_error`` instead of failing the station."""
+    cal = load_calibration(calibration)
+    provenance = dict(cal.provenance)
+    out: dict[str, Any] = {"path": str(calibration), "created": provenance.get("created"),
+                           "software": provenance.get("software"),
+                           "validation_rms_um": validation.get("rms_um")}  # fmt: skip
+    try:
+        checks = of_device(read_history(calibration), name, single)
+    except MicrocalError as exc:
+        return out | {"checks": [], "history_error": str(exc)}
+    keys = ("created", "verdict", "offset_um", "offset_std_um", "flag")
+    out["checks"] = [{k: c.get(k) for k in keys} for c in checks[-100:]]
+    return out
+
+
 def open_live_station(
     rig: str = "sim",
     calibration: str = "calibration.json",
@@ -570,14 +618,12 @@ def open_live_station(
     c = open_calibrated_rig(rig, calibration, manipulator=manipulator, seed=seed)
     try:
         description = "; ".join(f"{k}: {v}" for k, v in c.opened.description.items())
-        return LiveStation(
-            c.device,
-            c.entry,
-            c.models,
-            description,
-            frames=frames,
-            settle_s=1.0 if settle_s is None else settle_s,
-        )
+        single = len(load_calibration(calibration).manipulators) == 1
+        health = calibration_health(calibration, c.entry.name, single, c.entry.validation)
+        report = Path(calibration).with_name("report.html")
+        return LiveStation(c.device, c.entry, c.models, description, frames=frames,
+                           settle_s=1.0 if settle_s is None else settle_s, health=health,
+                           report=report if report.is_file() else None)  # fmt: skip
     except BaseException:
         c.opened.close()
         raise

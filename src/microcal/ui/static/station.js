@@ -236,6 +236,32 @@ function fpsLoop() {
   }, 1000);
 }
 
+// The calibration's health: when it was made, its checks as a plot of the offset (µm).
+function showHealth(h) {
+  if (!h) return;
+  const rms = h.validation_rms_um != null ? `, validation RMS ${h.validation_rms_um.toFixed(2)} µm` : "";
+  $("health-made").textContent = `made ${h.created || "(date unknown)"}${rms}`;
+  $("health-report").hidden = !h.report;
+  const checks = h.checks || [];
+  if (h.history_error) { $("health-check").textContent = h.history_error; $("health-check").className = "bad"; }
+  if (!checks.length) return;
+  const last = checks[checks.length - 1];
+  $("health-check").textContent = `${checks.length} check(s); last: ${last.verdict}` +
+    (last.created ? ` on ${last.created}` : "") + (last.flag ? " (flagged)" : "");
+  $("health-check").className = last.verdict === "valid" ? "good" : "bad";
+  const canvas = $("health-plot"), ctx = canvas.getContext("2d");
+  const size = checks.map((c) => Math.hypot(...(c.offset_um || [0, 0, 0])));
+  const top = Math.max(...size, 1e-9) * 1.15;
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  ctx.fillStyle = "#9aa3ad"; ctx.font = "10px sans-serif"; ctx.fillText(`offset, max ${top.toFixed(2)} µm`, 4, 10);
+  size.forEach((v, i) => {
+    const x = 8 + (canvas.width - 16) * (checks.length > 1 ? i / (checks.length - 1) : 0.5);
+    const y = canvas.height - 6 - (canvas.height - 20) * v / top;
+    ctx.fillStyle = checks[i].verdict === "valid" ? "#5fd38d" : "#ff6b6b";
+    ctx.beginPath(); ctx.arc(x, y, 3, 0, 2 * Math.PI); ctx.fill();
+  });
+}
+
 async function main() {
   $("stop").addEventListener("click", async () => {
     try { await api("/api/stop", {}); $("message").textContent = "stop sent"; } catch (err) { say(err.message); }
@@ -267,6 +293,7 @@ async function main() {
     $("hint").textContent = "One camera: a click and the focal plane give the target (not offered yet).";
   }
   buildViews();
+  showHealth(station.layout.health);
   const claim = await api("/api/claim", {}).catch((err) => { say(err.message); return { role: "watch" }; });
   showRole(claim.role);
   fpsLoop();
