@@ -74,8 +74,19 @@ def test_click_in_two_views_go_closed_loop_and_the_tip_arrives_by_truth(served):
     page.wait_for_function("window.microcal.target === null && window.microcal.curves.side")
     _click_at(page, live, "side", [3600.0, 2600.0, 1800.0])
     page.wait_for_function("window.microcal.target !== null")
+    # refined in the side view's zoom (full resolution): the same view's click is replaced
+    before = page.evaluate("window.microcal.target.target_um")
+    page.wait_for_function(  # the zoom cut around the side view's click
+        "(() => { const v = window.microcal.views.side, c = window.microcal.clicks.side;"
+        " return v.zoomCorner !== undefined && v.zoomCorner[0] === Math.round(c[0]) - 80"
+        " && v.zoomCorner[1] === Math.round(c[1]) - 80; })()"
+    )
+    page.locator('figure[data-camera="side"] canvas.zoom').click(position={"x": 80, "y": 80})
+    page.wait_for_function("window.microcal.std.side === 0.5")
+    page.wait_for_function(f"window.microcal.target.target_um[0] !== {before[0]}")
+    assert sorted(page.evaluate("Object.keys(window.microcal.clicks)")) == ["side", "top"]
     target = np.array(page.evaluate("window.microcal.target.target_um"))
-    assert np.linalg.norm(target - [3600.0, 2600.0, 1800.0]) < 150.0  # a click is a few px
+    assert np.linalg.norm(target - [3600.0, 2600.0, 1800.0]) < 200.0  # a click is a few px
     assert page.inner_text("#refusal") == ""
     page.select_option("#mode", "closed")
     page.fill("#tolerance", "0.5")

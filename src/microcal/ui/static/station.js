@@ -11,7 +11,7 @@ const COLORS = { predicted: "#4cc3ff", measured: "#5fd38d", target: "#ff5fd2",
 
 const station = {
   layout: null, role: "watch", views: {}, overlays: {}, state: null,
-  clicks: {}, first: null, curves: {}, target: null, frames: {},
+  clicks: {}, std: {}, first: null, curves: {}, target: null, frames: {},
 };
 window.microcal = station;  // for tests and the benchmark: frame counts, layout, target
 
@@ -48,6 +48,7 @@ function buildViews() {
     const v = { cam, node, canvas, ctx: canvas.getContext("2d"), bitmap: null, count: 0,
       fps: 0, error: "", zoom: node.querySelector("canvas.zoom") };
     canvas.addEventListener("click", (e) => onClick(v, e));
+    v.zoom.addEventListener("click", (e) => onZoomClick(v, e));
     station.views[cam.name] = v;
     station.frames[cam.name] = 0;
     $("views").appendChild(node);
@@ -136,7 +137,11 @@ async function zoomLoop(v) {
     try {
       const r = await fetch(`/api/zoom/${encodeURIComponent(v.cam.name)}?x=${Math.round(centre[0])}` +
         `&y=${Math.round(centre[1])}&size=${ZOOM_PX}`, { cache: "no-store" });
-      if (r.ok) ctx.drawImage(await createImageBitmap(await r.blob()), 0, 0, ZOOM_PX, ZOOM_PX);
+      if (r.ok) {
+        ctx.drawImage(await createImageBitmap(await r.blob()), 0, 0, ZOOM_PX, ZOOM_PX);
+        const corner = (c, size) => Math.min(Math.max(Math.round(c) - ZOOM_PX / 2, 0), Math.max(size - ZOOM_PX, 0));
+        v.zoomCorner = [corner(centre[0], v.cam.width_px), corner(centre[1], v.cam.height_px)];
+      }
     } catch (err) { /* the live view says it */ }
   }
 }
@@ -156,27 +161,29 @@ function updateGo() {
     (station.state && station.state.activity !== "idle");
 }
 
-async function onClick(v, e) {
+// A click in a view (q in full-resolution px, its standard deviation std px). A first click
+// draws its epipolar line in the other views; a click in another view gives the 3D target.
+// With `refine` (a click in the zoom, at full resolution) it replaces that view's click.
+async function clickAt(v, q, std, refine) {
   if (station.role !== "control") { say("this browser watches; another one controls the station"); return; }
-  const r = v.canvas.getBoundingClientRect();
-  const k = v.cam.width_px / r.width;
-  const q = [(e.clientX - r.left) * k - 0.5, (e.clientY - r.top) * k - 0.5];
   const name = v.cam.name;
   say("");
   try {
-    if (!station.first || station.first === name || station.clicks[name]) {
-      station.first = name; station.clicks = { [name]: q }; station.target = null;
-      station.curves = (await api("/api/epipolar", { camera: name, x_px: q[0], y_px: q[1] })).curves;
+    const fresh = !station.first || (!refine && (station.first === name || station.clicks[name]));
+    if (fresh || (refine && station.first === name && Object.keys(station.clicks).length === 1)) {
+      station.first = name; station.clicks = { [name]: q }; station.std = { [name]: std };
+      station.target = null;
       $("target-text").textContent = `clicked in ${name}; now click on the epipolar line in another view`;
       $("refusal").textContent = "";
     } else {
-      station.clicks[name] = q;
-      const std = {};
-      for (const n of Object.keys(station.clicks)) {
-        const w = station.views[n].canvas.getBoundingClientRect().width;
-        std[n] = 0.5 * station.views[n].cam.width_px / w;
-      }
-      const t = await api("/api/target", { clicks: station.clicks, std_px: std });
+      station.clicks[name] = q; station.std[name] = std;
+    }
+    if (station.first === name) {
+      station.curves = (await api("/api/epipolar", { camera: name, x_px: station.clicks[name][0],
+        y_px: station.clicks[name][1] })).curves;
+    }
+    if (Object.keys(station.clicks).length >= 2) {
+      const t = await api("/api/target", { clicks: station.clicks, std_px: station.std });
       station.target = t;
       $("target-text").textContent = `x, y, z = ${fmt(t.target_um, 1)} µm (± ${fmt(t.std_um, 1)})`;
       $("refusal").textContent = t.refusal ? `refused: ${t.refusal}` : "";
@@ -184,6 +191,22 @@ async function onClick(v, e) {
   } catch (err) { say(err.message); }
   updateGo();
   for (const w of Object.values(station.views)) draw(w);
+}
+
+function onClick(v, e) {
+  const r = v.canvas.getBoundingClientRect();
+  const k = v.cam.width_px / r.width;
+  // one displayed pixel holds k camera pixels: the click is anywhere in it
+  clickAt(v, [(e.clientX - r.left) * k - 0.5, (e.clientY - r.top) * k - 0.5], 0.5 * k, false);
+}
+
+// The zoom shows camera pixels one to one from its corner (as the server cuts it).
+function onZoomClick(v, e) {
+  if (!v.zoomCorner) return;
+  const r = v.zoom.getBoundingClientRect();
+  const k = ZOOM_PX / r.width;
+  const q = [v.zoomCorner[0] + (e.clientX - r.left) * k - 0.5, v.zoomCorner[1] + (e.clientY - r.top) * k - 0.5];
+  clickAt(v, q, 0.5, true);
 }
 
 function showState(s) {
@@ -280,7 +303,7 @@ async function main() {
     try { await api("/api/measure", {}); } catch (err) { say(err.message); }
   });
   $("clear").addEventListener("click", () => {
-    station.clicks = {}; station.first = null; station.curves = {}; station.target = null;
+    station.clicks = {}; station.std = {}; station.first = null; station.curves = {}; station.target = null;
     $("target-text").textContent = "no target: click in a view"; $("refusal").textContent = "";
     updateGo();
   });
