@@ -28,14 +28,9 @@ def ui(
 
     Example: microcal ui --rig sim --calibration demo-out/calibration.json
     """
-    from ..errors import InputError
-    from ..ui import ui_available
-
-    if reason := ui_available():
-        raise InputError(reason)
-    from ..ui.serve import serve
+    from ..ui import serve_page
 
     say = lambda url: print(f"station page: {url}", flush=True)  # noqa: E731
-    serve(rig, calibration, host=host, port=port, manipulator=manipulator, seed=seed,
-          frames=frames, announce=say)  # fmt: skip
+    serve_page(rig, calibration, say, host=host, port=port, manipulator=manipulator, seed=seed,
+               frames=frames)  # fmt: skip
     print("station page stopped")

@@ -8,7 +8,10 @@ request is :class:`microcal.workflows.live.LiveStation`'s. Needs ``pip install
 
 from __future__ import annotations
 
-__all__ = ["ui_available"]
+from collections.abc import Callable
+from typing import Any
+
+__all__ = ["serve_page", "ui_available"]
 
 
 def ui_available() -> str | None:
@@ -22,3 +25,20 @@ def ui_available() -> str | None:
             "install: pip install 'microcal[ui]'"
         )
     return None
+
+
+def serve_page(rig: str, calibration: str, announce: Callable[[str], None], **options: Any) -> None:
+    """:func:`microcal.ui.serve.serve` once its libraries are there (``microcal ui``).
+
+    Raises
+    ------
+    InputError
+        Starlette or uvicorn missing (how to install them), or as ``serve``.
+    """
+    from ..errors import InputError
+
+    if reason := ui_available():
+        raise InputError(reason)
+    from .serve import serve
+
+    serve(rig, calibration, announce=announce, **options)
