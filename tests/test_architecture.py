@@ -54,6 +54,7 @@ LAYERS = {
     "report": 9,
     "workflows": 10,
     "cli": 11,
+    "ui": 11,
     "__main__": 11,
 }
 _NUMERIC = {"numpy", "scipy"}
@@ -74,18 +75,22 @@ ALLOWED_THIRD_PARTY = {
     10: _FILES | {"matplotlib", "jinja2", "rich"},
     11: _FILES | {"matplotlib", "jinja2", "rich", "typer"},
 }
+# the station page's server (microcal.ui, an edge beside the command line): its web libraries,
+# an optional extra (microcal[ui]), in that package alone
+PACKAGE_LIBRARIES = {"ui": {"starlette", "uvicorn"}}
 STDLIB_OK = set(sys.stdlib_module_names)
 # optional hardware libraries (extras), each only in its own driver module
 DRIVER_LIBRARIES = {
     "devices.aravis_camera": {"gi", "aravis"},
     "devices.micromanager": {"pymmcore_plus"},
     "devices.twin_camera": {"pymmcore_plus"},
+    "devices.mm_tip_stage": {"pymmcore_plus"},
 }
 
 # The command line (microcal.cli) parses, calls one workflow and prints: besides itself it
 # imports only the workflows, the report's printing and the errors it turns into one line.
 CLI = "cli"
-CLI_MAY_IMPORT = ("cli", "workflows", "report", "errors", "_version")
+CLI_MAY_IMPORT = ("cli", "workflows", "report", "errors", "_version", "ui")
 
 
 class Import(NamedTuple):
@@ -189,6 +194,7 @@ def test_every_module_respects_its_layer():
                 top not in STDLIB_OK
                 and top not in ALLOWED_THIRD_PARTY[own]
                 and top not in DRIVER_LIBRARIES.get(rel, set())
+                and top not in PACKAGE_LIBRARIES.get(rel.split(".")[0], set())
             ):
                 problems.append(
                     f"microcal.{rel or '__init__'}:{line} (layer {own}) imports third-party {top}"

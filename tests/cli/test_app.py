@@ -25,6 +25,7 @@ COMMANDS = [
     "goto",
     "study",
     "twin",
+    "ui",
 ]
 
 

@@ -24,7 +24,8 @@ KIND                      what the test does with the block
 ========================  =============================================================
 
 In ``sh`` blocks, ``\\`` continuations are joined and ``#`` comments dropped; a line is a
-``microcal`` command, ``make TARGET``, a ``pip`` command (checked, not run) or the start of
+``microcal`` command, ``make TARGET``, a ``pip`` command or ``microcal ui`` (a server until
+Ctrl-C, which tests/ui/test_serve.py starts; both checked, not run) or the start of
 ``for VAR in WORDS; do ... done`` (its body runs once per word, ``$VAR`` replaced); any other
 line fails as unclassified. What a block reads that an earlier step of its page would have
 made is put in its sandbox by :data:`SETUPS` (keyed by page and block number, from 0).
@@ -233,6 +234,19 @@ def makefile_targets() -> set[str]:
     return set(re.findall(r"^([a-z]+):", text, re.MULTILINE))
 
 
+def check_server_line(where: str, words: list[str]) -> None:
+    """``microcal ui ...``: its options parse (it serves until Ctrl-C: not run here)."""
+    import click
+
+    from microcal.cli import app
+
+    command = typer.main.get_command(app).commands[words[1]]  # type: ignore[attr-defined]
+    try:
+        command.make_context(words[1], list(words[2:]))
+    except click.ClickException as exc:
+        pytest.fail(f"{where}: `{' '.join(words)}`: {exc.format_message()}", pytrace=False)
+
+
 def check_pip(where: str, words: list[str]) -> None:
     """A pip command names the project (``.``) or a wheel of it, and extras it has."""
     extras = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]
@@ -291,6 +305,8 @@ def run_shell(block: Block, sandbox: Path, twins: Twins | None) -> dict[str, str
         if words[:2] == ["microcal", "twin"]:
             assert twins is not None, f"{block.where}: `{shown}` in a block not marked twin"
             twins.start_from_line(block.where, words)
+        elif words[:2] == ["microcal", "ui"]:
+            check_server_line(block.where, words)
         elif words[0] == "microcal":
             ran = invoke_microcal(*words[1:], cwd=sandbox)
             if ran.returncode != 0:
