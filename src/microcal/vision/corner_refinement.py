@@ -1,28 +1,37 @@
-"""Sub-pixel chessboard corners: windows that follow the local spacing, and a symmetry fit.
+"""Sub-pixel chessboard corners: windows that follow the local spacing, chosen per board by the
+corners' own scatter, and a symmetry fit.
 
 A chessboard corner is where two edges cross; around it, the picture is point-symmetric:
 the grey level at ``c + d`` equals that at ``c - d`` for every small offset ``d``, whatever
 the angle between the edges (perspective) and however blurred, as long as the blur is the
 same on both sides. :func:`refine_corners` finds each corner in two steps:
 
-1. OpenCV's ``cornerSubPix`` (gradients orthogonal to the offsets), with a half-window of
-   :data:`WINDOW_FRACTION` of the corner's own spacing to its nearest neighbour in the grid
-   (at most :data:`MAX_HALF_PX`), so a
-   corner seen small under perspective gets a small window and one seen large a large one,
-   and no window reaches a neighbouring corner or the board's edge;
+1. OpenCV's ``cornerSubPix`` (gradients orthogonal to the offsets), with a half-window of a
+   fraction of the corner's own spacing to its nearest neighbour in the grid (at most
+   :data:`MAX_HALF_PX`), so a corner seen small under perspective gets a small window and one
+   seen large a large one, and no window reaches a neighbouring corner or the board's edge;
 2. the centre ``c`` that minimises ``sum_d w(d) (I(c + d) - I(c - d))^2`` over the same
    window (Gaussian weights), by Gauss-Newton on bilinearly sampled grey levels, all corners
    at once. It uses every grey level of the window, not only the edges' gradients.
 
-On rendered wide-angle views with blur and noise (``microcal.sim.calibration_views``) the
-second step brings the corner error from about 0.035-0.055 px (``cornerSubPix`` with its best
-fixed window) down to 0.014-0.024 px; on the Bumblebee2 photographs it lowers the mono RMS
-of the left camera from 0.082 to 0.073 px with OpenCV's default lens model (see
-docs/vision.md). A corner whose fit does not converge, or moves
-more than :data:`MAX_SHIFT_PX` from step 1, keeps step 1's position.
+Which fraction is best depends on the picture: a large window averages more noise and JPEG
+blocks away, but reaches into what is not point-symmetric about the corner (codes or dots
+printed in the squares, a lens's curvature of the edges, uneven light). No one fraction
+suits every camera, so each board is refined with every fraction of
+:data:`WINDOW_FRACTIONS` and the one whose corners scatter least about a smooth lattice is
+kept (:func:`lattice_scatter_px`: a polynomial of the grid coordinates, which follows
+perspective and lens distortion over the board but not the corners' own errors). The
+scatter is what a calibration's reprojection error is made of, so the choice is made on
+the figure that matters, from the image itself: its squares' size, blur, noise and
+compression, and whatever is printed in the squares.
+
+A corner whose symmetry fit does not converge, or moves more than :data:`MAX_SHIFT_PX`
+from step 1, keeps step 1's position. Figures on rendered and real sets: docs/vision.md.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -30,9 +39,23 @@ from numpy.typing import NDArray
 
 from .._validation import FloatArray
 
-__all__ = ["MAX_HALF_PX", "MAX_SHIFT_PX", "WINDOW_FRACTION", "local_spacing_px", "refine_corners"]
+__all__ = [
+    "MAX_HALF_PX",
+    "MAX_SHIFT_PX",
+    "WINDOW_FRACTION",
+    "WINDOW_FRACTIONS",
+    "CornerRefinement",
+    "grid_spacing_px",
+    "lattice_scatter_px",
+    "local_spacing_px",
+    "refine_corners",
+    "refine_grid_corners",
+]
 
-#: Half-window as a fraction of each corner's spacing to its nearest grid neighbour.
+#: The half-window fractions (of each corner's spacing to its nearest grid neighbour) a board
+#: is refined with; the one whose corners scatter least about a smooth lattice is kept.
+WINDOW_FRACTIONS = (0.1, 0.13, 0.16, 0.2, 0.25, 0.32, 0.4, 0.5)
+#: The fraction used where the corners are too few to judge their scatter.
 WINDOW_FRACTION = 0.4
 #: The symmetry fit may move a corner at most this far from the gradient estimate, px.
 MAX_SHIFT_PX = 1.0
@@ -42,6 +65,38 @@ _MIN_HALF_PX = 2
 MAX_HALF_PX = 20
 _ITERATIONS = 10
 _CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 1e-3)
+#: The smooth lattice's polynomial degree at most (cubic: perspective and a wide-angle lens's
+#: barrel over a board, to well under the corners' scatter).
+_LATTICE_DEGREE = 3
+#: The lattice fit keeps at least this share of its 2 N coordinates as residual freedom.
+_MIN_FREEDOM = 0.4
+
+
+def grid_spacing_px(corners_px: FloatArray, grid_ij: FloatArray) -> FloatArray:
+    """Distance from each corner to its nearest neighbour along the grid's rows and columns.
+
+    Parameters
+    ----------
+    corners_px : (N, 2) float
+        Corners, any subset of a grid.
+    grid_ij : (N, 2) int or float
+        Each corner's column and row in the grid.
+
+    Returns
+    -------
+    spacing_px : (N,) float
+        ``inf`` for a corner without a neighbour among the others.
+    """
+    q = np.asarray(corners_px, dtype=np.float64)
+    ij = np.rint(np.asarray(grid_ij)).astype(np.int64)
+    index = {(int(a), int(b)): k for k, (a, b) in enumerate(ij)}
+    out: FloatArray = np.full(len(q), np.inf)
+    for k, (a, b) in enumerate(ij):
+        for da, db in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            n = index.get((int(a) + da, int(b) + db))
+            if n is not None:
+                out[k] = min(out[k], float(np.hypot(*(q[n] - q[k]))))
+    return out
 
 
 def local_spacing_px(corners_px: FloatArray, cols: int, rows: int) -> FloatArray:
@@ -68,6 +123,56 @@ def local_spacing_px(corners_px: FloatArray, cols: int, rows: int) -> FloatArray
         s[1:, :] = np.minimum(s[1:, :], dy)
     out: FloatArray = s.ravel()
     return out
+
+
+def _lattice_design(grid_ij: FloatArray) -> NDArray[np.float64] | None:
+    """Monomials of the grid coordinates for the smooth lattice, or None if too few corners.
+
+    The degree is the highest (at most :data:`_LATTICE_DEGREE`, and per axis below the
+    number of distinct rows or columns) that leaves :data:`_MIN_FREEDOM` of the coordinates
+    as residual freedom.
+    """
+    ij = np.asarray(grid_ij, dtype=np.float64)
+    n = len(ij)
+    span = max(float(np.ptp(ij, axis=0).max()), 1.0) if n else 1.0
+    u = (ij - ij.mean(axis=0)) / span if n else ij
+    n_i, n_j = (len(np.unique(ij[:, k])) for k in (0, 1))
+    for degree in range(_LATTICE_DEGREE, 0, -1):
+        powers = [(a, b) for a in range(min(degree, n_i - 1) + 1)
+                  for b in range(min(degree, n_j - 1) + 1) if a + b <= degree]  # fmt: skip
+        if n - len(powers) >= _MIN_FREEDOM * n and len(powers) >= 3:
+            A: NDArray[np.float64] = np.column_stack([u[:, 0] ** a * u[:, 1] ** b
+                                                      for a, b in powers])  # fmt: skip
+            return A
+    return None
+
+
+def lattice_scatter_px(corners_px: FloatArray, grid_ij: FloatArray) -> float:
+    """RMS scatter of corners about a smooth lattice through them, px per coordinate.
+
+    A polynomial of each corner's grid coordinates (degree up to 3, fewer with few corners)
+    is fitted to its pixel positions; the residuals' RMS, divided by the remaining degrees of
+    freedom, estimates the corners' own error: perspective and lens distortion vary slowly
+    over the board and go into the fit.
+
+    Parameters
+    ----------
+    corners_px : (N, 2) float
+    grid_ij : (N, 2) int or float
+        Each corner's column and row in the grid.
+
+    Returns
+    -------
+    float
+        NaN when the corners are too few for a fit with freedom to spare.
+    """
+    A = _lattice_design(grid_ij)
+    if A is None:
+        return float("nan")
+    q = np.asarray(corners_px, dtype=np.float64)
+    coef, _, rank, _ = np.linalg.lstsq(A, q, rcond=None)
+    r = q - A @ coef
+    return float(np.sqrt(np.sum(r**2) / (2.0 * max(len(q) - int(rank), 1))))
 
 
 def _sample(image: NDArray[np.float32], points: FloatArray) -> FloatArray:
@@ -145,10 +250,84 @@ def _symmetry_step(gray: NDArray[np.float32], start: FloatArray, half: FloatArra
     return np.where(keep[:, None], c, start)
 
 
+@dataclass(frozen=True)
+class CornerRefinement:
+    """Refined corners of one board and how their window was chosen.
+
+    Attributes
+    ----------
+    corners_px : (N, 2) float
+    window_fraction : float
+        The half-window as a fraction of each corner's spacing to its nearest neighbour.
+    scatter_px : float
+        The corners' RMS scatter about a smooth lattice (:func:`lattice_scatter_px`) with
+        that window (NaN when the corners are too few to judge).
+    """
+
+    corners_px: FloatArray
+    window_fraction: float
+    scatter_px: float
+
+
+def _refine_with(
+    gray: NDArray[np.float32], q: FloatArray, ij: FloatArray, fraction: float
+) -> FloatArray:
+    half = np.minimum(fraction * grid_spacing_px(q, ij), MAX_HALF_PX)
+    half[~np.isfinite(half)] = _MIN_HALF_PX
+    first = _gradient_step(gray, q, half)
+    half = np.minimum(fraction * grid_spacing_px(first, ij), MAX_HALF_PX)
+    half[~np.isfinite(half)] = _MIN_HALF_PX
+    return _symmetry_step(gray, first, half)
+
+
+def refine_grid_corners(
+    gray: NDArray[np.float32],
+    corners_px: FloatArray,
+    grid_ij: FloatArray,
+    *,
+    fractions: tuple[float, ...] = WINDOW_FRACTIONS,
+) -> CornerRefinement:
+    """Sub-pixel corners of one board, the window chosen by the corners' scatter.
+
+    Parameters
+    ----------
+    gray : (H, W) float32
+        The image, grey.
+    corners_px : (N, 2) float
+        Rough corners (a detector's output, within a pixel or two); any subset of a grid.
+    grid_ij : (N, 2) int or float
+        Each corner's column and row in the grid.
+    fractions : tuple of float
+        Half-window fractions of the local spacing to try (:data:`WINDOW_FRACTIONS`).
+
+    Returns
+    -------
+    CornerRefinement
+        With too few corners to judge the scatter, the window is :data:`WINDOW_FRACTION` of
+        the spacing.
+    """
+    q = np.asarray(corners_px, dtype=np.float64)
+    ij = np.asarray(grid_ij, dtype=np.float64)
+    if len(q) == 0:
+        return CornerRefinement(q.reshape(0, 2), WINDOW_FRACTION, float("nan"))
+    if _lattice_design(ij) is None or len(fractions) == 1:
+        f = fractions[0] if len(fractions) == 1 else WINDOW_FRACTION
+        out = _refine_with(gray, q, ij, f)
+        return CornerRefinement(out, f, lattice_scatter_px(out, ij))
+    best: CornerRefinement | None = None
+    for f in fractions:
+        out = _refine_with(gray, q, ij, f)
+        scatter = lattice_scatter_px(out, ij)
+        if best is None or scatter < best.scatter_px:
+            best = CornerRefinement(out, f, scatter)
+    assert best is not None
+    return best
+
+
 def refine_corners(
     gray: NDArray[np.float32], corners_px: FloatArray, cols: int, rows: int
 ) -> FloatArray:
-    """Sub-pixel positions of a chessboard's inner corners.
+    """Sub-pixel positions of a chessboard's inner corners (:func:`refine_grid_corners`).
 
     Parameters
     ----------
@@ -163,8 +342,6 @@ def refine_corners(
     -------
     corners_px : (rows * cols, 2) float
     """
-    q = np.asarray(corners_px, dtype=np.float64)
-    half = np.minimum(WINDOW_FRACTION * local_spacing_px(q, cols, rows), MAX_HALF_PX)
-    first = _gradient_step(gray, q, half)
-    half = np.minimum(WINDOW_FRACTION * local_spacing_px(first, cols, rows), MAX_HALF_PX)
-    return _symmetry_step(gray, first, half)
+    j, i = np.meshgrid(np.arange(cols), np.arange(rows))
+    ij = np.column_stack([j.ravel(), i.ravel()]).astype(np.float64)
+    return refine_grid_corners(gray, corners_px, ij).corners_px
