@@ -17,9 +17,9 @@ same on both sides. :func:`refine_corners` finds each corner in two steps:
 Which fraction is best depends on the picture: a large window averages more noise and JPEG
 blocks away, but reaches into what is not point-symmetric about the corner (codes or dots
 printed in the squares, a lens's curvature of the edges, uneven light). No one fraction
-suits every camera, so each board is refined with every fraction of
-:data:`WINDOW_FRACTIONS` and the one whose corners scatter least about a smooth lattice is
-kept (:func:`lattice_scatter_px`: a polynomial of the grid coordinates, which follows
+suits every camera, so each board is refined with the fractions of :data:`WINDOW_FRACTIONS`
+from the smallest up (until two in a row do worse than the best) and the one whose corners
+scatter least about a smooth lattice is kept (:func:`lattice_scatter_px`: a polynomial of the grid coordinates, which follows
 perspective and lens distortion over the board but not the corners' own errors). The
 scatter is what a calibration's reprojection error is made of, so the choice is made on
 the figure that matters, from the image itself: its squares' size, blur, noise and
@@ -68,6 +68,10 @@ _CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 1e-3)
 #: The smooth lattice's polynomial degree at most (cubic: perspective and a wide-angle lens's
 #: barrel over a board, to well under the corners' scatter).
 _LATTICE_DEGREE = 3
+#: The fractions are tried from the smallest up, until this many in a row scatter more than
+#: the best so far (the scatter falls as the window grows until what is not point-symmetric
+#: about a corner enters it, then rises).
+_STOP_AFTER = 2
 #: The lattice fit keeps at least this share of its 2 N coordinates as residual freedom.
 _MIN_FREEDOM = 0.4
 
@@ -88,14 +92,19 @@ def grid_spacing_px(corners_px: FloatArray, grid_ij: FloatArray) -> FloatArray:
         ``inf`` for a corner without a neighbour among the others.
     """
     q = np.asarray(corners_px, dtype=np.float64)
-    ij = np.rint(np.asarray(grid_ij)).astype(np.int64)
-    index = {(int(a), int(b)): k for k, (a, b) in enumerate(ij)}
     out: FloatArray = np.full(len(q), np.inf)
-    for k, (a, b) in enumerate(ij):
-        for da, db in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-            n = index.get((int(a) + da, int(b) + db))
-            if n is not None:
-                out[k] = min(out[k], float(np.hypot(*(q[n] - q[k]))))
+    if len(q) == 0:
+        return out
+    ij = np.rint(np.asarray(grid_ij)).astype(np.int64)
+    ij = ij - ij.min(axis=0) + 1  # a free border round the grid
+    slot = np.full(tuple(ij.max(axis=0) + 2), -1, dtype=np.int64)
+    slot[ij[:, 0], ij[:, 1]] = np.arange(len(q))
+    for da, db in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        n = slot[ij[:, 0] + da, ij[:, 1] + db]
+        has = n >= 0
+        d = np.full(len(q), np.inf)
+        d[has] = np.linalg.norm(q[n[has]] - q[has], axis=1)
+        out = np.minimum(out, d)
     return out
 
 
@@ -201,7 +210,20 @@ def _gradient_step(gray: NDArray[np.float32], corners: FloatArray, half: FloatAr
     return out.astype(np.float64)
 
 
-def _symmetry_step(gray: NDArray[np.float32], start: FloatArray, half: FloatArray) -> FloatArray:
+def _symmetry_levels(gray: NDArray[np.float32]) -> NDArray[np.float32]:
+    """The grey levels and both gradients as one three-channel image (H, W, 3)."""
+    gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=1) * 0.5
+    gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=1) * 0.5
+    levels: NDArray[np.float32] = cv2.merge([gray, gx, gy])
+    return levels
+
+
+def _symmetry_step(
+    gray: NDArray[np.float32],
+    start: FloatArray,
+    half: FloatArray,
+    levels: NDArray[np.float32] | None = None,
+) -> FloatArray:
     """Step 2: the centre of point symmetry in each corner's window (Gauss-Newton).
 
     The grey levels and both gradients are sampled together (one three-channel image), and
@@ -215,9 +237,8 @@ def _symmetry_step(gray: NDArray[np.float32], start: FloatArray, half: FloatArra
     r2 = np.sum(d**2, axis=1)
     sigma = half[:, None] / 1.5
     w_all = np.exp(-r2[None, :] / (2.0 * sigma**2)) * (r2[None, :] <= half[:, None] ** 2)
-    gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=1) * 0.5
-    gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=1) * 0.5
-    levels = cv2.merge([gray, gx, gy])  # (H, W, 3): grey level, d/dx, d/dy
+    if levels is None:
+        levels = _symmetry_levels(gray)  # (H, W, 3): grey level, d/dx, d/dy
     c = start.copy()
     converged = np.zeros(len(c), dtype=bool)
     m = len(d)
@@ -270,14 +291,18 @@ class CornerRefinement:
 
 
 def _refine_with(
-    gray: NDArray[np.float32], q: FloatArray, ij: FloatArray, fraction: float
+    gray: NDArray[np.float32],
+    q: FloatArray,
+    ij: FloatArray,
+    fraction: float,
+    levels: NDArray[np.float32] | None = None,
 ) -> FloatArray:
     half = np.minimum(fraction * grid_spacing_px(q, ij), MAX_HALF_PX)
     half[~np.isfinite(half)] = _MIN_HALF_PX
     first = _gradient_step(gray, q, half)
     half = np.minimum(fraction * grid_spacing_px(first, ij), MAX_HALF_PX)
     half[~np.isfinite(half)] = _MIN_HALF_PX
-    return _symmetry_step(gray, first, half)
+    return _symmetry_step(gray, first, half, levels)
 
 
 def refine_grid_corners(
@@ -314,18 +339,29 @@ def refine_grid_corners(
         f = fractions[0] if len(fractions) == 1 else WINDOW_FRACTION
         out = _refine_with(gray, q, ij, f)
         return CornerRefinement(out, f, lattice_scatter_px(out, ij))
+    levels = _symmetry_levels(gray)
     best: CornerRefinement | None = None
-    for f in fractions:
-        out = _refine_with(gray, q, ij, f)
+    worse = 0
+    for f in sorted(fractions):
+        out = _refine_with(gray, q, ij, f, levels)
         scatter = lattice_scatter_px(out, ij)
         if best is None or scatter < best.scatter_px:
-            best = CornerRefinement(out, f, scatter)
+            best, worse = CornerRefinement(out, f, scatter), 0
+        else:
+            worse += 1
+            if worse == _STOP_AFTER:
+                break
     assert best is not None
     return best
 
 
 def refine_corners(
-    gray: NDArray[np.float32], corners_px: FloatArray, cols: int, rows: int
+    gray: NDArray[np.float32],
+    corners_px: FloatArray,
+    cols: int,
+    rows: int,
+    *,
+    fractions: tuple[float, ...] = WINDOW_FRACTIONS,
 ) -> FloatArray:
     """Sub-pixel positions of a chessboard's inner corners (:func:`refine_grid_corners`).
 
@@ -337,6 +373,8 @@ def refine_corners(
         Rough corners row by row (a detector's output, within a pixel or two).
     cols, rows : int
         The grid's inner corners per row and per column.
+    fractions : tuple of float
+        Half-window fractions to choose from (:data:`WINDOW_FRACTIONS`).
 
     Returns
     -------
@@ -344,4 +382,4 @@ def refine_corners(
     """
     j, i = np.meshgrid(np.arange(cols), np.arange(rows))
     ij = np.column_stack([j.ravel(), i.ravel()]).astype(np.float64)
-    return refine_grid_corners(gray, corners_px, ij).corners_px
+    return refine_grid_corners(gray, corners_px, ij, fractions=fractions).corners_px

@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from .._validation import FloatArray
 from ..errors import InputError
 from .board_symmetry import turn_ids
-from .corner_refinement import refine_corners
+from .corner_refinement import WINDOW_FRACTIONS, refine_corners
 from .targets import Target
 
 __all__ = ["Detection", "detect", "to_gray"]
@@ -254,8 +254,16 @@ def _orient(gray: NDArray[np.float32], corners: FloatArray, target: Target) -> F
     return corners if best is None else best[1]
 
 
+#: The window fractions a half-resolution search refines with: its corners only place the
+#: full-resolution search, so fewer candidates do.
+COARSE_FRACTIONS = (0.13, 0.2, 0.32)
+
+
 def _detect_chessboard(
-    gray: NDArray[np.float32], target: Target, refused: list[FloatArray] | None = None
+    gray: NDArray[np.float32],
+    target: Target,
+    refused: list[FloatArray] | None = None,
+    fractions: tuple[float, ...] = WINDOW_FRACTIONS,
 ) -> Detection:
     """The chessboard in ``gray``; corners found and then refused are added to ``refused``."""
     size = target.pattern_size
@@ -282,7 +290,7 @@ def _detect_chessboard(
             return Detection.none(why or f"no {size[0]}x{size[1]} chessboard found")
     q = corners.reshape(-1, 2).astype(np.float64)
     q = _orient(gray, q, target)
-    q = refine_corners(gray, q, *size)
+    q = refine_corners(gray, q, *size, fractions=fractions)
     not_whole = _board_edges(gray, q, *size)
     if not_whole:
         if refused is not None:
@@ -305,7 +313,7 @@ def _detect_chessboard_coarse_to_fine(gray: NDArray[np.float32], target: Target)
         return _detect_chessboard(gray, target)
     small = cv2.resize(gray, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
     refused: list[FloatArray] = []
-    coarse = _detect_chessboard(small, target, refused)
+    coarse = _detect_chessboard(small, target, refused, COARSE_FRACTIONS)
     if coarse.found or refused:
         # Found, or found and refused at half resolution (a wrong spec, part of a board, or a
         # check too fine for half the pixels): decided at full resolution around those corners.
