@@ -19,8 +19,9 @@ blocks away, but reaches into what is not point-symmetric about the corner (code
 printed in the squares, a lens's curvature of the edges, uneven light). No one fraction
 suits every camera, so each board is refined with the fractions of :data:`WINDOW_FRACTIONS`
 from the smallest up (until two in a row do worse than the best) and the one whose corners
-scatter least about a smooth lattice is kept (:func:`lattice_scatter_px`: a polynomial of the grid coordinates, which follows
-perspective and lens distortion over the board but not the corners' own errors). The
+scatter least about a smooth lattice is kept (:func:`lattice_scatter_px`: a polynomial of
+the grid coordinates, which follows perspective and lens distortion over the board but not
+the corners' own errors). The
 scatter is what a calibration's reprojection error is made of, so the choice is made on
 the figure that matters, from the image itself: its squares' size, blur, noise and
 compression, and whatever is printed in the squares.
