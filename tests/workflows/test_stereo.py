@@ -205,7 +205,8 @@ def test_three_cameras_from_tilted_views(tmp_path):
         (["--target", "chessboard:4x:400", "--images", "a=x", "--images", "b=y"], "expected KIND:COLSxROWS:PITCH_UM"),
         (["--target", "chessboard:4x3:400", "--images", "a=/nonexistent/*.tiff", "--images", "b=y"], "--images a: no file matches"),
         (["--target", "chessboard:4x3:400", "--images", "top"], "--images: expected CAMERA=GLOB"),
-        (["--target", "chessboard:4x3:400", "--images", f"a={__file__}"], "expected 2 cameras or more"),
+        (["--target", "chessboard:4x3:400", "--images", f"a={__file__}", "--known-displacements", __file__], "expected 2 cameras or more"),
+        (["--target", "chessboard:4x3:400", "--images", f"a={__file__}"], "none of its images could be read"),
     ],
 )  # fmt: skip
 def test_stereo_calibrate_user_errors(args, message):

@@ -235,8 +235,8 @@ def calibrate_unknown_poses(
         :data:`~microcal.vision.lens_models.LENS_MODELS`.
     """
     names = list(detections)
-    if len(names) < 2:
-        raise InputError(f"calibrate_unknown_poses: expected 2 or more cameras, got {len(names)}")
+    if not names:
+        raise InputError("calibrate_unknown_poses: expected 1 or more cameras, got none")
     if len(target.points_um()) < MIN_COMMON_POINTS:
         raise InputError(
             f"target {target.spec}: {len(target.points_um())} features are too few for method "
@@ -259,6 +259,9 @@ def calibrate_unknown_poses(
                 f"views; tilt it by 20 to 40 degrees in different directions between views "
                 "(method b cannot tell focal length from distance otherwise)"
             )
+    if len(names) == 1:
+        return _one_camera(mono[names[0]], names[0], reference_view,
+                           image_size_px[names[0]])  # fmt: skip
     dets, poses, turned, rejected, notes = _agree_numbering(target, mono, detections, image_names)
     first = names[0]
     if reference_view not in poses[first]:
@@ -273,6 +276,12 @@ def calibrate_unknown_poses(
             if len(d.ids) >= MIN_COMMON_POINTS:
                 seen.setdefault(v, []).append(Observation(c, v, obj[d.ids], d.q_px))
     joint = {v: o for v, o in seen.items() if len(o) >= 2}
+    if not joint:
+        raise DegenerateDataError(
+            f"cameras {', '.join(names)} share no view of the target (no view has it found by "
+            "two or more of them), so nothing relates them; take views that two or more "
+            "cameras see at once, or calibrate each camera alone (one --images each)"
+        )
     if reference_view not in joint:
         raise DegenerateDataError(
             f"reference view {reference_view} is usable in fewer than two cameras; choose one "
@@ -331,3 +340,23 @@ def calibrate_unknown_poses(
         rejected,
         notes=notes,
     )
+
+
+def _one_camera(
+    mono: _Mono, name: str, reference_view: int, size: tuple[int, int]
+) -> StereoCalibration:
+    """One camera alone: its own calibration, {V} the target's frame in the reference view."""
+    fit = mono.choice.fit
+    if reference_view not in mono.used:
+        raise DegenerateDataError(
+            f"reference view {reference_view} is not usable in camera {name}; usable: "
+            f"{sorted(mono.used)} (--reference-view)"
+        )
+    k = mono.used.index(reference_view)
+    cal = mono.calibration
+    cal.model = _camera_model(fit.K, fit.dist, fit.rvecs[k], fit.tvecs[k], size, name)
+    diag = cal.diagnostics
+    if diag is not None and np.isfinite(diag.uncertainty_map_px).any():
+        sigma = float(np.sqrt(np.nanmean(diag.uncertainty_map_px**2) / 2.0))
+        cal.model = dataclasses.replace(cal.model, projection_sigma_px=sigma)
+    return StereoCalibration("unknown poses (one camera)", {name: cal}, cal.rms_px, 0.0)
