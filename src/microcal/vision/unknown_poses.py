@@ -25,6 +25,7 @@ import numpy as np
 from ..errors import DegenerateDataError, InputError
 from ..geometry import CameraModel
 from .board_symmetry import ambiguous_turns, turn_transform
+from .calibration_consistency import consistency
 from .calibration_diagnostics import diagnose
 from .calibration_result import (
     CameraCalibration,
@@ -260,7 +261,7 @@ def calibrate_unknown_poses(
                 "(method b cannot tell focal length from distance otherwise)"
             )
     if len(names) == 1:
-        return _one_camera(mono[names[0]], names[0], reference_view,
+        return _one_camera(mono[names[0]], names[0], detections[names[0]], target, reference_view,
                            image_size_px[names[0]])  # fmt: skip
     dets, poses, turned, rejected, notes = _agree_numbering(target, mono, detections, image_names)
     first = names[0]
@@ -331,6 +332,15 @@ def calibrate_unknown_poses(
         if diag is not None and np.isfinite(diag.uncertainty_map_px).any():
             sigma = float(np.sqrt(np.nanmean(diag.uncertainty_map_px**2) / 2.0))
             cal.model = dataclasses.replace(cal.model, projection_sigma_px=sigma)
+    figures = consistency(
+        target,
+        dets,
+        poses,
+        {c: m.choice.fit.model for c, m in mono.items()},
+        models,
+        kept,
+        first,
+    )
     return StereoCalibration(
         "unknown poses (per-camera + joint refinement)",
         cams,
@@ -339,11 +349,17 @@ def calibrate_unknown_poses(
         turned,
         rejected,
         notes=notes,
+        consistency=figures,
     )
 
 
 def _one_camera(
-    mono: _Mono, name: str, reference_view: int, size: tuple[int, int]
+    mono: _Mono,
+    name: str,
+    detections: Sequence[Detection],
+    target: Target,
+    reference_view: int,
+    size: tuple[int, int],
 ) -> StereoCalibration:
     """One camera alone: its own calibration, {V} the target's frame in the reference view."""
     fit = mono.choice.fit
@@ -359,4 +375,10 @@ def _one_camera(
     if diag is not None and np.isfinite(diag.uncertainty_map_px).any():
         sigma = float(np.sqrt(np.nanmean(diag.uncertainty_map_px**2) / 2.0))
         cal.model = dataclasses.replace(cal.model, projection_sigma_px=sigma)
-    return StereoCalibration("unknown poses (one camera)", {name: cal}, cal.rms_px, 0.0)
+    dets = {name: {v: detections[v] for v in mono.used}}
+    poses = {name: {v: (cv2.Rodrigues(np.asarray(fit.rvecs[i]))[0], np.ravel(fit.tvecs[i]))
+                    for i, v in enumerate(mono.used)}}  # fmt: skip
+    figures = consistency(target, dets, poses, {name: fit.model}, {name: cal.model}, mono.used,
+                          name)  # fmt: skip
+    return StereoCalibration("unknown poses (one camera)", {name: cal}, cal.rms_px, 0.0,
+                             consistency=figures)  # fmt: skip
