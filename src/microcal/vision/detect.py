@@ -13,7 +13,8 @@ pixel positions with sub-pixel accuracy and a quality figure; or, when there is 
 - Dot grid: dots segmented by Otsu's threshold, centres from background-subtracted
   intensity moments in a window, then indexed on the lattice (two lattice vectors from the
   neighbours, grid coordinates by rounding); works for dense grids of thousands of dots.
-- ChArUco: OpenCV's ChArUco detector; ids are OpenCV's corner ids.
+- ChArUco: OpenCV's ChArUco detector; ids are OpenCV's corner ids; the corners refined as
+  a chessboard's (those found, each by its own neighbours' spacing).
 
 The quality figure is the RMS residual (px) of a homography from the target plane to the
 detected features: near the detection noise for a good detection.
@@ -31,7 +32,7 @@ from numpy.typing import NDArray
 from .._validation import FloatArray
 from ..errors import InputError
 from .board_symmetry import turn_ids
-from .corner_refinement import WINDOW_FRACTIONS, refine_corners
+from .corner_refinement import WINDOW_FRACTIONS, refine_corners, refine_grid_corners
 from .targets import Target
 
 __all__ = ["Detection", "detect", "to_gray"]
@@ -464,6 +465,9 @@ def _detect_charuco(gray: NDArray[np.float32], target: Target) -> Detection:
         return Detection.none("no ChArUco corners found")
     found_ids = np.asarray(ids, dtype=np.intp).reshape(-1)
     q = np.asarray(corners, dtype=np.float64).reshape(-1, 2)
+    cols = target.pattern_size[0]
+    ij = np.column_stack([found_ids % cols, found_ids // cols]).astype(np.float64)
+    q = refine_grid_corners(gray, q, ij).corners_px
     return Detection(True, found_ids, q, _homography_rms(target, found_ids, q), method="charuco")
 
 
