@@ -18,7 +18,7 @@ Which fraction is best depends on the picture: a large window averages more nois
 blocks away, but reaches into what is not point-symmetric about the corner (codes or dots
 printed in the squares, a lens's curvature of the edges, uneven light). No one fraction
 suits every camera, so each board is refined with the fractions of :data:`WINDOW_FRACTIONS`
-from the smallest up (until two in a row do worse than the best) and the one whose corners
+from the largest down (until two in a row do worse than the best) and the one whose corners
 scatter least about a smooth lattice is kept (:func:`lattice_scatter_px`: a polynomial of
 the grid coordinates, which follows perspective and lens distortion over the board but not
 the corners' own errors). The
@@ -43,6 +43,7 @@ from .._validation import FloatArray
 __all__ = [
     "MAX_HALF_PX",
     "MAX_SHIFT_PX",
+    "SCATTER_TOLERANCE",
     "WINDOW_FRACTION",
     "WINDOW_FRACTIONS",
     "CornerRefinement",
@@ -58,6 +59,10 @@ __all__ = [
 WINDOW_FRACTIONS = (0.1, 0.13, 0.16, 0.2, 0.25, 0.32, 0.4, 0.5)
 #: The fraction used where the corners are too few to judge their scatter.
 WINDOW_FRACTION = 0.4
+#: Another fraction replaces :data:`WINDOW_FRACTION` only where its corners scatter less by
+#: more than this share (with few corners under a strong lens, the lattice's own misfit can
+#: dominate the scatter, which then cannot tell the windows apart).
+SCATTER_TOLERANCE = 0.03
 #: The symmetry fit may move a corner at most this far from the gradient estimate, px.
 MAX_SHIFT_PX = 1.0
 _MIN_HALF_PX = 2
@@ -69,9 +74,11 @@ _CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 1e-3)
 #: The smooth lattice's polynomial degree at most (cubic: perspective and a wide-angle lens's
 #: barrel over a board, to well under the corners' scatter).
 _LATTICE_DEGREE = 3
-#: The fractions are tried from the smallest up, until this many in a row scatter more than
-#: the best so far (the scatter falls as the window grows until what is not point-symmetric
-#: about a corner enters it, then rises).
+#: The fractions are tried from the largest down, until this many in a row scatter more than
+#: the best so far (the scatter falls as the window shrinks until nothing that is not
+#: point-symmetric about a corner is left in it, then rises as less of the picture is used;
+#: from the largest down, since a window smaller than the blur or than the rough corners'
+#: error can stay where it starts).
 _STOP_AFTER = 2
 #: The lattice fit keeps at least this share of its 2 N coordinates as residual freedom.
 _MIN_FREEDOM = 0.4
@@ -291,6 +298,17 @@ class CornerRefinement:
     scatter_px: float
 
 
+def _half_windows(q: FloatArray, ij: FloatArray, fraction: float) -> FloatArray:
+    """Each corner's half-window, px: ``fraction`` of its spacing (a corner without a grid
+    neighbour among those found: of the others' median spacing)."""
+    spacing = grid_spacing_px(q, ij)
+    finite = np.isfinite(spacing)
+    fill = float(np.median(spacing[finite])) if finite.any() else _MIN_HALF_PX / fraction
+    spacing[~finite] = fill
+    half: FloatArray = np.minimum(fraction * spacing, MAX_HALF_PX)
+    return half
+
+
 def _refine_with(
     gray: NDArray[np.float32],
     q: FloatArray,
@@ -298,12 +316,8 @@ def _refine_with(
     fraction: float,
     levels: NDArray[np.float32] | None = None,
 ) -> FloatArray:
-    half = np.minimum(fraction * grid_spacing_px(q, ij), MAX_HALF_PX)
-    half[~np.isfinite(half)] = _MIN_HALF_PX
-    first = _gradient_step(gray, q, half)
-    half = np.minimum(fraction * grid_spacing_px(first, ij), MAX_HALF_PX)
-    half[~np.isfinite(half)] = _MIN_HALF_PX
-    return _symmetry_step(gray, first, half, levels)
+    first = _gradient_step(gray, q, _half_windows(q, ij, fraction))
+    return _symmetry_step(gray, first, _half_windows(first, ij, fraction), levels)
 
 
 def refine_grid_corners(
@@ -324,35 +338,41 @@ def refine_grid_corners(
     grid_ij : (N, 2) int or float
         Each corner's column and row in the grid.
     fractions : tuple of float
-        Half-window fractions of the local spacing to try (:data:`WINDOW_FRACTIONS`).
+        Half-window fractions of the local spacing to try (:data:`WINDOW_FRACTIONS`); the
+        largest of them up to :data:`WINDOW_FRACTION` is kept unless another scatters less
+        by :data:`SCATTER_TOLERANCE`, or when the corners are too few to judge.
 
     Returns
     -------
     CornerRefinement
-        With too few corners to judge the scatter, the window is :data:`WINDOW_FRACTION` of
-        the spacing.
     """
     q = np.asarray(corners_px, dtype=np.float64)
     ij = np.asarray(grid_ij, dtype=np.float64)
     if len(q) == 0:
         return CornerRefinement(q.reshape(0, 2), WINDOW_FRACTION, float("nan"))
     if _lattice_design(ij) is None or len(fractions) == 1:
-        f = fractions[0] if len(fractions) == 1 else WINDOW_FRACTION
+        f = fractions[0] if len(fractions) == 1 else min(WINDOW_FRACTION, max(fractions))
         out = _refine_with(gray, q, ij, f)
         return CornerRefinement(out, f, lattice_scatter_px(out, ij))
     levels = _symmetry_levels(gray)
-    best: CornerRefinement | None = None
+    usual = min(WINDOW_FRACTION, max(fractions))
+    out = _refine_with(gray, q, ij, usual, levels)
+    default = CornerRefinement(out, usual, lattice_scatter_px(out, ij))
+    best = default
     worse = 0
-    for f in sorted(fractions):
+    for f in sorted(fractions, reverse=True):
+        if f == usual:
+            continue
         out = _refine_with(gray, q, ij, f, levels)
-        scatter = lattice_scatter_px(out, ij)
-        if best is None or scatter < best.scatter_px:
-            best, worse = CornerRefinement(out, f, scatter), 0
+        found = CornerRefinement(out, f, lattice_scatter_px(out, ij))
+        if found.scatter_px < best.scatter_px:
+            best, worse = found, 0
         else:
             worse += 1
             if worse == _STOP_AFTER:
                 break
-    assert best is not None
+    if not best.scatter_px < (1.0 - SCATTER_TOLERANCE) * default.scatter_px:
+        return default  # where the scatter cannot tell, the window that suits most boards
     return best
 
 

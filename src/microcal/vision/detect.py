@@ -467,7 +467,10 @@ def _detect_charuco(gray: NDArray[np.float32], target: Target) -> Detection:
     q = np.asarray(corners, dtype=np.float64).reshape(-1, 2)
     cols = target.pattern_size[0]
     ij = np.column_stack([found_ids % cols, found_ids // cols]).astype(np.float64)
-    q = refine_grid_corners(gray, q, ij).corners_px
+    # the windows stay inside the white squares' margin round their markers
+    margin = 0.5 * (target.pitch_um - target.feature_um) / target.pitch_um
+    fractions = tuple(f for f in WINDOW_FRACTIONS if f <= margin) or (min(WINDOW_FRACTIONS),)
+    q = refine_grid_corners(gray, q, ij, fractions=fractions).corners_px
     return Detection(True, found_ids, q, _homography_rms(target, found_ids, q), method="charuco")
 
 
