@@ -503,7 +503,7 @@ def consistency_lines(figures: Mapping[str, object]) -> list[str]:
             if np.isfinite(tr) and np.isfinite(he):
                 parts.append(f"{name} {he:.3f} px against {tr:.3f} px (x{he / tr:.2f})")
         if parts:
-            lines.append("held-out views (each half of the views predicting the other) against "
+            lines.append("held-out views (each fold of the views predicted by the others) against "
                          "the views fitted: " + "; ".join(parts))  # fmt: skip
     pitch = figures.get("pitch")
     if isinstance(pitch, Mapping):

@@ -2,9 +2,9 @@
 
 Three checks that need no ground truth, only the views the calibration was made from:
 
-- **Held-out views** (:func:`held_out_error`): the views are split in two interleaved halves;
-  each half calibrates the cameras (each camera's chosen lens model, then the joint poses)
-  and the other half is predicted: a held-out view's board pose is solved with the
+- **Held-out views** (:func:`held_out_error`): the views are split in four interleaved folds
+  (fewer with fewer than eight views); all but one calibrate the cameras (each camera's
+  chosen lens model, then the joint poses) and the one left out is predicted: a held-out view's board pose is solved with the
   calibration fixed, and its reprojection error measured. A calibration that fits its views
   but not the camera (too rich a model, too few views, a corner bias that differs from view
   to view) predicts held-out views worse than it fits its own: the ratio says by how much.
@@ -48,6 +48,9 @@ __all__ = ["consistency", "held_out_error", "transform_closure", "triangulated_p
 MIN_POINTS = 6
 #: Views two cameras must share for their transform to be calibrated from them alone.
 MIN_SHARED_VIEWS = 3
+#: The views are split into this many interleaved folds (fewer with few views), each held
+#: out in turn while the others calibrate.
+HELD_OUT_FOLDS = 4
 #: The field is split into this many cells per side for the worst local pitch error.
 FIELD_CELLS = 3
 
@@ -93,8 +96,9 @@ def held_out_error(
     models: Mapping[str, LensModel],
     sizes: Mapping[str, tuple[int, int]],
     first: str,
+    start: Mapping[str, Intrinsics] | None = None,
 ) -> dict[str, JsonValue]:
-    """Training and held-out RMS over two interleaved halves of the views.
+    """Training and held-out RMS over interleaved folds of the views (:data:`HELD_OUT_FOLDS`).
 
     Parameters
     ----------
@@ -106,6 +110,8 @@ def held_out_error(
     sizes : dict camera -> (w, h)
     first : str
         The camera whose frame fixes the gauge of the joint poses.
+    start : dict camera -> (K, dist), optional
+        Intrinsics each fold's calibration starts from (the whole calibration's).
 
     Returns
     -------
@@ -115,13 +121,15 @@ def held_out_error(
         each held-out view's board pose solved from all the cameras that saw it.
     """
     views = sorted(observations)
-    halves = [views[0::2], views[1::2]]
+    n_folds = max(2, min(HELD_OUT_FOLDS, len(views) // 2))
+    folds = [views[k::n_folds] for k in range(n_folds)]
     train_sq: dict[str, list[float]] = {c: [] for c in models}
     held_sq: dict[str, list[float]] = {c: [] for c in models}
     joint_train: list[float] = []
     joint_held: list[float] = []
-    for k in (0, 1):
-        train, held = halves[k], halves[1 - k]
+    for k in range(n_folds):
+        held = folds[k]
+        train = [v for v in views if v not in set(held)]
         intrinsics: dict[str, Intrinsics] = {}
         poses: dict[str, dict[int, Pose]] = {c: {} for c in models}
         for c, model in models.items():
@@ -129,8 +137,9 @@ def held_out_error(
             if len(mine) < 3:
                 continue
             try:
+                guess = None if start is None else start.get(c)
                 fit = fit_camera([o.object_um for _, o in mine], [o.image_px for _, o in mine],
-                                 sizes[c], model)  # fmt: skip
+                                 sizes[c], model, guess=guess)  # fmt: skip
             except DegenerateDataError:
                 continue
             intrinsics[c] = (fit.K, fit.dist)
@@ -381,7 +390,11 @@ def consistency(
             if len(d.ids) >= MIN_POINTS:
                 observations.setdefault(v, []).append(Observation(c, v, obj[d.ids], d.q_px))
     sizes = {c: m.image_size_px for c, m in cameras.items()}
-    out: dict[str, JsonValue] = {"held_out": held_out_error(observations, models, sizes, first)}
+    out: dict[str, JsonValue] = {
+        "held_out": held_out_error(
+            observations, models, sizes, first, {c: (m.K, m.dist) for c, m in cameras.items()}
+        )
+    }
     if len(cameras) >= 2:
         kept = {c: {v: d for v, d in by_view.items() if v in set(joint_views)}
                 for c, by_view in detections.items()}  # fmt: skip
