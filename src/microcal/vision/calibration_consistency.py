@@ -4,8 +4,9 @@ Three checks that need no ground truth, only the views the calibration was made 
 
 - **Held-out views** (:func:`held_out_error`): the views are split in four interleaved folds
   (fewer with fewer than eight views); all but one calibrate the cameras (each camera's
-  chosen lens model, then the joint poses) and the one left out is predicted: a held-out view's board pose is solved with the
-  calibration fixed, and its reprojection error measured. A calibration that fits its views
+  chosen lens model, then the joint poses) and the one left out is predicted: a held-out
+  view's board pose is solved with the calibration fixed, and its reprojection error
+  measured. A calibration that fits its views
   but not the camera (too rich a model, too few views, a corner bias that differs from view
   to view) predicts held-out views worse than it fits its own: the ratio says by how much.
 - **The target's pitch** (:func:`triangulated_pitch`): the corners of every view two or more
