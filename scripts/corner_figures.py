@@ -45,7 +45,7 @@ def _transform(scale: float, quality: int | None) -> Callable[[np.ndarray], np.n
         if scale != 1.0:
             out = cv2.resize(out, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
         if quality is not None:
-            ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, quality])
+            _, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, quality])
             out = cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE)
         return out
 
@@ -86,8 +86,18 @@ def compare(grays: list[np.ndarray], size: tuple[int, int], truth: list[np.ndarr
         if r < best[0]:
             err = np.nan
             if truth is not None:
-                err = float(np.sqrt(np.mean(np.concatenate(
-                    [np.sum(off(c.reshape(-1, 2), i) ** 2, axis=1) for c, i in zip(cs, views)]))))
+                err = float(
+                    np.sqrt(
+                        np.mean(
+                            np.concatenate(
+                                [
+                                    np.sum(off(c.reshape(-1, 2), i) ** 2, axis=1)
+                                    for c, i in zip(cs, views, strict=True)
+                                ]
+                            )
+                        )
+                    )
+                )
             best = (r, h, err)
     out["opencv_rms_px"], out["opencv_half"], out["opencv_truth_px"] = best
     ours = [dets[i].q_px.astype(np.float32) for i in views]
@@ -133,15 +143,19 @@ def rendered_rows(quick: bool) -> list[tuple[str, dict[str, float]]]:
 def main() -> None:
     quick = "--quick" in sys.argv
     rows = real_rows(quick) + rendered_rows(quick)
-    print("| set | views | OpenCV best half-window | OpenCV mono RMS px | microcal mono RMS px "
-          "| OpenCV error to truth px | microcal error to truth px |")
+    print(
+        "| set | views | OpenCV best half-window | OpenCV mono RMS px | microcal mono RMS px "
+        "| OpenCV error to truth px | microcal error to truth px |"
+    )
     print("| --- | --- | --- | --- | --- | --- | --- |")
     for label, r in rows:
         t_cv = r.get("opencv_truth_px", np.nan)
         t_mc = r.get("microcal_truth_px", np.nan)
-        truth = (f"{t_cv:.3f} | {t_mc:.3f}" if np.isfinite(t_mc) else "- | -")
-        print(f"| {label} | {int(r['views'])} | {int(r['opencv_half'])} | "
-              f"{r['opencv_rms_px']:.3f} | {r['microcal_rms_px']:.3f} | {truth} |")
+        truth = f"{t_cv:.3f} | {t_mc:.3f}" if np.isfinite(t_mc) else "- | -"
+        print(
+            f"| {label} | {int(r['views'])} | {int(r['opencv_half'])} | "
+            f"{r['opencv_rms_px']:.3f} | {r['microcal_rms_px']:.3f} | {truth} |"
+        )
 
 
 if __name__ == "__main__":
