@@ -43,6 +43,7 @@ from .._validation import FloatArray
 __all__ = [
     "MAX_HALF_PX",
     "MAX_SHIFT_PX",
+    "MIN_CORNERS_TO_CHOOSE",
     "SCATTER_TOLERANCE",
     "WINDOW_FRACTION",
     "WINDOW_FRACTIONS",
@@ -59,6 +60,10 @@ __all__ = [
 WINDOW_FRACTIONS = (0.1, 0.13, 0.16, 0.2, 0.25, 0.32, 0.4, 0.5)
 #: The fraction used where the corners are too few to judge their scatter.
 WINDOW_FRACTION = 0.4
+#: Boards with fewer corners keep the usual window: a lattice through a dozen corners has too
+#: little freedom left for its scatter to tell the windows apart (its own misfit under
+#: perspective and a strong lens dominates).
+MIN_CORNERS_TO_CHOOSE = 20
 #: Another fraction replaces :data:`WINDOW_FRACTION` only where its corners scatter less by
 #: more than this share (with few corners under a strong lens, the lattice's own misfit can
 #: dominate the scatter, which then cannot tell the windows apart).
@@ -340,7 +345,8 @@ def refine_grid_corners(
     fractions : tuple of float
         Half-window fractions of the local spacing to try (:data:`WINDOW_FRACTIONS`); the
         largest of them up to :data:`WINDOW_FRACTION` is kept unless another scatters less
-        by :data:`SCATTER_TOLERANCE`, or when the corners are too few to judge.
+        by :data:`SCATTER_TOLERANCE`, or when the corners are too few to judge (fewer than
+        :data:`MIN_CORNERS_TO_CHOOSE`).
 
     Returns
     -------
@@ -350,7 +356,7 @@ def refine_grid_corners(
     ij = np.asarray(grid_ij, dtype=np.float64)
     if len(q) == 0:
         return CornerRefinement(q.reshape(0, 2), WINDOW_FRACTION, float("nan"))
-    if _lattice_design(ij) is None or len(fractions) == 1:
+    if len(q) < MIN_CORNERS_TO_CHOOSE or _lattice_design(ij) is None or len(fractions) == 1:
         f = fractions[0] if len(fractions) == 1 else min(WINDOW_FRACTION, max(fractions))
         out = _refine_with(gray, q, ij, f)
         return CornerRefinement(out, f, lattice_scatter_px(out, ij))
