@@ -5,6 +5,8 @@ board by the corners' scatter, against the truth on rendered boards and against 
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
@@ -149,3 +151,43 @@ def test_charuco_corners_are_refined_beyond_opencvs():
     assert len(ours) >= 4
     assert _rms(ours) < 0.03
     assert _rms(ours) < 0.5 * _rms(theirs)
+
+
+BUMBLEBEE = (Path(__file__).resolve().parents[2].parent / "shared" / "data"
+             / "boofcv_bumblebee2_chess")  # fmt: skip
+
+
+@pytest.mark.skipif(not (BUMBLEBEE / "left01.jpg").is_file(),
+                    reason=f"the real stereo photographs are not here ({BUMBLEBEE} is absent)")  # fmt: skip
+@pytest.mark.parametrize(("scale", "quality"), [(0.5, 75), (0.4, 60)])
+def test_real_photographs_shrunk_to_webcam_squares_at_least_as_good_as_opencvs_best(scale, quality):
+    # The Bumblebee2 photographs scaled down (squares of some 14-23 px at x0.5) and
+    # recompressed: here OpenCV's finder puts some corners several pixels off, and a window
+    # sized by their own spacing would not reach them. Metric: mono RMS reprojection error,
+    # px, OpenCV's default lens model on the same views, microcal's corners against
+    # cornerSubPix's at its best half-window 2..8.
+    target = parse_target("chessboard:6x4:30000")
+    obj = target.points_um().astype(np.float32)
+    for side in ("left", "right"):
+        grays = []
+        for f in sorted(BUMBLEBEE.glob(f"{side}*.jpg")):
+            g = cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)
+            g = cv2.resize(g, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+            _, buf = cv2.imencode(".jpg", g, [cv2.IMWRITE_JPEG_QUALITY, quality])
+            grays.append(cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE))
+        size = grays[0].shape[::-1]
+        dets = [detect(g, target) for g in grays]
+        raw = [cv2.findChessboardCorners(g, (6, 4))[1] for g in grays]
+        views = [i for i, d in enumerate(dets) if d.found and raw[i] is not None]
+        assert len(views) >= 9
+        ours = cv2.calibrateCamera([obj[dets[i].ids] for i in views],
+                                   [dets[i].q_px.astype(np.float32) for i in views],
+                                   size, None, None)[0]  # fmt: skip
+        best = min(
+            cv2.calibrateCamera([obj] * len(views),
+                                [cv2.cornerSubPix(grays[i], raw[i].copy(), (h, h), (-1, -1),
+                                                  CRITERIA) for i in views],
+                                size, None, None)[0]
+            for h in range(2, 9)
+        )  # fmt: skip
+        assert ours <= best, side

@@ -33,6 +33,7 @@ from step 1, keeps step 1's position. Figures on rendered and real sets: docs/vi
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -45,6 +46,7 @@ __all__ = [
     "MAX_SHIFT_PX",
     "MIN_CORNERS_TO_CHOOSE",
     "SCATTER_TOLERANCE",
+    "STRAY_FRACTION",
     "WINDOW_FRACTION",
     "WINDOW_FRACTIONS",
     "CornerRefinement",
@@ -64,6 +66,9 @@ WINDOW_FRACTION = 0.4
 #: little freedom left for its scatter to tell the windows apart (its own misfit under
 #: perspective and a strong lens dominates).
 MIN_CORNERS_TO_CHOOSE = 20
+#: A rough corner farther than this share of its spacing from the lattice through the others
+#: starts from the lattice (boards of :data:`MIN_CORNERS_TO_CHOOSE` corners or more).
+STRAY_FRACTION = 0.2
 #: Another fraction replaces :data:`WINDOW_FRACTION` only where its corners scatter less by
 #: more than this share (with few corners under a strong lens, the lattice's own misfit can
 #: dominate the scatter, which then cannot tell the windows apart).
@@ -320,9 +325,45 @@ def _refine_with(
     ij: FloatArray,
     fraction: float,
     levels: NDArray[np.float32] | None = None,
+    spacing_px: FloatArray | None = None,
 ) -> FloatArray:
+    if spacing_px is not None:  # the lattice's spacing, whatever a stray corner's
+        half = np.minimum(fraction * spacing_px, MAX_HALF_PX)
+        first = _gradient_step(gray, q, half)
+        return _symmetry_step(gray, first, half, levels)
     first = _gradient_step(gray, q, _half_windows(q, ij, fraction))
     return _symmetry_step(gray, first, _half_windows(first, ij, fraction), levels)
+
+
+def _lattice_start(q: FloatArray, ij: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Rough corners with strays put back on the lattice, and each corner's spacing, px.
+
+    A finder's rough corner can be several pixels off (blur, compression, small squares),
+    and then so is its spacing to its neighbours, and a window sized by it may not reach the
+    corner. A homography of the grid (RANSAC, robust to such strays) gives every corner's
+    spacing, and a rough corner more than :data:`STRAY_FRACTION` of it from the homography
+    starts from the homography's position instead.
+    """
+    spacing = grid_spacing_px(q, ij)
+    finite = np.isfinite(spacing)
+    square = float(np.median(spacing[finite])) if finite.any() else 0.0
+    H: Any = None
+    if square > 0:
+        H = cv2.findHomography(ij, q, cv2.RANSAC, 0.1 * square)[0]
+    if H is None:
+        return q, _fill(spacing)
+    lattice = cv2.perspectiveTransform(ij.reshape(-1, 1, 2), H).reshape(-1, 2)
+    lattice_spacing = _fill(grid_spacing_px(lattice, ij))
+    stray = np.linalg.norm(q - lattice, axis=1) > STRAY_FRACTION * lattice_spacing
+    return np.where(stray[:, None], lattice, q), lattice_spacing
+
+
+def _fill(spacing: FloatArray) -> FloatArray:
+    """Spacings with a lone corner's (inf) replaced by the others' median."""
+    out = spacing.copy()
+    finite = np.isfinite(out)
+    out[~finite] = float(np.median(out[finite])) if finite.any() else _MIN_HALF_PX / 0.1
+    return out
 
 
 def refine_grid_corners(
@@ -361,15 +402,16 @@ def refine_grid_corners(
         out = _refine_with(gray, q, ij, f)
         return CornerRefinement(out, f, lattice_scatter_px(out, ij))
     levels = _symmetry_levels(gray)
+    q, spacing = _lattice_start(q, ij)
     usual = min(WINDOW_FRACTION, max(fractions))
-    out = _refine_with(gray, q, ij, usual, levels)
+    out = _refine_with(gray, q, ij, usual, levels, spacing)
     default = CornerRefinement(out, usual, lattice_scatter_px(out, ij))
     best = default
     worse = 0
     for f in sorted(fractions, reverse=True):
         if f == usual:
             continue
-        out = _refine_with(gray, q, ij, f, levels)
+        out = _refine_with(gray, q, ij, f, levels, spacing)
         found = CornerRefinement(out, f, lattice_scatter_px(out, ij))
         if found.scatter_px < best.scatter_px:
             best, worse = found, 0
