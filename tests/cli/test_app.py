@@ -14,6 +14,7 @@ runner = CliRunner()
 
 COMMANDS = [
     "demo",
+    "calibrate-cameras",
     "stereo-calibrate",
     "acquire",
     "measure",

@@ -26,6 +26,7 @@ from microcal.errors import InputError
 from microcal.procedures.stereo import calibrate_views
 from microcal.vision.detect import detect
 from microcal.vision.targets import parse_target
+from support.opencv_best_window import OpenCVReference
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "boofcv_bumblebee2_chess"
 TARGET = "chessboard:6x4:30000"
@@ -48,6 +49,50 @@ def calibration():
         lambda cam, i: [cv2.imread(str(files[cam][i]))],
         parse_target(TARGET),
     )
+
+
+@pytest.fixture(scope="module")
+def opencv():
+    """OpenCV's figures on the same photographs at each cornerSubPix half-window 2..8."""
+    return OpenCVReference(_files(), (6, 4))
+
+
+#: BoofCV's baseline in its stereo.yaml (PROVENANCE.md: |T| derived from rightToLeft), µm.
+BOOFCV_BASELINE_UM = 120_051.0
+
+
+def test_mono_and_stereo_rms_at_most_opencvs_best_window(calibration, opencv):
+    # Metric: RMS reprojection error, px; OpenCV's at its best half-window for this set,
+    # computed here (mono: calibrateCamera, default model; stereo: stereoCalibrate with those
+    # intrinsics fixed).
+    for cam in ("left", "right"):
+        best, _ = opencv.best_mono_rms_px(cam)
+        assert calibration.cameras[cam].rms_px <= best, cam
+    best, _ = opencv.best_stereo_rms_px("left", "right")
+    assert calibration.rms_px <= best
+
+
+def test_the_baseline_of_the_makers_lens_model_is_within_0_3_percent_of_theirs():
+    # Like for like: BoofCV's stereo.yaml was calibrated with k1, k2 only (info.txt).
+    # Metric: |baseline - BoofCV's| / BoofCV's.
+    files = _files()
+    cal = calibrate_views({cam: [f.name for f in fs] for cam, fs in files.items()},
+                          lambda cam, i: [cv2.imread(str(files[cam][i]))], parse_target(TARGET),
+                          lens_model="radial2")  # fmt: skip
+    assert abs(cal.baseline_um - BOOFCV_BASELINE_UM) / BOOFCV_BASELINE_UM <= 0.003
+
+
+def test_consistency_without_a_reference(calibration):
+    figures = calibration.consistency
+    # Metric: the triangulated 30 mm squares along both axes, relative, mean and worst
+    # ninth of the left image.
+    for axis in ("x", "y"):
+        assert abs(figures["pitch"][axis]["error"]) <= 0.002
+        assert abs(figures["pitch"][axis]["worst_cell_error"]) <= 0.005
+    # Metric: held-out views' RMS over the views fitted (folds of the 11 views).
+    for f in figures["held_out"]["cameras"].values():
+        assert f["ratio"] <= 1.2
+    assert figures["held_out"]["joint"]["ratio"] <= 1.3
 
 
 def test_mono_rms_is_within_3_percent_of_opencvs_default(calibration):
@@ -140,12 +185,14 @@ def test_stereo_calibrate_command_on_the_photographs(tmp_path):
     assert result.exit_code == 0, result.output
     assert "turned the corner numbering of camera right" in result.output
     assert "lens model of left" in result.output
+    assert "target pitch triangulated along y" in result.output
     data = json.loads(out.read_text())
     left = data["cameras"]["left"]
     assert left["lens_model"]["candidates"][0]["name"] == "radial1"
     assert left["diagnostics"]["verdict"]
     assert data["stereo"]["turned_views"]
     assert abs(data["stereo"]["baseline_um"] - 120_000.0) <= 600.0
+    assert set(data["stereo"]["consistency"]) == {"held_out", "pitch"}
 
 
 #: The board named to the procedure in the refusals (no image is read).

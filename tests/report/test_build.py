@@ -236,3 +236,25 @@ def test_files_kept_beside_the_run_are_named_and_the_report_is_complete(quick_de
     assert missing.returncode == 2
     assert "--cameras" in missing.stderr
     assert "no such file" in missing.stderr
+
+
+def test_the_report_shows_the_consistency_figures_of_cameras_json(quick_demo, tmp_path):
+    import json
+    import shutil
+
+    from support.cli import invoke_microcal
+
+    run, _ = quick_demo
+    copy = tmp_path / "run"
+    shutil.copytree(run, copy)
+    cameras = json.loads((copy / "cameras.json").read_text(encoding="utf-8"))
+    cameras["stereo"]["consistency"] = {
+        "pitch": {"x": {"nominal_um": 250.0, "mean_um": 250.01, "error": 4e-5,
+                        "rms_error": 0.001, "worst_cell_error": 2e-4, "segments": 900}},
+    }  # fmt: skip
+    (copy / "cameras.json").write_text(json.dumps(cameras), encoding="utf-8")
+    done = invoke_microcal("report", copy)
+    assert done.returncode == 0, done.stderr
+    page = (copy / "report.html").read_text(encoding="utf-8")
+    assert "Consistency, without a reference" in page
+    assert "target pitch triangulated along x: 250.01 µm against 250 µm (+0.004 %" in page

@@ -205,8 +205,87 @@ def test_three_cameras_from_tilted_views(tmp_path):
         (["--target", "chessboard:4x:400", "--images", "a=x", "--images", "b=y"], "expected KIND:COLSxROWS:PITCH_UM"),
         (["--target", "chessboard:4x3:400", "--images", "a=/nonexistent/*.tiff", "--images", "b=y"], "--images a: no file matches"),
         (["--target", "chessboard:4x3:400", "--images", "top"], "--images: expected CAMERA=GLOB"),
-        (["--target", "chessboard:4x3:400", "--images", f"a={__file__}"], "expected 2 cameras or more"),
+        (["--target", "chessboard:4x3:400", "--images", f"a={__file__}", "--known-displacements", __file__], "expected 2 cameras or more"),
+        (["--target", "chessboard:4x3:400", "--images", f"a={__file__}"], "none of its images could be read"),
     ],
 )  # fmt: skip
 def test_stereo_calibrate_user_errors(args, message):
     one_line_error(invoke_microcal("stereo-calibrate", *args), message)
+
+
+@pytest.fixture(scope="module")
+def rendered_pair(tmp_path_factory):
+    """Eight views of a 7 x 4 board rendered for a wide-angle stereo pair, as PNG files."""
+    root = tmp_path_factory.mktemp("pair")
+    target = parse_target("chessboard:7x4:25000")
+    views = render_stereo_calibration_views(wide_angle_stereo_pair(), target, 8, seed=8)
+    blank = np.full_like(views.images["left"][0], 90)
+    for cam, images in views.images.items():
+        for v, image in enumerate(images):
+            cv2.imwrite(str(root / f"{cam}_{v:02d}.png"), image)
+            cv2.imwrite(str(root / f"blank_{cam}_{v:02d}.png"), blank)
+    return root
+
+
+def test_cameras_that_share_no_view_are_refused_with_the_fix_and_nothing_is_written(
+    rendered_pair, tmp_path
+):
+    from microcal.errors import MicrocalError
+    from microcal.workflows.stereo import stereo_calibrate_images
+
+    # left sees views 0-3, right views 4-7 (a blank image where a camera missed the board)
+    split = tmp_path / "split"
+    split.mkdir()
+    for v in range(8):
+        left = rendered_pair / (f"left_{v:02d}.png" if v < 4 else f"blank_left_{v:02d}.png")
+        right = rendered_pair / (f"right_{v:02d}.png" if v >= 4 else f"blank_right_{v:02d}.png")
+        (split / f"l_{v:02d}.png").write_bytes(left.read_bytes())
+        (split / f"r_{v:02d}.png").write_bytes(right.read_bytes())
+    out = tmp_path / "cameras.json"
+    with pytest.raises(MicrocalError) as info:
+        stereo_calibrate_images("chessboard:7x4:25000",
+                                [f"left={split}/l_*.png", f"right={split}/r_*.png"], out)  # fmt: skip
+    message = str(info.value)
+    assert len(message.splitlines()) == 1
+    assert "share no view of the target" in message
+    assert "take views that two or more cameras see at once" in message
+    assert not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["split"]
+
+
+def test_one_camera_alone_calibrates_through_calibrate_cameras(rendered_pair, tmp_path):
+    out = tmp_path / "cameras.json"
+    run = invoke_microcal("calibrate-cameras", "--target", "chessboard:7x4:25000", "--images",
+                          f"left={rendered_pair}/left_*.png", "--out", out)  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    assert "lens model of left" in run.stdout
+    assert "held-out views" in run.stdout
+    data = json.loads(out.read_text())
+    assert list(data["cameras"]) == ["left"]
+    left = data["cameras"]["left"]
+    assert left["views_used"] == 8
+    assert left["lens_model"]["name"]
+    assert left["diagnostics"]["verdict"] is not None
+    # Metric: the rendered camera's focal length against the calibrated one, relative.
+    assert left["K"][0][0] == pytest.approx(wide_angle_camera().K[0, 0], rel=0.01)
+    held = data["stereo"]["consistency"]["held_out"]["cameras"]["left"]
+    assert held["held_out_rms_px"] <= 2.0 * held["training_rms_px"]  # 8 views: 6 predict 2
+    assert "pitch" not in data["stereo"]["consistency"]  # nothing to triangulate with
+
+
+def test_a_pair_writes_the_pitch_and_held_out_figures(rendered_pair, tmp_path):
+    out = tmp_path / "cameras.json"
+    run = invoke_microcal("stereo-calibrate", "--target", "chessboard:7x4:25000",
+                          "--images", f"left={rendered_pair}/left_*.png",
+                          "--images", f"right={rendered_pair}/right_*.png", "--out", out)  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    assert "target pitch triangulated along x" in run.stdout
+    figures = json.loads(out.read_text())["stereo"]["consistency"]
+    for axis in ("x", "y"):
+        pitch = figures["pitch"][axis]
+        assert pitch["nominal_um"] == 25_000.0
+        # Metric: the triangulated neighbour distance's mean against the pitch, relative.
+        assert abs(pitch["error"]) < 0.002
+        assert abs(pitch["worst_cell_error"]) < 0.01
+    assert figures["held_out"]["joint"]["ratio"] < 2.5  # 8 views: 6 predict 2
+    assert "closure" not in figures  # two cameras: no third to compose through

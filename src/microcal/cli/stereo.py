@@ -27,7 +27,8 @@ _Lens = Annotated[str, Option(help="Method b: auto (by held-out error) or radial
 _Model = Annotated[str, Option(help="Method a: pinhole, affine (telecentric) or auto.")]
 
 
-@app.command("stereo-calibrate", short_help="Calibrate two or more cameras from target images.")
+@app.command("calibrate-cameras", short_help="Calibrate one or more cameras from target images.")
+@app.command("stereo-calibrate", short_help="The same as calibrate-cameras.")
 def stereo_calibrate(
     target: _Target = None, images: _Images = None, out: _Out = Path("cameras.json"),
     known_displacements: _Steps = None, reference_view: _Reference = 0, lens_model: _Lens = "auto",
@@ -35,15 +36,20 @@ def stereo_calibrate(
     frames_per_view: _Frames = 8,
     seed: Annotated[int | None, Option(min=0, help="Seed of the simulated rig.")] = None,
 ) -> None:  # fmt: skip
-    """Calibrate two or more cameras from images of a target, all in one frame.
+    """Calibrate one or more cameras from images of a target, all in one frame.
 
-    With --known-displacements the thesis's method (DLT per camera, refined; pinhole or
+    One --images per camera; one camera alone gets its intrinsics, lens model and diagnostics
+    as each camera of a pair does. stereo-calibrate is the same command. With
+    --known-displacements the thesis's method (DLT per camera, refined; pinhole or
     affine); without, unknown target poses (lens model chosen by held-out error). Multi-page
     TIFFs are averaged per view. With --rig the rig's target stage moves the target by the
     steps (default 0-4 mm along z) and the cameras grab each view (kept in --views).
 
     Example: microcal stereo-calibrate --target dotgrid:40x30:250 --images top='cal/top_*.tiff'
     --images side='cal/side_*.tiff' --known-displacements cal/steps.csv --out cameras.json
+
+    Example: microcal calibrate-cameras --target chessboard:9x6:25000 --images cam='cal/*.png'
+    --out cameras.json
 
     Example: microcal stereo-calibrate --rig examples/rigs/twin.toml --out cameras.json
     """

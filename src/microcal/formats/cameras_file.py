@@ -132,6 +132,11 @@ def cameras_to_dict(cal: StereoCalibration, provenance: Mapping[str, JsonValue])
             "turned_views": checked_json(cal.turned_views, "turned_views"),
             "views_rejected": checked_json(cal.views_rejected, "views_rejected"),
             "notes": cal.notes,
+            **(
+                {"consistency": checked_json(cal.consistency, "consistency")}
+                if cal.consistency
+                else {}
+            ),
         },
         "provenance": provenance,
     }
@@ -420,6 +425,7 @@ class StereoRecord(FileSchema):
     turned_views: list[TurnedView] = Field(default_factory=list)
     views_rejected: list[RejectedPair] = Field(default_factory=list)
     notes: list[str] = Field(default_factory=list)
+    consistency: dict[str, AnyJson] = Field(default_factory=dict)
 
 
 class CamerasRecord(FileSchema):

@@ -51,7 +51,7 @@ from . import figures
 from .bounds import MAX_PANELS, MAX_ROWS, Shown, clip, first, last
 from .data import ReportInputs, RunData, load_run
 from .glossary import GLOSSARY
-from .text_tables import is_thesis_rig
+from .text_tables import consistency_lines, is_thesis_rig
 
 __all__ = ["build_report", "compares_with_thesis", "write_report"]
 
@@ -147,6 +147,8 @@ class StereoSection:
     angle_deg: float | None
     n_cameras: int = 0
     drawn: int = 0
+    consistency: tuple[str, ...] = ()
+    """Sentences of the figures that need no reference (held-out views, pitch, closure)."""
 
 
 def _stereo(data: RunData, thesis: bool) -> StereoSection | None:
@@ -209,6 +211,7 @@ def _stereo(data: RunData, thesis: bool) -> StereoSection | None:
         angle_deg=stereo.angle_deg,
         n_cameras=len(cams),
         drawn=min(len(cams), MAX_PANELS),
+        consistency=tuple(consistency_lines(stereo.consistency)),
     )
 
 

@@ -482,6 +482,57 @@ def measurement_lines(results: Sequence[PoseMeasurement], path: Path) -> list[Te
     return lines
 
 
+def _figure(value: object) -> float:
+    return float(value) if isinstance(value, int | float) else float("nan")
+
+
+def consistency_lines(figures: Mapping[str, object]) -> list[str]:
+    """Sentences of a calibration's consistency figures (cameras.json's
+    ``stereo.consistency``, :mod:`~microcal.vision.calibration_consistency`)."""
+    lines: list[str] = []
+    held = figures.get("held_out")
+    if isinstance(held, Mapping):
+        parts = []
+        groups = dict(held.get("cameras") or {})
+        if isinstance(held.get("joint"), Mapping):
+            groups["all cameras together"] = held["joint"]
+        for name, f in groups.items():
+            if not isinstance(f, Mapping):
+                continue
+            tr, he = _figure(f.get("training_rms_px")), _figure(f.get("held_out_rms_px"))
+            if np.isfinite(tr) and np.isfinite(he):
+                parts.append(f"{name} {he:.3f} px against {tr:.3f} px (x{he / tr:.2f})")
+        if parts:
+            lines.append("held-out views (each fold of the views predicted by the others) against "
+                         "the views fitted: " + "; ".join(parts))  # fmt: skip
+    pitch = figures.get("pitch")
+    if isinstance(pitch, Mapping):
+        for axis, f in pitch.items():
+            if not isinstance(f, Mapping):
+                continue
+            worst = _figure(f.get("worst_cell_error"))
+            lines.append(
+                f"target pitch triangulated along {axis}: {_figure(f.get('mean_um')):.2f} µm "
+                f"against {_figure(f.get('nominal_um')):g} µm "
+                f"({100 * _figure(f.get('error')):+.3f} %"
+                + (f"; worst ninth of the field {100 * worst:+.3f} %" if np.isfinite(worst) else "")
+                + ")"
+            )
+    closure = figures.get("closure")
+    if isinstance(closure, list):
+        for f in closure:
+            if not isinstance(f, Mapping):
+                continue
+            a, b, c = f.get("cameras", ["?", "?", "?"])
+            lines.append(
+                f"{a} to {c} calibrated directly against composed through {b}: translations "
+                f"differ by {100 * _figure(f.get('translation_gap')):.3f} % of "
+                f"{_figure(f.get('baseline_um')):.0f} µm, rotations by "
+                f"{_figure(f.get('rotation_gap_deg')):.3f} deg"
+            )
+    return lines
+
+
 def stereo_lines(calibration: StereoCalibration, out: Path) -> list[TextTable | str]:
     """What ``microcal stereo-calibrate`` prints: the table, rejected views, the baseline."""
     lines: list[TextTable | str] = [stereo_table(calibration)]
@@ -503,6 +554,7 @@ def stereo_lines(calibration: StereoCalibration, out: Path) -> list[TextTable | 
               for r in calibration.views_rejected]  # fmt: skip
     lines += model_choice_lines(calibration)
     lines += [f"warning: {n}" for n in calibration.notes]
+    lines += consistency_lines(calibration.consistency)
     baseline = calibration.baseline_um
     lines.append(
         (f"baseline {baseline:.0f} µm; " if np.isfinite(baseline) else "")

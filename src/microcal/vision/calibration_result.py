@@ -17,6 +17,7 @@ import numpy as np
 
 from .._validation import FloatArray
 from ..geometry import AnyCamera, CameraModel
+from ..json_value import JsonValue
 from .board_symmetry import turn_ids
 from .calibration_diagnostics import CameraDiagnostics
 from .detect import Detection
@@ -91,6 +92,10 @@ class StereoCalibration:
     """View pairs left out of the stereo solve: ``view`` (both images) and ``reason``."""
     notes: list[str] = field(default_factory=list)
     """Warnings about the calibration as a whole, one sentence each."""
+    consistency: dict[str, JsonValue] = field(default_factory=dict)
+    """Figures that need no reference (method (b)): held-out views' error, the triangulated
+    target pitch, transforms composed through a third camera
+    (:mod:`~microcal.vision.calibration_consistency`); empty when not computed."""
 
     def models(self) -> dict[str, AnyCamera]:
         """The camera models by name."""

@@ -1,28 +1,39 @@
-"""Sub-pixel chessboard corners: windows that follow the local spacing, and a symmetry fit.
+"""Sub-pixel chessboard corners: windows that follow the local spacing, chosen per board by the
+corners' own scatter, and a symmetry fit.
 
 A chessboard corner is where two edges cross; around it, the picture is point-symmetric:
 the grey level at ``c + d`` equals that at ``c - d`` for every small offset ``d``, whatever
 the angle between the edges (perspective) and however blurred, as long as the blur is the
 same on both sides. :func:`refine_corners` finds each corner in two steps:
 
-1. OpenCV's ``cornerSubPix`` (gradients orthogonal to the offsets), with a half-window of
-   :data:`WINDOW_FRACTION` of the corner's own spacing to its nearest neighbour in the grid
-   (at most :data:`MAX_HALF_PX`), so a
-   corner seen small under perspective gets a small window and one seen large a large one,
-   and no window reaches a neighbouring corner or the board's edge;
+1. OpenCV's ``cornerSubPix`` (gradients orthogonal to the offsets), with a half-window of a
+   fraction of the corner's own spacing to its nearest neighbour in the grid (at most
+   :data:`MAX_HALF_PX`), so a corner seen small under perspective gets a small window and one
+   seen large a large one, and no window reaches a neighbouring corner or the board's edge;
 2. the centre ``c`` that minimises ``sum_d w(d) (I(c + d) - I(c - d))^2`` over the same
    window (Gaussian weights), by Gauss-Newton on bilinearly sampled grey levels, all corners
    at once. It uses every grey level of the window, not only the edges' gradients.
 
-On rendered wide-angle views with blur and noise (``microcal.sim.calibration_views``) the
-second step brings the corner error from about 0.035-0.055 px (``cornerSubPix`` with its best
-fixed window) down to 0.014-0.024 px; on the Bumblebee2 photographs it lowers the mono RMS
-of the left camera from 0.082 to 0.073 px with OpenCV's default lens model (see
-docs/vision.md). A corner whose fit does not converge, or moves
-more than :data:`MAX_SHIFT_PX` from step 1, keeps step 1's position.
+Which fraction is best depends on the picture: a large window averages more noise and JPEG
+blocks away, but reaches into what is not point-symmetric about the corner (codes or dots
+printed in the squares, a lens's curvature of the edges, uneven light). No one fraction
+suits every camera, so each board is refined with the fractions of :data:`WINDOW_FRACTIONS`
+from the largest down (until two in a row do worse than the best) and the one whose corners
+scatter least about a smooth lattice is kept (:func:`lattice_scatter_px`: a polynomial of
+the grid coordinates, which follows perspective and lens distortion over the board but not
+the corners' own errors). The
+scatter is what a calibration's reprojection error is made of, so the choice is made on
+the figure that matters, from the image itself: its squares' size, blur, noise and
+compression, and whatever is printed in the squares.
+
+A corner whose symmetry fit does not converge, or moves more than :data:`MAX_SHIFT_PX`
+from step 1, keeps step 1's position. Figures on rendered and real sets: docs/vision.md.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -30,10 +41,38 @@ from numpy.typing import NDArray
 
 from .._validation import FloatArray
 
-__all__ = ["MAX_HALF_PX", "MAX_SHIFT_PX", "WINDOW_FRACTION", "local_spacing_px", "refine_corners"]
+__all__ = [
+    "MAX_HALF_PX",
+    "MAX_SHIFT_PX",
+    "MIN_CORNERS_TO_CHOOSE",
+    "SCATTER_TOLERANCE",
+    "STRAY_FRACTION",
+    "WINDOW_FRACTION",
+    "WINDOW_FRACTIONS",
+    "CornerRefinement",
+    "grid_spacing_px",
+    "lattice_scatter_px",
+    "local_spacing_px",
+    "refine_corners",
+    "refine_grid_corners",
+]
 
-#: Half-window as a fraction of each corner's spacing to its nearest grid neighbour.
+#: The half-window fractions (of each corner's spacing to its nearest grid neighbour) a board
+#: is refined with; the one whose corners scatter least about a smooth lattice is kept.
+WINDOW_FRACTIONS = (0.1, 0.13, 0.16, 0.2, 0.25, 0.32, 0.4, 0.5)
+#: The fraction used where the corners are too few to judge their scatter.
 WINDOW_FRACTION = 0.4
+#: Boards with fewer corners keep the usual window: a lattice through a dozen corners has too
+#: little freedom left for its scatter to tell the windows apart (its own misfit under
+#: perspective and a strong lens dominates).
+MIN_CORNERS_TO_CHOOSE = 20
+#: A rough corner farther than this share of its spacing from the lattice through the others
+#: starts from the lattice (boards of :data:`MIN_CORNERS_TO_CHOOSE` corners or more).
+STRAY_FRACTION = 0.2
+#: Another fraction replaces :data:`WINDOW_FRACTION` only where its corners scatter less by
+#: more than this share (with few corners under a strong lens, the lattice's own misfit can
+#: dominate the scatter, which then cannot tell the windows apart).
+SCATTER_TOLERANCE = 0.03
 #: The symmetry fit may move a corner at most this far from the gradient estimate, px.
 MAX_SHIFT_PX = 1.0
 _MIN_HALF_PX = 2
@@ -42,6 +81,49 @@ _MIN_HALF_PX = 2
 MAX_HALF_PX = 20
 _ITERATIONS = 10
 _CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 40, 1e-3)
+#: The smooth lattice's polynomial degree at most (cubic: perspective and a wide-angle lens's
+#: barrel over a board, to well under the corners' scatter).
+_LATTICE_DEGREE = 3
+#: The fractions are tried from the largest down, until this many in a row scatter more than
+#: the best so far (the scatter falls as the window shrinks until nothing that is not
+#: point-symmetric about a corner is left in it, then rises as less of the picture is used;
+#: from the largest down, since a window smaller than the blur or than the rough corners'
+#: error can stay where it starts).
+_STOP_AFTER = 2
+#: The lattice fit keeps at least this share of its 2 N coordinates as residual freedom.
+_MIN_FREEDOM = 0.4
+
+
+def grid_spacing_px(corners_px: FloatArray, grid_ij: FloatArray) -> FloatArray:
+    """Distance from each corner to its nearest neighbour along the grid's rows and columns.
+
+    Parameters
+    ----------
+    corners_px : (N, 2) float
+        Corners, any subset of a grid.
+    grid_ij : (N, 2) int or float
+        Each corner's column and row in the grid.
+
+    Returns
+    -------
+    spacing_px : (N,) float
+        ``inf`` for a corner without a neighbour among the others.
+    """
+    q = np.asarray(corners_px, dtype=np.float64)
+    out: FloatArray = np.full(len(q), np.inf)
+    if len(q) == 0:
+        return out
+    ij = np.rint(np.asarray(grid_ij)).astype(np.int64)
+    ij = ij - ij.min(axis=0) + 1  # a free border round the grid
+    slot = np.full(tuple(ij.max(axis=0) + 2), -1, dtype=np.int64)
+    slot[ij[:, 0], ij[:, 1]] = np.arange(len(q))
+    for da, db in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        n = slot[ij[:, 0] + da, ij[:, 1] + db]
+        has = n >= 0
+        d = np.full(len(q), np.inf)
+        d[has] = np.linalg.norm(q[n[has]] - q[has], axis=1)
+        out = np.minimum(out, d)
+    return out
 
 
 def local_spacing_px(corners_px: FloatArray, cols: int, rows: int) -> FloatArray:
@@ -70,6 +152,56 @@ def local_spacing_px(corners_px: FloatArray, cols: int, rows: int) -> FloatArray
     return out
 
 
+def _lattice_design(grid_ij: FloatArray) -> NDArray[np.float64] | None:
+    """Monomials of the grid coordinates for the smooth lattice, or None if too few corners.
+
+    The degree is the highest (at most :data:`_LATTICE_DEGREE`, and per axis below the
+    number of distinct rows or columns) that leaves :data:`_MIN_FREEDOM` of the coordinates
+    as residual freedom.
+    """
+    ij = np.asarray(grid_ij, dtype=np.float64)
+    n = len(ij)
+    span = max(float(np.ptp(ij, axis=0).max()), 1.0) if n else 1.0
+    u = (ij - ij.mean(axis=0)) / span if n else ij
+    n_i, n_j = (len(np.unique(ij[:, k])) for k in (0, 1))
+    for degree in range(_LATTICE_DEGREE, 0, -1):
+        powers = [(a, b) for a in range(min(degree, n_i - 1) + 1)
+                  for b in range(min(degree, n_j - 1) + 1) if a + b <= degree]  # fmt: skip
+        if n - len(powers) >= _MIN_FREEDOM * n and len(powers) >= 3:
+            A: NDArray[np.float64] = np.column_stack([u[:, 0] ** a * u[:, 1] ** b
+                                                      for a, b in powers])  # fmt: skip
+            return A
+    return None
+
+
+def lattice_scatter_px(corners_px: FloatArray, grid_ij: FloatArray) -> float:
+    """RMS scatter of corners about a smooth lattice through them, px per coordinate.
+
+    A polynomial of each corner's grid coordinates (degree up to 3, fewer with few corners)
+    is fitted to its pixel positions; the residuals' RMS, divided by the remaining degrees of
+    freedom, estimates the corners' own error: perspective and lens distortion vary slowly
+    over the board and go into the fit.
+
+    Parameters
+    ----------
+    corners_px : (N, 2) float
+    grid_ij : (N, 2) int or float
+        Each corner's column and row in the grid.
+
+    Returns
+    -------
+    float
+        NaN when the corners are too few for a fit with freedom to spare.
+    """
+    A = _lattice_design(grid_ij)
+    if A is None:
+        return float("nan")
+    q = np.asarray(corners_px, dtype=np.float64)
+    coef, _, rank, _ = np.linalg.lstsq(A, q, rcond=None)
+    r = q - A @ coef
+    return float(np.sqrt(np.sum(r**2) / (2.0 * max(len(q) - int(rank), 1))))
+
+
 def _sample(image: NDArray[np.float32], points: FloatArray) -> FloatArray:
     """Bilinear grey levels at points (..., 2); the border repeated outside.
 
@@ -96,7 +228,20 @@ def _gradient_step(gray: NDArray[np.float32], corners: FloatArray, half: FloatAr
     return out.astype(np.float64)
 
 
-def _symmetry_step(gray: NDArray[np.float32], start: FloatArray, half: FloatArray) -> FloatArray:
+def _symmetry_levels(gray: NDArray[np.float32]) -> NDArray[np.float32]:
+    """The grey levels and both gradients as one three-channel image (H, W, 3)."""
+    gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=1) * 0.5
+    gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=1) * 0.5
+    levels: NDArray[np.float32] = cv2.merge([gray, gx, gy])
+    return levels
+
+
+def _symmetry_step(
+    gray: NDArray[np.float32],
+    start: FloatArray,
+    half: FloatArray,
+    levels: NDArray[np.float32] | None = None,
+) -> FloatArray:
     """Step 2: the centre of point symmetry in each corner's window (Gauss-Newton).
 
     The grey levels and both gradients are sampled together (one three-channel image), and
@@ -110,9 +255,8 @@ def _symmetry_step(gray: NDArray[np.float32], start: FloatArray, half: FloatArra
     r2 = np.sum(d**2, axis=1)
     sigma = half[:, None] / 1.5
     w_all = np.exp(-r2[None, :] / (2.0 * sigma**2)) * (r2[None, :] <= half[:, None] ** 2)
-    gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=1) * 0.5
-    gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=1) * 0.5
-    levels = cv2.merge([gray, gx, gy])  # (H, W, 3): grey level, d/dx, d/dy
+    if levels is None:
+        levels = _symmetry_levels(gray)  # (H, W, 3): grey level, d/dx, d/dy
     c = start.copy()
     converged = np.zeros(len(c), dtype=bool)
     m = len(d)
@@ -145,10 +289,150 @@ def _symmetry_step(gray: NDArray[np.float32], start: FloatArray, half: FloatArra
     return np.where(keep[:, None], c, start)
 
 
-def refine_corners(
-    gray: NDArray[np.float32], corners_px: FloatArray, cols: int, rows: int
+@dataclass(frozen=True)
+class CornerRefinement:
+    """Refined corners of one board and how their window was chosen.
+
+    Attributes
+    ----------
+    corners_px : (N, 2) float
+    window_fraction : float
+        The half-window as a fraction of each corner's spacing to its nearest neighbour.
+    scatter_px : float
+        The corners' RMS scatter about a smooth lattice (:func:`lattice_scatter_px`) with
+        that window (NaN when the corners are too few to judge).
+    """
+
+    corners_px: FloatArray
+    window_fraction: float
+    scatter_px: float
+
+
+def _half_windows(q: FloatArray, ij: FloatArray, fraction: float) -> FloatArray:
+    """Each corner's half-window, px: ``fraction`` of its spacing (a corner without a grid
+    neighbour among those found: of the others' median spacing)."""
+    spacing = grid_spacing_px(q, ij)
+    finite = np.isfinite(spacing)
+    fill = float(np.median(spacing[finite])) if finite.any() else _MIN_HALF_PX / fraction
+    spacing[~finite] = fill
+    half: FloatArray = np.minimum(fraction * spacing, MAX_HALF_PX)
+    return half
+
+
+def _refine_with(
+    gray: NDArray[np.float32],
+    q: FloatArray,
+    ij: FloatArray,
+    fraction: float,
+    levels: NDArray[np.float32] | None = None,
+    spacing_px: FloatArray | None = None,
 ) -> FloatArray:
-    """Sub-pixel positions of a chessboard's inner corners.
+    if spacing_px is not None:  # the lattice's spacing, whatever a stray corner's
+        half = np.minimum(fraction * spacing_px, MAX_HALF_PX)
+        first = _gradient_step(gray, q, half)
+        return _symmetry_step(gray, first, half, levels)
+    first = _gradient_step(gray, q, _half_windows(q, ij, fraction))
+    return _symmetry_step(gray, first, _half_windows(first, ij, fraction), levels)
+
+
+def _lattice_start(q: FloatArray, ij: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Rough corners with strays put back on the lattice, and each corner's spacing, px.
+
+    A finder's rough corner can be several pixels off (blur, compression, small squares),
+    and then so is its spacing to its neighbours, and a window sized by it may not reach the
+    corner. A homography of the grid (RANSAC, robust to such strays) gives every corner's
+    spacing, and a rough corner more than :data:`STRAY_FRACTION` of it from the homography
+    starts from the homography's position instead.
+    """
+    spacing = grid_spacing_px(q, ij)
+    finite = np.isfinite(spacing)
+    square = float(np.median(spacing[finite])) if finite.any() else 0.0
+    H: Any = None
+    if square > 0:
+        H = cv2.findHomography(ij, q, cv2.RANSAC, 0.1 * square)[0]
+    if H is None:
+        return q, _fill(spacing)
+    lattice = cv2.perspectiveTransform(ij.reshape(-1, 1, 2), H).reshape(-1, 2)
+    lattice_spacing = _fill(grid_spacing_px(lattice, ij))
+    stray = np.linalg.norm(q - lattice, axis=1) > STRAY_FRACTION * lattice_spacing
+    return np.where(stray[:, None], lattice, q), lattice_spacing
+
+
+def _fill(spacing: FloatArray) -> FloatArray:
+    """Spacings with a lone corner's (inf) replaced by the others' median."""
+    out = spacing.copy()
+    finite = np.isfinite(out)
+    out[~finite] = float(np.median(out[finite])) if finite.any() else _MIN_HALF_PX / 0.1
+    return out
+
+
+def refine_grid_corners(
+    gray: NDArray[np.float32],
+    corners_px: FloatArray,
+    grid_ij: FloatArray,
+    *,
+    fractions: tuple[float, ...] = WINDOW_FRACTIONS,
+) -> CornerRefinement:
+    """Sub-pixel corners of one board, the window chosen by the corners' scatter.
+
+    Parameters
+    ----------
+    gray : (H, W) float32
+        The image, grey.
+    corners_px : (N, 2) float
+        Rough corners (a detector's output, within a pixel or two); any subset of a grid.
+    grid_ij : (N, 2) int or float
+        Each corner's column and row in the grid.
+    fractions : tuple of float
+        Half-window fractions of the local spacing to try (:data:`WINDOW_FRACTIONS`); the
+        largest of them up to :data:`WINDOW_FRACTION` is kept unless another scatters less
+        by :data:`SCATTER_TOLERANCE`, or when the corners are too few to judge (fewer than
+        :data:`MIN_CORNERS_TO_CHOOSE`).
+
+    Returns
+    -------
+    CornerRefinement
+    """
+    q = np.asarray(corners_px, dtype=np.float64)
+    ij = np.asarray(grid_ij, dtype=np.float64)
+    if len(q) == 0:
+        return CornerRefinement(q.reshape(0, 2), WINDOW_FRACTION, float("nan"))
+    if len(q) < MIN_CORNERS_TO_CHOOSE or _lattice_design(ij) is None or len(fractions) == 1:
+        f = fractions[0] if len(fractions) == 1 else min(WINDOW_FRACTION, max(fractions))
+        out = _refine_with(gray, q, ij, f)
+        return CornerRefinement(out, f, lattice_scatter_px(out, ij))
+    levels = _symmetry_levels(gray)
+    q, spacing = _lattice_start(q, ij)
+    usual = min(WINDOW_FRACTION, max(fractions))
+    out = _refine_with(gray, q, ij, usual, levels, spacing)
+    default = CornerRefinement(out, usual, lattice_scatter_px(out, ij))
+    best = default
+    worse = 0
+    for f in sorted(fractions, reverse=True):
+        if f == usual:
+            continue
+        out = _refine_with(gray, q, ij, f, levels, spacing)
+        found = CornerRefinement(out, f, lattice_scatter_px(out, ij))
+        if found.scatter_px < best.scatter_px:
+            best, worse = found, 0
+        else:
+            worse += 1
+            if worse == _STOP_AFTER:
+                break
+    if not best.scatter_px < (1.0 - SCATTER_TOLERANCE) * default.scatter_px:
+        return default  # where the scatter cannot tell, the window that suits most boards
+    return best
+
+
+def refine_corners(
+    gray: NDArray[np.float32],
+    corners_px: FloatArray,
+    cols: int,
+    rows: int,
+    *,
+    fractions: tuple[float, ...] = WINDOW_FRACTIONS,
+) -> FloatArray:
+    """Sub-pixel positions of a chessboard's inner corners (:func:`refine_grid_corners`).
 
     Parameters
     ----------
@@ -158,13 +442,13 @@ def refine_corners(
         Rough corners row by row (a detector's output, within a pixel or two).
     cols, rows : int
         The grid's inner corners per row and per column.
+    fractions : tuple of float
+        Half-window fractions to choose from (:data:`WINDOW_FRACTIONS`).
 
     Returns
     -------
     corners_px : (rows * cols, 2) float
     """
-    q = np.asarray(corners_px, dtype=np.float64)
-    half = np.minimum(WINDOW_FRACTION * local_spacing_px(q, cols, rows), MAX_HALF_PX)
-    first = _gradient_step(gray, q, half)
-    half = np.minimum(WINDOW_FRACTION * local_spacing_px(first, cols, rows), MAX_HALF_PX)
-    return _symmetry_step(gray, first, half)
+    j, i = np.meshgrid(np.arange(cols), np.arange(rows))
+    ij = np.column_stack([j.ravel(), i.ravel()]).astype(np.float64)
+    return refine_grid_corners(gray, corners_px, ij, fractions=fractions).corners_px

@@ -13,7 +13,8 @@ pixel positions with sub-pixel accuracy and a quality figure; or, when there is 
 - Dot grid: dots segmented by Otsu's threshold, centres from background-subtracted
   intensity moments in a window, then indexed on the lattice (two lattice vectors from the
   neighbours, grid coordinates by rounding); works for dense grids of thousands of dots.
-- ChArUco: OpenCV's ChArUco detector; ids are OpenCV's corner ids.
+- ChArUco: OpenCV's ChArUco detector; ids are OpenCV's corner ids; the corners refined as
+  a chessboard's (those found, each by its own neighbours' spacing).
 
 The quality figure is the RMS residual (px) of a homography from the target plane to the
 detected features: near the detection noise for a good detection.
@@ -31,7 +32,7 @@ from numpy.typing import NDArray
 from .._validation import FloatArray
 from ..errors import InputError
 from .board_symmetry import turn_ids
-from .corner_refinement import refine_corners
+from .corner_refinement import WINDOW_FRACTIONS, refine_corners, refine_grid_corners
 from .targets import Target
 
 __all__ = ["Detection", "detect", "to_gray"]
@@ -254,8 +255,16 @@ def _orient(gray: NDArray[np.float32], corners: FloatArray, target: Target) -> F
     return corners if best is None else best[1]
 
 
+#: The window fractions a half-resolution search refines with: its corners only place the
+#: full-resolution search, so fewer candidates do.
+COARSE_FRACTIONS = (0.13, 0.2, 0.32)
+
+
 def _detect_chessboard(
-    gray: NDArray[np.float32], target: Target, refused: list[FloatArray] | None = None
+    gray: NDArray[np.float32],
+    target: Target,
+    refused: list[FloatArray] | None = None,
+    fractions: tuple[float, ...] = WINDOW_FRACTIONS,
 ) -> Detection:
     """The chessboard in ``gray``; corners found and then refused are added to ``refused``."""
     size = target.pattern_size
@@ -282,7 +291,7 @@ def _detect_chessboard(
             return Detection.none(why or f"no {size[0]}x{size[1]} chessboard found")
     q = corners.reshape(-1, 2).astype(np.float64)
     q = _orient(gray, q, target)
-    q = refine_corners(gray, q, *size)
+    q = refine_corners(gray, q, *size, fractions=fractions)
     not_whole = _board_edges(gray, q, *size)
     if not_whole:
         if refused is not None:
@@ -305,7 +314,7 @@ def _detect_chessboard_coarse_to_fine(gray: NDArray[np.float32], target: Target)
         return _detect_chessboard(gray, target)
     small = cv2.resize(gray, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
     refused: list[FloatArray] = []
-    coarse = _detect_chessboard(small, target, refused)
+    coarse = _detect_chessboard(small, target, refused, COARSE_FRACTIONS)
     if coarse.found or refused:
         # Found, or found and refused at half resolution (a wrong spec, part of a board, or a
         # check too fine for half the pixels): decided at full resolution around those corners.
@@ -456,6 +465,12 @@ def _detect_charuco(gray: NDArray[np.float32], target: Target) -> Detection:
         return Detection.none("no ChArUco corners found")
     found_ids = np.asarray(ids, dtype=np.intp).reshape(-1)
     q = np.asarray(corners, dtype=np.float64).reshape(-1, 2)
+    cols = target.pattern_size[0]
+    ij = np.column_stack([found_ids % cols, found_ids // cols]).astype(np.float64)
+    # the windows stay inside the white squares' margin round their markers
+    margin = 0.5 * (target.pitch_um - target.feature_um) / target.pitch_um
+    fractions = tuple(f for f in WINDOW_FRACTIONS if f <= margin) or (min(WINDOW_FRACTIONS),)
+    q = refine_grid_corners(gray, q, ij, fractions=fractions).corners_px
     return Detection(True, found_ids, q, _homography_rms(target, found_ids, q), method="charuco")
 
 

@@ -25,6 +25,7 @@ import numpy as np
 from ..errors import DegenerateDataError, InputError
 from ..geometry import CameraModel
 from .board_symmetry import ambiguous_turns, turn_transform
+from .calibration_consistency import consistency
 from .calibration_diagnostics import diagnose
 from .calibration_result import (
     CameraCalibration,
@@ -235,8 +236,8 @@ def calibrate_unknown_poses(
         :data:`~microcal.vision.lens_models.LENS_MODELS`.
     """
     names = list(detections)
-    if len(names) < 2:
-        raise InputError(f"calibrate_unknown_poses: expected 2 or more cameras, got {len(names)}")
+    if not names:
+        raise InputError("calibrate_unknown_poses: expected 1 or more cameras, got none")
     if len(target.points_um()) < MIN_COMMON_POINTS:
         raise InputError(
             f"target {target.spec}: {len(target.points_um())} features are too few for method "
@@ -259,6 +260,9 @@ def calibrate_unknown_poses(
                 f"views; tilt it by 20 to 40 degrees in different directions between views "
                 "(method b cannot tell focal length from distance otherwise)"
             )
+    if len(names) == 1:
+        return _one_camera(mono[names[0]], names[0], detections[names[0]], target, reference_view,
+                           image_size_px[names[0]])  # fmt: skip
     dets, poses, turned, rejected, notes = _agree_numbering(target, mono, detections, image_names)
     first = names[0]
     if reference_view not in poses[first]:
@@ -273,6 +277,12 @@ def calibrate_unknown_poses(
             if len(d.ids) >= MIN_COMMON_POINTS:
                 seen.setdefault(v, []).append(Observation(c, v, obj[d.ids], d.q_px))
     joint = {v: o for v, o in seen.items() if len(o) >= 2}
+    if not joint:
+        raise DegenerateDataError(
+            f"cameras {', '.join(names)} share no view of the target (no view has it found by "
+            "two or more of them), so nothing relates them; take views that two or more "
+            "cameras see at once, or calibrate each camera alone (one --images each)"
+        )
     if reference_view not in joint:
         raise DegenerateDataError(
             f"reference view {reference_view} is usable in fewer than two cameras; choose one "
@@ -322,6 +332,15 @@ def calibrate_unknown_poses(
         if diag is not None and np.isfinite(diag.uncertainty_map_px).any():
             sigma = float(np.sqrt(np.nanmean(diag.uncertainty_map_px**2) / 2.0))
             cal.model = dataclasses.replace(cal.model, projection_sigma_px=sigma)
+    figures = consistency(
+        target,
+        dets,
+        poses,
+        {c: m.choice.fit.model for c, m in mono.items()},
+        models,
+        kept,
+        first,
+    )
     return StereoCalibration(
         "unknown poses (per-camera + joint refinement)",
         cams,
@@ -330,4 +349,36 @@ def calibrate_unknown_poses(
         turned,
         rejected,
         notes=notes,
+        consistency=figures,
     )
+
+
+def _one_camera(
+    mono: _Mono,
+    name: str,
+    detections: Sequence[Detection],
+    target: Target,
+    reference_view: int,
+    size: tuple[int, int],
+) -> StereoCalibration:
+    """One camera alone: its own calibration, {V} the target's frame in the reference view."""
+    fit = mono.choice.fit
+    if reference_view not in mono.used:
+        raise DegenerateDataError(
+            f"reference view {reference_view} is not usable in camera {name}; usable: "
+            f"{sorted(mono.used)} (--reference-view)"
+        )
+    k = mono.used.index(reference_view)
+    cal = mono.calibration
+    cal.model = _camera_model(fit.K, fit.dist, fit.rvecs[k], fit.tvecs[k], size, name)
+    diag = cal.diagnostics
+    if diag is not None and np.isfinite(diag.uncertainty_map_px).any():
+        sigma = float(np.sqrt(np.nanmean(diag.uncertainty_map_px**2) / 2.0))
+        cal.model = dataclasses.replace(cal.model, projection_sigma_px=sigma)
+    dets = {name: {v: detections[v] for v in mono.used}}
+    poses = {name: {v: (cv2.Rodrigues(np.asarray(fit.rvecs[i]))[0], np.ravel(fit.tvecs[i]))
+                    for i, v in enumerate(mono.used)}}  # fmt: skip
+    figures = consistency(target, dets, poses, {name: fit.model}, {name: cal.model}, mono.used,
+                          name)  # fmt: skip
+    return StereoCalibration("unknown poses (one camera)", {name: cal}, cal.rms_px, 0.0,
+                             consistency=figures)  # fmt: skip

@@ -154,7 +154,8 @@ def stereo_calibrate_images(
     target : str
         The target spec (``chessboard:9x6:250``, ``dotgrid:...``).
     images : list of str
-        ``CAMERA=GLOB`` per camera, each matching the same number of views.
+        ``CAMERA=GLOB`` per camera, each matching the same number of views; one camera alone
+        calibrates from unknown poses (without ``known_displacements``).
     known_displacements : Path, optional
         The target's displacement of each view (CSV): the thesis's method; unknown poses
         without it.
@@ -170,7 +171,7 @@ def stereo_calibrate_images(
 
     tgt = parse_target(target)
     check_json_output(out, CAMERAS_FORMAT, "cameras.json")
-    files = parse_images(images)
+    files = parse_images(images, at_least=1 if known_displacements is None else 2)
     n_views = len(next(iter(files.values())))
     disp = None
     if known_displacements is not None:
