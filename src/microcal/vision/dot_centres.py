@@ -156,13 +156,13 @@ def refine_dot_centres(
         for k, H in enumerate(homographies):
             if H is None:
                 continue
-            g0 = ij[k].astype(np.float64)
+            g0: FloatArray = np.asarray(ij[k], dtype=np.float64)
             outline = _map(H, g0 + r_out * ring)
             x0, y0 = np.floor(outline.min(axis=0)).astype(int)
             x1, y1 = np.ceil(outline.max(axis=0)).astype(int) + 1
             if x0 < 0 or y0 < 0 or x1 > w_img or y1 > h_img:
                 continue
-            Hinv = np.linalg.inv(H)
+            Hinv: FloatArray = np.asarray(np.linalg.inv(H), dtype=np.float64)
             ys, xs = np.mgrid[y0:y1, x0:x1]
             pix = np.stack([xs, ys], axis=-1).astype(np.float64)
             d = np.linalg.norm(_map(Hinv, pix) - g0, axis=-1)

@@ -44,8 +44,10 @@ MIN_PITCH_PX = 5.0
 AREA_FACTOR = 2.5
 #: A blob is round enough to be a dot above this 4 pi area / perimeter².
 MIN_ROUNDNESS = 0.45
-#: A hole counts (a marker) above this share of its dot's area.
-MIN_HOLE_SHARE = 0.02
+#: A hole counts (a marker) above this share of its dot's area, ...
+MIN_HOLE_SHARE = 0.04
+#: ... centred on the dot within this share of the dot's radius.
+HOLE_CENTRING = 0.3
 #: A step of the walk lands on a dot within this share of the step.
 STEP_TOLERANCE = 0.3
 
@@ -124,10 +126,10 @@ def _blobs(gray: NDArray[np.float32], dark: bool, pitch_px: float) -> list[_Blob
     # removed) and the local dot level (an opening): uneven light, and holes only partly
     # resolved, still split at their own mid-level
     # (on a copy shrunk to about 12 px per pitch: the levels vary over pitches, not pixels)
-    smooth = cv2.GaussianBlur(img8, (0, 0), max(0.5, 0.02 * pitch_px))
+    smooth = cv2.GaussianBlur(img8, (0, 0), max(0.7, 0.03 * pitch_px))
     scale = min(1.0, 12.0 / pitch_px)
     small = cv2.resize(smooth, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
-    size = 2 * int(round(0.6 * pitch_px * scale)) + 1
+    size = 2 * round(0.6 * pitch_px * scale) + 1
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
     ground = cv2.morphologyEx(small, cv2.MORPH_CLOSE, kernel).astype(np.float32)
     ink = cv2.erode(small, kernel).astype(np.float32)
@@ -156,12 +158,16 @@ def _blobs(gray: NDArray[np.float32], dark: bool, pitch_px: float) -> list[_Blob
         perimeter = cv2.arcLength(cnt, True)
         if 4 * np.pi * area / max(perimeter**2, 1e-9) < MIN_ROUNDNESS:
             continue
+        centre = np.array([m["m10"] / area, m["m01"] / area])
         hole = 0.0
         child = hier[k][2]
-        while child != -1:
-            hole = max(hole, cv2.contourArea(contours[child]))
+        while child != -1:  # the largest hole near the middle (noise leaves small, stray ones)
+            mh = cv2.moments(contours[child])
+            if mh["m00"] > hole:
+                off = np.hypot(mh["m10"] / mh["m00"] - centre[0], mh["m01"] / mh["m00"] - centre[1])
+                if off < HOLE_CENTRING * np.sqrt(area / np.pi):
+                    hole = mh["m00"]
             child = hier[child][0]
-        centre = np.array([m["m10"] / area, m["m01"] / area])
         out.append(_Blob(centre, area, hole if hole > MIN_HOLE_SHARE * area else 0.0))
     return out
 
@@ -325,6 +331,7 @@ def _number(dots: LatticeDots, target: Target) -> tuple[NDArray[np.intp], str]:
         )
     solid = {tuple(p) for p in dots.ij[~dots.hollow].tolist()}
     fits: list[tuple[int, NDArray[np.intp], NDArray[np.intp]]] = []
+    on_solid = 0  # placements refused only for a marker on a dot seen solid
     anchor = seen[0]
     for w, S in enumerate(_WAYS):
         for m in target.markers:
@@ -335,6 +342,7 @@ def _number(dots: LatticeDots, target: Target) -> tuple[NDArray[np.intp], str]:
             Sinv = np.rint(np.linalg.inv(S)).astype(int)
             back = (np.array(target.markers) - t) @ Sinv.T
             if any(tuple(p) in solid for p in back.tolist()):
+                on_solid += 1
                 continue
             if not any(np.array_equal(S, f[1]) and np.array_equal(t, f[2]) for f in fits):
                 fits.append((w, S, t))
@@ -343,6 +351,13 @@ def _number(dots: LatticeDots, target: Target) -> tuple[NDArray[np.intp], str]:
     if len(chosen) == 1:
         _, S, t = chosen[0]
         return dots.ij @ S.T + t, ""
+    if not fits and on_solid:
+        return dots.ij, (
+            f"{len(seen)} hollow marker dot(s) seen, but the spec's markers would put others on "
+            f"dots seen solid: a hole too small to resolve (about "
+            f"{2 * float(np.max(dots.hole_radius)):.2f} pitch across) or a spec that does not "
+            f"match the slide"
+        )
     if not fits:
         return dots.ij, _mismatch_reason(seen, target)
     return dots.ij, (
@@ -352,20 +367,31 @@ def _number(dots: LatticeDots, target: Target) -> tuple[NDArray[np.intp], str]:
 
 
 def _mismatch_reason(seen: NDArray[np.intp], target: Target) -> str:
-    """The one line for hollow dots no placement of the markers explains, with a fix."""
-    best: tuple[int, str] | None = None
+    """The one line for hollow dots no placement of the markers explains, with a fix: the
+    placement of what is seen nearest to the spec's markers, in the spec's order."""
     spec = np.array(target.markers)
+    best: tuple[float, NDArray[np.intp]] | None = None
     for S in _WAYS[:4]:
         placed = seen @ S.T
-        for m in target.markers:
-            moved = placed - placed[0] + np.array(m)
-            hits = sum(tuple(p) in {tuple(q) for q in spec.tolist()} for p in moved.tolist())
-            if moved.min() < 0 or np.any(moved.max(axis=0) >= (target.cols, target.rows)):
-                continue
-            text = marker_text(tuple((int(p[0]), int(p[1])) for p in moved))
-            if best is None or hits > best[0]:
-                best = (hits, text)
-    fix = f"markers={best[1]} would fit this view" if best else "check the markers' positions"
+        for anchor in placed:
+            for m in spec:
+                moved = placed - anchor + m
+                if moved.min() < 0 or np.any(moved.max(axis=0) >= (target.cols, target.rows)):
+                    continue
+                d = np.abs(spec[:, None, :] - moved[None, :, :]).sum(axis=2)
+                cost = float(d.min(axis=1).sum() + d.min(axis=0).sum())
+                if best is None or cost < best[0]:
+                    best = (cost, moved)
+    fix = "check the markers' positions"
+    if best is not None:
+        moved = best[1]
+        order: list[int] = []
+        for m in spec:  # each spec marker's nearest, in the spec's order
+            free = [k for k in range(len(moved)) if k not in order]
+            if free:
+                order.append(min(free, key=lambda k: int(np.abs(moved[k] - m).sum())))
+        text = marker_text(tuple((int(moved[k][0]), int(moved[k][1])) for k in order))
+        fix = f"markers={text} would fit this view"
     return (
         f"{MISMATCH_PREFIX} (markers={marker_text(target.markers)}): {len(seen)} hollow "
         f"dot(s) at lattice steps {_steps_text(seen)} from the first; {fix}"
@@ -374,7 +400,8 @@ def _mismatch_reason(seen: NDArray[np.intp], target: Target) -> str:
 
 def _steps_text(seen: NDArray[np.intp]) -> str:
     d = seen - seen[0]
-    return ", ".join(f"({int(p[0])},{int(p[1])})" for p in d[1:]) or "(none)"
+    text = ", ".join(f"({int(p[0])},{int(p[1])})" for p in d[1:6]) or "(none)"
+    return text + (", ..." if len(d) > 6 else "")
 
 
 def detect_marker_grid(gray: NDArray[np.float32], target: Target) -> Detection:

@@ -63,7 +63,7 @@ def _plane_hit(q: FloatArray, rvec: FloatArray, tvec: FloatArray, K: FloatArray,
     rays = np.column_stack([n, np.ones(len(n))]) @ R  # directions in the target frame
     origin = -R.T @ t
     s = -origin[2] / rays[:, 2]
-    out: FloatArray = (origin[None, :] + s[:, None] * rays)[:, :2]
+    out: FloatArray = np.asarray((origin[None, :] + s[:, None] * rays)[:, :2], dtype=np.float64)
     return out
 
 
@@ -71,7 +71,7 @@ def _without_affine(nominal: FloatArray, offsets: FloatArray, moved: np.ndarray)
     """Offsets less their least-squares affine part over the moved dots."""
     A = np.column_stack([nominal[moved], np.ones(np.count_nonzero(moved))])
     coef, *_ = np.linalg.lstsq(A, offsets[moved], rcond=None)
-    out = offsets - np.column_stack([nominal, np.ones(len(nominal))]) @ coef
+    out: FloatArray = offsets - np.column_stack([nominal, np.ones(len(nominal))]) @ coef
     out[~moved] = 0.0
     return out
 
@@ -121,13 +121,13 @@ def measure_slide(
                 np.add.at(counts, d.ids, 1.0)
         moved = counts >= MIN_SIGHTINGS
         if np.count_nonzero(moved) < 6:
-            return MeasuredSlide(**_fields(target)), ""
+            return _measured(target, np.zeros_like(nominal)), ""
         step = np.zeros_like(nominal)
         step[moved, :2] = sums[moved] / counts[moved, None]
         offsets = offsets + step
         offsets[:, :2] = _without_affine(nominal[:, :2], offsets[:, :2], moved)
     size = np.linalg.norm(offsets[moved, :2], axis=1)
-    slide = MeasuredSlide(**_fields(target), offsets_um=offsets)
+    slide = _measured(target, offsets)
     note = (
         f"the slide's {np.count_nonzero(moved)} dots seen in {MIN_SIGHTINGS} or more views "
         f"measured: {float(np.sqrt(np.mean(size**2))):.2f} µm RMS from the nominal lattice "
@@ -136,13 +136,7 @@ def measure_slide(
     return slide, note
 
 
-def _fields(target: Target) -> dict[str, object]:
-    return {
-        "kind": target.kind,
-        "cols": target.cols,
-        "rows": target.rows,
-        "pitch_um": target.pitch_um,
-        "feature_um": target.feature_um,
-        "first_marker": target.first_marker,
-        "markers": target.markers,
-    }
+def _measured(target: Target, offsets_um: FloatArray) -> MeasuredSlide:
+    return MeasuredSlide(target.kind, target.cols, target.rows, target.pitch_um,
+                         target.feature_um, target.first_marker, target.markers,
+                         offsets_um)  # fmt: skip
