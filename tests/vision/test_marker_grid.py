@@ -176,3 +176,28 @@ def test_the_bias_of_a_tilted_dot_is_its_pictures_centroid_less_its_centres_pict
     # an affine map has none
     A = np.array([[80.0, 10.0, 5.0], [3.0, 90.0, 7.0], [0.0, 0.0, 1.0]])
     assert np.allclose(disc_image_bias_px(A, np.array([1.0, 2.0]), 0.3), 0.0, atol=1e-9)
+
+
+@pytest.mark.parametrize(("preset", "kind"), [("thesis", "pinhole"), ("telecentric", "affine")])
+def test_a_slide_moved_by_known_steps_calibrates_a_camera(preset, kind):
+    """Method (a) with a slide of which only a part is in view: the numbering gives every
+    visible dot its place on the slide, so the steps place it in {V}."""
+    from microcal.vision.known_displacements import calibrate_known_displacements
+
+    rng = np.random.default_rng(6)
+    cam = sim.platform(preset, seed=0).camera_models["side"]
+    base = _placement(cam, (0.25, -0.15, 0.3), (550, 450))
+    steps = np.array([[0.0, 0.0, z] for z in (0.0, 1500.0, 3000.0)])
+    dets = []
+    for d in steps:
+        moved = Placement(SLIDE, base.R, base.t_um + base.R @ d)
+        dets.append(detect(_image(cam, moved, rng), SLIDE, roi=BOX))
+        assert dets[-1].found, dets[-1].reason
+    cal = calibrate_known_displacements({"side": dets}, {"side": ["a", "b", "c"]}, SLIDE, steps,
+                                        {"side": cam.image_size_px}, camera_model="auto")  # fmt: skip
+    model = cal.cameras["side"].model
+    assert model.kind == kind
+    seen = dets[0].ids
+    err = np.linalg.norm(model.project(SLIDE.points_um()[seen]) - _truth(cam, base)[seen], axis=1)
+    # Metric: the calibrated camera against the true one over the dots seen, px RMS
+    assert np.sqrt(np.mean(err**2)) < 0.05

@@ -173,7 +173,7 @@ def refine_dot_centres(
                 continue
             A = np.column_stack([np.ones(np.count_nonzero(ann)), xs[ann] - q[k, 0],
                                  ys[ann] - q[k, 1]])  # fmt: skip
-            coef, *_ = np.linalg.lstsq(A, patch[ann], rcond=None)
+            coef = np.linalg.solve(A.T @ A, A.T @ patch[ann])  # the ground's plane
             bg = coef[0] + coef[1] * (xs[inside] - q[k, 0]) + coef[2] * (ys[inside] - q[k, 1])
             if dark:
                 if np.any(bg <= 0):

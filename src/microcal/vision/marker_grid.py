@@ -105,7 +105,9 @@ def _dark_dots(gray: NDArray[np.float32], pitch_px: float) -> bool:
     """Dark dots on a light ground: the detail finer than a pitch is skewed to the dark side
     (dots cover less of the image than the ground; unlike the median against the mean, the
     test ignores uneven light)."""
-    detail = gray.astype(np.float64) - cv2.blur(gray, (int(2 * pitch_px) | 1,) * 2)
+    scale = min(1.0, 12.0 / pitch_px)  # about 12 px per pitch is plenty
+    small = cv2.resize(gray, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+    detail = small.astype(np.float64) - cv2.blur(small, (int(2 * pitch_px * scale) | 1,) * 2)
     detail -= detail.mean()
     return float(np.mean(detail**3)) < 0
 
