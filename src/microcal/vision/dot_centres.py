@@ -144,49 +144,132 @@ def refine_dot_centres(
     n = len(q)
     holes = np.zeros(n) if hole_radius is None else np.asarray(hole_radius, dtype=np.float64)
     ok = np.zeros(n, dtype=bool)
-    h_img, w_img = gray.shape
     r_win = radius + 0.5 * (0.5 - radius)  # halfway from the dot's edge to the midpoint
     r_out = 1.0 - r_win  # the annulus is symmetric about the midpoint to the neighbours
-    t = np.linspace(0.0, 2.0 * np.pi, 32, endpoint=False)
-    ring = np.column_stack([np.cos(t), np.sin(t)])
     for _ in range(iterations):
         homographies = _local_homographies(ij, q)
+        have = np.array([H is not None for H in homographies], dtype=bool)
         new = q.copy()
         ok[:] = False
-        for k, H in enumerate(homographies):
-            if H is None:
-                continue
-            g0: FloatArray = np.asarray(ij[k], dtype=np.float64)
-            outline = _map(H, g0 + r_out * ring)
-            x0, y0 = np.floor(outline.min(axis=0)).astype(int)
-            x1, y1 = np.ceil(outline.max(axis=0)).astype(int) + 1
-            if x0 < 0 or y0 < 0 or x1 > w_img or y1 > h_img:
-                continue
-            Hinv: FloatArray = np.asarray(np.linalg.inv(H), dtype=np.float64)
-            ys, xs = np.mgrid[y0:y1, x0:x1]
-            pix = np.stack([xs, ys], axis=-1).astype(np.float64)
-            d = np.linalg.norm(_map(Hinv, pix) - g0, axis=-1)
-            patch = gray[y0:y1, x0:x1].astype(np.float64)
-            ann = (d > r_win) & (d < r_out)
-            inside = d <= r_win
-            if np.count_nonzero(ann) < 12 or np.count_nonzero(inside) < 5:
-                continue
-            A = np.column_stack([np.ones(np.count_nonzero(ann)), xs[ann] - q[k, 0],
-                                 ys[ann] - q[k, 1]])  # fmt: skip
-            coef = np.linalg.solve(A.T @ A, A.T @ patch[ann])  # the ground's plane
-            bg = coef[0] + coef[1] * (xs[inside] - q[k, 0]) + coef[2] * (ys[inside] - q[k, 1])
-            if dark:
-                if np.any(bg <= 0):
-                    continue
-                s = 1.0 - patch[inside] / bg
-            else:
-                s = patch[inside] - bg
-            total = float(s.sum())
-            if total <= 0:
-                continue
-            m = np.array([(s * xs[inside]).sum(), (s * ys[inside]).sum()]) / total
-            bias = disc_image_bias_px(H, g0, radius, float(holes[k]))
-            new[k] = m - bias
-            ok[k] = True
+        if not np.any(have):
+            break
+        idx = np.flatnonzero(have)
+        Hs: FloatArray = np.stack([H for H in homographies if H is not None])  # (M, 3, 3)
+        g0 = ij[idx].astype(np.float64)
+        centroid, good = _centroids(gray, Hs, g0, q[idx], r_win, r_out, dark)
+        bias = _biases(Hs, g0, radius, holes[idx])
+        new[idx[good]] = centroid[good] - bias[good]
+        ok[idx[good]] = True
         q = new
     return q, ok
+
+
+#: Pixels gathered at once (dots x window), to bound the memory of the vectorised windows.
+_CHUNK_PX = 300_000
+
+
+def _map_batch(H: FloatArray, x: FloatArray, y: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Homographies (M, 3, 3) of points x, y (M, ...) -> u, v (M, ...)."""
+    shape = (len(H),) + (1,) * (x.ndim - 1)
+    h = [[H[:, a, b].reshape(shape) for b in range(3)] for a in range(3)]
+    w = h[2][0] * x + h[2][1] * y + h[2][2]
+    return (h[0][0] * x + h[0][1] * y + h[0][2]) / w, (h[1][0] * x + h[1][1] * y + h[1][2]) / w
+
+
+def _biases(Hs: FloatArray, g0: FloatArray, radius: float, holes: FloatArray) -> FloatArray:
+    """:func:`disc_image_bias_px` of many dots at once, (M, 2)."""
+    t = np.linspace(0.0, 2.0 * np.pi, _BOUNDARY, endpoint=False)
+
+    def area_centroid(r: FloatArray) -> tuple[FloatArray, FloatArray]:
+        x = g0[:, :1] + r[:, None] * np.cos(t)
+        y = g0[:, 1:] + r[:, None] * np.sin(t)
+        u, v = _map_batch(Hs, x, y)
+        u2, v2 = np.roll(u, -1, axis=1), np.roll(v, -1, axis=1)
+        cross = u * v2 - v * u2
+        area = 0.5 * cross.sum(axis=1)
+        safe = np.where(area == 0, 1.0, area)
+        cen = np.stack([((u + u2) * cross).sum(axis=1), ((v + v2) * cross).sum(axis=1)], axis=1)
+        return area, cen / (6.0 * safe[:, None])
+
+    a_out, c_out = area_centroid(np.full(len(g0), radius))
+    cen = c_out
+    hollow = holes > 0
+    if np.any(hollow):
+        a_in, c_in = area_centroid(np.where(hollow, holes, 0.5 * radius))
+        ring = (a_out[:, None] * c_out - a_in[:, None] * c_in) / (a_out - a_in)[:, None]
+        cen = np.where(hollow[:, None], ring, c_out)
+    u0, v0 = _map_batch(Hs, g0[:, 0], g0[:, 1])
+    out: FloatArray = cen - np.column_stack([u0, v0])
+    return out
+
+
+def _centroids(
+    gray: NDArray[np.float32],
+    Hs: FloatArray,
+    g0: FloatArray,
+    q: FloatArray,
+    r_win: float,
+    r_out: float,
+    dark: bool,
+) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Centroids of the normalised signal in each dot's window, (M, 2), and which are valid."""
+    m = len(Hs)
+    t = np.linspace(0.0, 2.0 * np.pi, 32, endpoint=False)
+    ox, oy = _map_batch(Hs, g0[:, :1] + r_out * np.cos(t), g0[:, 1:] + r_out * np.sin(t))
+    x0 = np.floor(ox.min(axis=1)).astype(int)
+    y0 = np.floor(oy.min(axis=1)).astype(int)
+    x1 = np.ceil(ox.max(axis=1)).astype(int) + 1
+    y1 = np.ceil(oy.max(axis=1)).astype(int) + 1
+    h_img, w_img = gray.shape
+    good = (x0 >= 0) & (y0 >= 0) & (x1 <= w_img) & (y1 <= h_img) & np.isfinite(ox).all(axis=1)
+    out = np.full((m, 2), np.nan)
+    if not np.any(good):
+        return out, good
+    side = int(max(np.max((x1 - x0)[good]), np.max((y1 - y0)[good])))
+    grid = np.arange(side, dtype=np.float64)
+    valid = np.flatnonzero(good)
+    per_chunk = max(1, _CHUNK_PX // (side * side))
+    for start in range(0, len(valid), per_chunk):
+        k = valid[start : start + per_chunk]
+        xs = np.minimum(x0[k, None, None] + grid[None, None, :], w_img - 1)
+        ys = np.minimum(y0[k, None, None] + grid[None, :, None], h_img - 1)
+        xs, ys = np.broadcast_arrays(xs, ys)
+        Hinv: FloatArray = np.asarray(np.linalg.inv(Hs[k]), dtype=np.float64)
+        u, v = _map_batch(Hinv, xs, ys)
+        d = np.hypot(u - g0[k, 0, None, None], v - g0[k, 1, None, None])
+        inside_box = (xs < x1[k, None, None]) & (ys < y1[k, None, None])
+        patch = gray[ys.astype(np.intp), xs.astype(np.intp)].astype(np.float64)
+        ann = (d > r_win) & (d < r_out) & inside_box
+        inside = (d <= r_win) & inside_box
+        dx = xs - q[k, 0, None, None]
+        dy = ys - q[k, 1, None, None]
+        w = ann.astype(np.float64)
+        # the ground's plane a + b dx + c dy fitted to the annulus (normal equations)
+        wx, wy = w * dx, w * dy
+
+        def dot(a: FloatArray, b: FloatArray) -> FloatArray:
+            out: FloatArray = np.einsum("kij,kij->k", a, b)
+            return out
+
+        s1, sx, sy = w.sum(axis=(1, 2)), wx.sum(axis=(1, 2)), wy.sum(axis=(1, 2))
+        sxx, sxy, syy = dot(wx, dx), dot(wx, dy), dot(wy, dy)
+        si, sxi, syi = dot(w, patch), dot(wx, patch), dot(wy, patch)
+        A = np.stack([np.stack([s1, sx, sy], -1), np.stack([sx, sxx, sxy], -1),
+                      np.stack([sy, sxy, syy], -1)], axis=1)  # fmt: skip
+        enough = (ann.sum(axis=(1, 2)) >= 12) & (inside.sum(axis=(1, 2)) >= 5)
+        A[~enough] = np.eye(3)
+        coef = np.linalg.solve(A, np.stack([si, sxi, syi], -1)[..., None])[..., 0]
+        ground = coef[:, 0, None, None] + coef[:, 1, None, None] * dx + coef[:, 2, None, None] * dy
+        if dark:
+            positive = np.all(np.where(inside, ground, 1.0) > 0, axis=(1, 2))
+            signal = np.where(inside, 1.0 - patch / np.where(ground > 0, ground, 1.0), 0.0)
+        else:
+            positive = np.ones(len(k), dtype=bool)
+            signal = np.where(inside, patch - ground, 0.0)
+        total = signal.sum(axis=(1, 2))
+        fine = enough & positive & (total > 0)
+        safe = np.where(fine, total, 1.0)
+        out[k, 0] = dot(signal, xs) / safe
+        out[k, 1] = dot(signal, ys) / safe
+        good[k] &= fine
+    return out, good
