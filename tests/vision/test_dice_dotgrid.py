@@ -15,7 +15,7 @@ import pytest
 
 from microcal.errors import InputError
 from microcal.geometry import triangulate
-from microcal.vision.detect import Detection, detect, to_gray
+from microcal.vision.detect import Detection, detect
 from microcal.vision.targets import parse_target
 
 DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "dice_dotgrid_stereo"
@@ -42,16 +42,25 @@ def calibrated(tmp_path_factory):
         for s in (0, 1):
             (folder / _name(v, s)).symlink_to(DATA / _name(v, s))
     out = folder / "cameras.json"
-    cal = stereo_calibrate_images(
-        SPEC,
-        [f"left={folder}/CalB-sys2-*_0.jpeg", f"right={folder}/CalB-sys2-*_1.jpeg"],
-        out,
-        lens_model="radial2-tangential",
-    )
+    seen: list[tuple[np.ndarray, Detection]] = []  # each image as detected by the command
+
+    def recording(image, target, **kwargs):
+        det = detect(image, target, **kwargs)
+        seen.append((np.asarray(image, dtype=np.float32), det))
+        return det
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("microcal.procedures.stereo.detect", recording)
+        cal = stereo_calibrate_images(
+            SPEC,
+            [f"left={folder}/CalB-sys2-*_0.jpeg", f"right={folder}/CalB-sys2-*_1.jpeg"],
+            out,
+            lens_model="radial2-tangential",
+        )
     target = parse_target(SPEC)
-    images = {(v, s): to_gray(cv2.imread(str(DATA / _name(v, s)), 0)) for v in VIEWS
-              for s in (0, 1)}  # fmt: skip
-    dets = {cam: [detect(images[v, s], target) for v in VIEWS]
+    assert len(seen) == 2 * len(VIEWS)  # camera by camera, views in order
+    images = {(v, s): seen[s * len(VIEWS) + k][0] for k, v in enumerate(VIEWS) for s in (0, 1)}
+    dets = {cam: [seen[s * len(VIEWS) + k][1] for k in range(len(VIEWS))]
             for s, cam in ((0, "left"), (1, "right"))}  # fmt: skip
     return cal, out, target, images, dets
 
