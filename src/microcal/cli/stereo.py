@@ -12,7 +12,11 @@ from ..report.console import print_parts, staged_progress
 from ._app import app, fail
 
 _Target = Annotated[
-    str | None, Option(help="Target spec, e.g. dotgrid:40x30:250 (--rig: its own).")
+    str | None,
+    Option(
+        help="Target spec, e.g. dotgrid:40x30:250; a slide larger than the field: "
+        "dotgrid:...:markers=C,R/C,R/C,R (--rig: its own)."
+    ),
 ]
 _Images = Annotated[list[str] | None, Option(help="CAMERA=GLOB, once per camera; sorted views.")]
 _Rig = Annotated[

@@ -1,7 +1,10 @@
 """Stereo calibration from a set of images per camera (the procedure behind the command).
 
 Frames of one view (the pages of a multi-page file) are averaged before detection: with a
-still target this lowers the noise as the square root of their number.
+still target this lowers the noise as the square root of their number. A slide numbered from
+marker dots is refused when its hollow dots contradict the spec's markers; calibrated from
+free poses, its dots' positions are measured along with the cameras
+(:mod:`~microcal.vision.slide_geometry`).
 """
 
 from __future__ import annotations
@@ -97,10 +100,22 @@ def calibrate_views(
                 progress(done, total)
         if cam not in sizes:
             raise FormatError(f"camera {cam}: none of its images could be read")
+    if target.markers:
+        from ..vision.marker_grid import check_marker_spec
+
+        check_marker_spec(target, [d for ds in detections.values() for d in ds])
     if displacements_um is not None:
         return calibrate_known_displacements(
             detections, names, target, displacements_um, sizes, camera_model=camera_model
         )
-    return calibrate_unknown_poses(
+    note = ""
+    if target.markers:  # a slide's dots are measured along with the cameras
+        from ..vision.slide_geometry import measure_slide
+
+        target, note = measure_slide(target, detections, sizes)
+    cal = calibrate_unknown_poses(
         detections, names, target, sizes, reference_view=reference_view, lens_model=lens_model
     )
+    if note:
+        cal.notes.append(note)
+    return cal

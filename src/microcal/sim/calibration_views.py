@@ -33,6 +33,7 @@ from ..errors import InputError
 from ..geometry.camera_model import CameraModel
 from ..vision.targets import Target
 from .render import Placement, Reflectance, render_placement
+from .slide_render import render_slide
 
 __all__ = [
     "CalibrationViews",
@@ -759,7 +760,8 @@ def _render_view(
     x1 = min(int(np.ceil(q[:, 0].max())) + 3, w)
     y1 = min(int(np.ceil(q[:, 1].max())) + 3, h)
     with np.errstate(invalid="ignore"):
-        value, alpha = render_placement(
+        render = render_slide if placement.target.markers else render_placement
+        value, alpha = render(
             camera, placement, (x0, y0, x1, y1), supersample=_SUPERSAMPLE, reflectance=refl
         )
     # Pixels the lens model cannot trace (beyond its fold-over, in the image corners) are

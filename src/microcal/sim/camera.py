@@ -30,6 +30,7 @@ from ..devices.base import Camera, Clock
 from ..errors import DeviceTimeoutError, FrameError, InputError
 from ..geometry.camera_kinds import AnyCamera
 from .render import Placement, Reflectance, render_placement, roi_of
+from .slide_render import render_slide
 
 __all__ = ["CameraFaults", "ImageFormation", "SimCamera"]
 
@@ -214,7 +215,8 @@ class SimCamera(Camera):
             truth.features_px.append(self.model.project(placement.points_world_um()) + offset_px)
             if roi is None:
                 continue
-            value, alpha = render_placement(
+            render = render_slide if placement.target.markers else render_placement
+            value, alpha = render(
                 self.model,
                 placement,
                 roi,

@@ -145,6 +145,10 @@ def _rows_of_two(value: object) -> bool:
 
 #: The camera-calibration target on the target stage: a dot grid, 40 x 30 dots at 250 µm.
 CALIBRATION_TARGET = "dotgrid:40x30:250"
+#: A calibration slide that overfills the field, numbered from hollow marker dots near its
+#: middle: an option of the ``thesis`` and ``telecentric`` presets, chosen by overriding
+#: ``calibration_target`` with it.
+OVERFILLING_SLIDE = "dotgrid:60x45:500:300:markers=28,23/33,23/28,20"
 
 
 @dataclass

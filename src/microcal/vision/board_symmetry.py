@@ -6,8 +6,8 @@ of the squares do too when COLS + ROWS is even (both counts even or both odd). A
 (COLS == ROWS) also maps onto itself turned by 90 degrees, with its colours when COLS is
 even. A detector that sees such a board cannot know which end its numbering starts from:
 two cameras (or two views of method (a)) may then number the same corners from opposite
-ends. Odd x even chessboards and ChArUco boards have no such ambiguity; dot grids always
-have it (180 degrees, and 90 for square grids).
+ends. Odd x even chessboards, ChArUco boards and dot grids with marker dots have no such
+ambiguity; other dot grids always have it (180 degrees, and 90 for square grids).
 
 :func:`ambiguous_turns` lists the turns a target's picture cannot tell apart (the identity
 first); :func:`turn_ids` the corner numbering each turn gives; :func:`turn_transform` the
@@ -56,7 +56,7 @@ def ambiguous_turns(target: Target, *, with_colour: bool = True) -> list[int]:
         Leave out the turns that the squares' colours tell apart (a detector that reads the
         colours, as :mod:`microcal.vision.detect` does, never confuses those).
     """
-    if target.kind == "charuco":
+    if target.kind == "charuco" or target.markers:  # markers number a dot grid whole
         return [0]
     turns = [0, 90, 180, 270] if _square(target) else [0, 180]
     return [t for t in turns if t == 0 or not (with_colour and colour_decides(target, t))]

@@ -13,6 +13,9 @@ pixel positions with sub-pixel accuracy and a quality figure; or, when there is 
 - Dot grid: dots segmented by Otsu's threshold, centres from background-subtracted
   intensity moments in a window, then indexed on the lattice (two lattice vectors from the
   neighbours, grid coordinates by rounding); works for dense grids of thousands of dots.
+- Dot grid with marker dots (a slide that overfills the field): any part of the grid,
+  numbered from its hollow dots (:mod:`~microcal.vision.marker_grid`), centres corrected for
+  perspective (:mod:`~microcal.vision.dot_centres`).
 - ChArUco: OpenCV's ChArUco detector; ids are OpenCV's corner ids; the corners refined as
   a chessboard's (those found, each by its own neighbours' spacing).
 
@@ -511,6 +514,10 @@ def detect(
         return Detection.none(f"the {where} has {bad} NaN or infinite pixels")
     if target.kind == "chessboard":
         det = _detect_chessboard_coarse_to_fine(gray, target)
+    elif target.kind == "dotgrid" and target.markers:
+        from .marker_grid import detect_marker_grid  # it builds on this module
+
+        det = detect_marker_grid(gray, target)
     elif target.kind == "dotgrid":
         det = _detect_dotgrid(gray, target)
     else:

@@ -11,6 +11,13 @@ Target specs are strings:
   pitch) numbered from FIRST (default 0). Boards whose markers' numbers do not overlap are
   told apart in one image: give each device of a station its own (``charuco:5x4:400:id0``,
   ``charuco:5x4:400:id10``).
+- ``dotgrid:COLSxROWS:PITCH_UM[:DIAMETER_UM]:markers=C,R/C,R/C,R``: a dot grid of which
+  any part may be in view (a calibration slide that overfills the field), numbered from its
+  hollow ("donut") marker dots at the given (column, row) positions of the grid, counted
+  from 0 at the first dot, rows down the slide as printed. Three or more markers, placed so
+  that no turn of the slide maps them onto themselves (an L with arms of different lengths:
+  ``dotgrid:16x14:3500:1750:markers=4,8/9,8/4,5``). Dots found beyond the COLS x ROWS grid
+  are left out; give the grid of the whole slide, or of the part that may be seen.
 
 The target frame: x along the columns, y along the rows, z = 0 on the target; the first
 feature (inner corner or dot) is at the origin. On a chessboard the square between the first
@@ -34,7 +41,8 @@ __all__ = ["Target", "parse_target"]
 
 TargetKind = Literal["chessboard", "dotgrid", "charuco"]
 _SPEC = re.compile(
-    r"^(chessboard|dotgrid|charuco):(\d+)x(\d+):([0-9.]+)(?::([0-9.]+))?(?::id(\d+))?$",
+    r"^(chessboard|dotgrid|charuco):(\d+)x(\d+):([0-9.]+)(?::([0-9.]+))?(?::id(\d+))?"
+    r"(?::markers=([^:]*))?$",
     re.IGNORECASE,
 )
 #: Markers of the ArUco dictionary ChArUco boards use (4x4, 250 markers).
@@ -56,6 +64,9 @@ class Target:
         Dot diameter (dotgrid) or marker size (charuco); 0 for a chessboard.
     first_marker : int
         The number of a ChArUco board's first marker (0 for the others).
+    markers : tuple of (column, row)
+        Grid positions of a dot grid's hollow marker dots (empty: the whole grid is in view
+        and numbered from its top-left dot).
     """
 
     kind: TargetKind
@@ -64,13 +75,20 @@ class Target:
     pitch_um: float
     feature_um: float = 0.0
     first_marker: int = 0
+    markers: tuple[tuple[int, int], ...] = ()
 
     @property
     def spec(self) -> str:
         """The spec string this target parses from."""
         base = f"{self.kind}:{self.cols}x{self.rows}:{self.pitch_um:g}"
         base += f":{self.feature_um:g}" if self.kind != "chessboard" else ""
-        return base + (f":id{self.first_marker}" if self.first_marker else "")
+        base += f":id{self.first_marker}" if self.first_marker else ""
+        return base + (f":markers={marker_text(self.markers)}" if self.markers else "")
+
+    @property
+    def partial(self) -> bool:
+        """Whether any part of the target may be in view (numbered from its markers)."""
+        return bool(self.markers)
 
     def marker_ids(self) -> np.ndarray:
         """The numbers of a ChArUco board's markers, (cols * rows // 2,) int (empty for the
@@ -118,6 +136,62 @@ class Target:
         return out
 
 
+def marker_text(markers: tuple[tuple[int, int], ...]) -> str:
+    """The ``markers=`` value of a spec: ``C,R/C,R/...``."""
+    return "/".join(f"{c},{r}" for c, r in markers)
+
+
+#: The four turns of the grid in its plane (integer rotations of (column, row)).
+_TURNS = (((1, 0), (0, 1)), ((0, -1), (1, 0)), ((-1, 0), (0, -1)), ((0, 1), (-1, 0)))
+
+
+def marker_turn_symmetry(markers: tuple[tuple[int, int], ...]) -> int:
+    """The smallest turn (degrees, 90, 180 or 270) that maps the markers onto themselves,
+    0 when none does (the markers then fix the numbering)."""
+    pts = np.array(markers, dtype=int)
+    for k, turn in enumerate(_TURNS[1:], start=1):
+        moved = pts @ np.array(turn).T
+        moved = moved - moved.min(axis=0) + pts.min(axis=0)
+        if {tuple(p) for p in moved.tolist()} == {tuple(p) for p in pts.tolist()}:
+            return 90 * k
+    return 0
+
+
+def _parse_markers(spec: str, text: str, cols: int, rows: int) -> tuple[tuple[int, int], ...]:
+    example = "markers=2,5/7,5/2,2"
+    items = [t.strip() for t in text.split("/")]
+    out: list[tuple[int, int]] = []
+    for item in items:
+        m = re.fullmatch(r"(\d+),(\d+)", item)
+        if not m:
+            raise InputError(
+                f"target {spec!r}: expected markers=C,R/C,R/... (column, row of each hollow "
+                f"dot, from 0), e.g. {example}; got {item!r}"
+            )
+        c, r = int(m.group(1)), int(m.group(2))
+        if c >= cols or r >= rows:
+            raise InputError(
+                f"target {spec!r}: marker {c},{r} is outside the {cols}x{rows} grid (columns "
+                f"0-{cols - 1}, rows 0-{rows - 1})"
+            )
+        out.append((c, r))
+    if len(set(out)) != len(out):
+        raise InputError(f"target {spec!r}: a marker position is given twice")
+    if len(out) < 3:
+        raise InputError(
+            f"target {spec!r}: expected 3 or more marker dots (two look the same turned by "
+            f"180 degrees), e.g. {example}"
+        )
+    turn = marker_turn_symmetry(tuple(out))
+    if turn:
+        raise InputError(
+            f"target {spec!r}: the markers look the same turned by {turn} degrees, so they "
+            f"cannot number the grid; place them as an L with arms of different lengths, "
+            f"e.g. {example}"
+        )
+    return tuple(out)
+
+
 #: More features than this is a typing slip, not a target (a 1000 x 1000 dot grid).
 MAX_FEATURES = 1_000_000
 
@@ -134,7 +208,8 @@ def parse_target(spec: str) -> Target:
     if not m:
         raise InputError(
             f"target {spec!r}: expected KIND:COLSxROWS:PITCH_UM with KIND chessboard, dotgrid "
-            f"or charuco, e.g. chessboard:4x3:400 (charuco:5x4:400:id10: markers from 10)"
+            f"or charuco, e.g. chessboard:4x3:400 (charuco:5x4:400:id10: markers from 10; "
+            f"dotgrid:16x14:3500:1750:markers=4,8/9,8/4,5: a slide numbered from hollow dots)"
         )
     kind = m.group(1).lower()
     cols, rows = int(m.group(2)), int(m.group(3))
@@ -178,4 +253,11 @@ def parse_target(spec: str) -> Target:
                 f"dictionary's {MARKERS}; give a first marker of at most "
                 f"{MARKERS - cols * rows // 2}"
             )
-    return Target(kind, cols, rows, pitch, feature, first)  # type: ignore[arg-type]
+    markers: tuple[tuple[int, int], ...] = ()
+    if m.group(7) is not None:
+        if kind != "dotgrid":
+            raise InputError(
+                f"target {spec!r}: only a dot grid carries hollow marker dots (markers=...)"
+            )
+        markers = _parse_markers(spec, m.group(7), cols, rows)
+    return Target(kind, cols, rows, pitch, feature, first, markers)  # type: ignore[arg-type]
