@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from .._parallel import Background
 from .._validation import FloatArray
 from ..control.conditions import open_loop_conditions
 from ..control.feedforward import extra_inputs_reader
@@ -271,15 +272,24 @@ def run_demo(
     plat = plat or platform("thesis", seed=seed)
     grid = parse_target(CALIBRATION_TARGET)
     steps = np.array([[0.0, 0.0, z] for z in CALIBRATION_STEPS_UM])
+    calibration: Background[StereoCalibration] | None = None
     with clock.stage("stereo calibration"):
-        cal = cameras or calibrate_on_platform(
-            plat,
-            grid,
-            steps,
-            frames_per_view,
-            lambda done, total: tick("stereo calibration", done, total),
-            camera_model,
-        )
+        if cameras is None:
+            # the views are rendered here; the calibration from them runs on the other core
+            # while the poses are acquired (it reads nothing the acquisition changes)
+            views = target_views(
+                plat,
+                grid,
+                steps,
+                frames_per_view,
+                lambda done, total: tick("stereo calibration", done, total),
+            )
+            sizes = {n: c.model.image_size_px for n, c in plat.cameras.items()}
+            calibration = Background(
+                lambda: calibrate_known_displacements(
+                    views.detections, views.names, grid, steps, sizes, camera_model=camera_model
+                )
+            )
     if device not in plat.manipulators:
         raise InputError(f"device: expected one of {list(plat.manipulators)}, got {device!r}")
     m = plat.manipulators[device]
@@ -289,16 +299,6 @@ def run_demo(
         np.allclose(workspace[0], WORKSPACE_MIN_UM) and np.allclose(workspace[1], WORKSPACE_MAX_UM)
     )
     pts = np.random.default_rng(seed).uniform([0, 0, 0], [9000, 9000, 5000], (500, 3))
-    truth_px = {
-        n: float(
-            np.sqrt(
-                np.mean(
-                    np.sum((c.model.project(pts) - plat.cameras[n].model.project(pts)) ** 2, axis=1)
-                )
-            )
-        )
-        for n, c in cal.cameras.items()
-    }
     d = demo_design(seed, poses, workspace)
     board = plat.scene.board
     sensors = {"temperature": lambda: m.temperature_at(plat.clock.now_s())}
@@ -338,6 +338,19 @@ def run_demo(
                 total,
             ),
         )
+    with clock.stage("stereo calibration"):  # what is left of it once the poses are in
+        cal = calibration.result() if calibration is not None else cameras
+    assert cal is not None  # one of the two is there
+    truth_px = {
+        n: float(
+            np.sqrt(
+                np.mean(
+                    np.sum((c.model.project(pts) - plat.cameras[n].model.project(pts)) ** 2, axis=1)
+                )
+            )
+        )
+        for n, c in cal.cameras.items()
+    }
 
     def load(pose: int, name: str) -> list[NDArray[np.generic]]:
         frames, record = kept[pose]
