@@ -12,6 +12,10 @@ Failures end the whole call at once: an exception in a worker is raised here (as
 ``RuntimeError`` naming it when it cannot be sent back), a worker that dies without a
 result is named, and on any of these, or Ctrl-C here, every worker still running is
 ended. Workers leave Ctrl-C to this process.
+
+:class:`Background` computes one thing in a forked process while this one goes on (the demo
+calibrates its cameras while it acquires the poses) and gives its result, or raises its
+error, when asked; where forking is not safe it computes it here, then.
 """
 
 from __future__ import annotations
@@ -22,11 +26,12 @@ import pickle
 import signal
 import sys
 import time
+import weakref
 from collections.abc import Callable, Sequence
 from multiprocessing import get_all_start_methods, get_context
-from typing import Any, TypeVar
+from typing import Any, Generic, TypeVar
 
-__all__ = ["can_fork", "fork_map", "ignore_interrupts"]
+__all__ = ["Background", "can_fork", "fork_map", "ignore_interrupts"]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -157,3 +162,83 @@ def fork_map(
         for proc, _ in running.values():
             proc.join()
     return [results[k] for k in range(len(items))]
+
+
+class _NoTicks:
+    """The progress queue of :func:`_child`, unused by :class:`Background`."""
+
+    def put(self, _: object) -> None:
+        pass
+
+
+class Background(Generic[R]):
+    """``fn()`` computed in a forked process from now on; :meth:`result` waits for it.
+
+    The child is forked (it sees everything in memory, closures included) and sends its
+    result back when asked for it; where forking is not safe (:func:`can_fork`) ``fn`` runs
+    here, when its result is asked for. Either way the result is the same.
+
+    Parameters
+    ----------
+    fn : callable () -> result
+        Its result must pickle; an exception it raises is raised by :meth:`result`.
+    """
+
+    def __init__(self, fn: Callable[[], R]) -> None:
+        self._fn = fn
+        self._proc: Any = None
+        self._conn: Any = None
+        if can_fork() and not multiprocessing.current_process().daemon:
+            ctx = get_context("fork")
+            here, there = ctx.Pipe(duplex=False)
+            self._proc = ctx.Process(
+                target=_child, args=(lambda _item, _tick: fn(), None, there, _NoTicks()),
+                daemon=True,
+            )  # fmt: skip
+            self._proc.start()
+            there.close()
+            self._conn = here
+            # a result never asked for (an error in between): the process ends with this
+            self._finalizer = weakref.finalize(self, _end, self._proc, here)
+
+    def result(self) -> R:
+        """The result (computed here if it was not forked).
+
+        Raises
+        ------
+        RuntimeError
+            The process ended without a result (killed, or crashed in a library).
+        """
+        if self._proc is None:
+            return self._fn()
+        try:
+            message = self._conn.recv()
+        except (EOFError, OSError):
+            message = None
+        finally:
+            self._proc.join()
+            self._conn.close()
+            self._proc = None
+        if message is None:
+            raise RuntimeError(
+                "a background process ended without a result: killed, or crashed in a library"
+            )
+        status, value = message
+        if status == "error":
+            raise value
+        out: R = value
+        return out
+
+    def cancel(self) -> None:
+        """End the process if it still runs (its result is no longer wanted)."""
+        if self._proc is not None:
+            _end(self._proc, self._conn)
+            self._proc = None
+
+
+def _end(proc: Any, conn: Any) -> None:
+    """Terminate a background process (if it still runs) and close its connection."""
+    if proc.is_alive():
+        proc.terminate()
+    proc.join()
+    conn.close()

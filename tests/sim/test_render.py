@@ -65,8 +65,9 @@ def test_rendering_has_converged_in_the_subsamples():
     assert np.sqrt(np.mean(diff**2)) < 0.001
 
 
-def test_corner_scatter_matches_thesis_table_4_1():
-    plat = sim.platform("thesis", seed=2)
+def _corner_scatter(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Std per axis over 120 frames of one corner and of the virtual point, top camera."""
+    plat = sim.platform("thesis", seed=seed)
     plat.manipulator.move_to_um([4000, 4000, 2400])
     plat.manipulator.wait_until_stopped(plat.clock)
     plat.clock.sleep(10.0)
@@ -81,10 +82,15 @@ def test_corner_scatter_matches_thesis_table_4_1():
         assert c is not None
         corners.append(c)
     corners = np.array(corners)
-    one = corners[:, 5].std(axis=0, ddof=1)
-    virtual = corners.mean(axis=1).std(axis=0, ddof=1)
+    return corners[:, 5].std(axis=0, ddof=1), corners.mean(axis=1).std(axis=0, ddof=1)
+
+
+def test_corner_scatter_matches_thesis_table_4_1():
+    # Three platforms (seeds 2-4): one estimate from 120 frames scatters ~7 % from seed to
+    # seed, the mean of three ~4 %, well inside the 25 % the figures are held to.
+    one, virtual = np.mean([_corner_scatter(seed) for seed in (2, 3, 4)], axis=0)
     # Thesis Table 4-1: one corner 0.207 / 0.172 px, virtual point 0.087 / 0.045 px.
-    # Metric: std per axis over 120 frames, within 25 % (the estimate alone scatters ~7 %).
+    # Metric: std per axis over 120 frames (mean over the seeds), within 25 %.
     np.testing.assert_allclose(one, [0.207, 0.172], rtol=0.25)
     assert virtual[0] == pytest.approx(0.087, rel=0.25)
     assert virtual[1] < 0.08

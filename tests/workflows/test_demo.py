@@ -22,7 +22,7 @@ def test_demo_prints_each_step_and_the_thesis_figures(quick_demo):
     _, output = quick_demo
     for text in ("Stereo calibration", "Measured 40 of 40 poses", "3D error vs ground truth",
                  "Identification", "oracle", "thesis mean", "Pose accuracy", "Decoupling",
-                 "report.html"):  # fmt: skip
+                 "report.html", "wall time per stage"):  # fmt: skip
         assert text in output
 
 
@@ -87,7 +87,13 @@ def test_demo_files_hold_the_keys_other_tools_read(quick_demo):
             assert set(r["undesired_um"]) == set("xyz")
             assert all(len(v) == 2 for v in r["undesired_um"].values())
             assert set(r["omega"]) == set("xyz")
-    assert {"simulated_s", "wall_s"} <= set(res["timing"])
+    assert {"simulated_s", "wall_s", "stages_s"} <= set(res["timing"])
+    # the stages in the order they ran (their times are measured, never compared here)
+    assert list(res["timing"]["stages_s"]) == [
+        "start", "stereo calibration", "acquisition", "measurement", "identification",
+        "evaluation", "files and report",
+    ]  # fmt: skip
+    assert all(t >= 0 for t in res["timing"]["stages_s"].values())
 
 
 def test_demo_replaces_only_an_earlier_demo(tmp_path):

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from .._parallel import Background
 from .._validation import FloatArray
 from ..control.conditions import open_loop_conditions
 from ..control.feedforward import extra_inputs_reader
@@ -52,6 +53,7 @@ from ..vision.probe import VisionProbe
 from ..vision.roi import frames_from_region
 from ..vision.stereo_calibration import StereoCalibration, calibrate_known_displacements
 from ..vision.targets import Target, parse_target
+from .stage_clock import StageClock
 
 __all__ = [
     "DemoResult",
@@ -85,6 +87,7 @@ class DemoResult:
     evaluation: Evaluation = field(default_factory=Evaluation)  # pose_accuracy, decoupling
     records: list[JournalRecord] = field(default_factory=list)  # the acquisition's journal
     sim_time_s: float = 0.0
+    stages_s: dict[str, float] = field(default_factory=dict)  # wall seconds per stage
 
     @property
     def measured_ok(self) -> np.ndarray:
@@ -233,6 +236,7 @@ def run_demo(
     device: str = "m1",
     cameras: StereoCalibration | None = None,
     fixed_settle_s: float | None = None,
+    stages: StageClock | None = None,
 ) -> DemoResult:
     """Run the calibration on the simulated thesis platform (see the module docstring).
 
@@ -256,7 +260,10 @@ def run_demo(
     thesis's decoupling path. ``cameras``: a stereo calibration of this platform made
     before (the devices of one platform share it, and so the frame {G}).
     ``fixed_settle_s``: settle each acquired pose by this fixed wait instead of by vision.
+    ``stages``: adds the wall time of each stage (stereo calibration, acquisition,
+    measurement, identification, evaluation) to it; the result's ``stages_s`` holds them.
     """
+    clock = stages if stages is not None else StageClock()
 
     def tick(stage: str, done: int, total: int) -> None:
         if progress:
@@ -265,14 +272,24 @@ def run_demo(
     plat = plat or platform("thesis", seed=seed)
     grid = parse_target(CALIBRATION_TARGET)
     steps = np.array([[0.0, 0.0, z] for z in CALIBRATION_STEPS_UM])
-    cal = cameras or calibrate_on_platform(
-        plat,
-        grid,
-        steps,
-        frames_per_view,
-        lambda done, total: tick("stereo calibration", done, total),
-        camera_model,
-    )
+    calibration: Background[StereoCalibration] | None = None
+    with clock.stage("stereo calibration"):
+        if cameras is None:
+            # the views are rendered here; the calibration from them runs on the other core
+            # while the poses are acquired (it reads nothing the acquisition changes)
+            views = target_views(
+                plat,
+                grid,
+                steps,
+                frames_per_view,
+                lambda done, total: tick("stereo calibration", done, total),
+            )
+            sizes = {n: c.model.image_size_px for n, c in plat.cameras.items()}
+            calibration = Background(
+                lambda: calibrate_known_displacements(
+                    views.detections, views.names, grid, steps, sizes, camera_model=camera_model
+                )
+            )
     if device not in plat.manipulators:
         raise InputError(f"device: expected one of {list(plat.manipulators)}, got {device!r}")
     m = plat.manipulators[device]
@@ -282,16 +299,6 @@ def run_demo(
         np.allclose(workspace[0], WORKSPACE_MIN_UM) and np.allclose(workspace[1], WORKSPACE_MAX_UM)
     )
     pts = np.random.default_rng(seed).uniform([0, 0, 0], [9000, 9000, 5000], (500, 3))
-    truth_px = {
-        n: float(
-            np.sqrt(
-                np.mean(
-                    np.sum((c.model.project(pts) - plat.cameras[n].model.project(pts)) ** 2, axis=1)
-                )
-            )
-        )
-        for n, c in cal.cameras.items()
-    }
     d = demo_design(seed, poses, workspace)
     board = plat.scene.board
     sensors = {"temperature": lambda: m.temperature_at(plat.clock.now_s())}
@@ -306,30 +313,44 @@ def run_demo(
         if store is not None:
             store(pose, frames, record)
 
-    acquire(
-        m,
-        plat.cameras,
-        plat.clock,
-        d,
-        list(range(1, poses + 1)),
-        board,
-        keep,
-        config=AcquisitionConfig(
-            frames_per_pose=frames_per_pose,
-            store_roi=True,
-            creep_learn_poses=creep_learn_poses,
-            approach_um=approach_um,
-            approach_seed=demo_design_seed(seed),
-            settle="vision" if fixed_settle_s is None else "fixed",
-            fixed_s=fixed_settle_s or 0.0,
-        ),
-        sensors=sensors,
-        progress=lambda done, total, _record: tick(
-            "acquisition (vision settle)" if fixed_settle_s is None else "acquisition",
-            done,
-            total,
-        ),
-    )
+    with clock.stage("acquisition"):
+        acquire(
+            m,
+            plat.cameras,
+            plat.clock,
+            d,
+            list(range(1, poses + 1)),
+            board,
+            keep,
+            config=AcquisitionConfig(
+                frames_per_pose=frames_per_pose,
+                store_roi=True,
+                creep_learn_poses=creep_learn_poses,
+                approach_um=approach_um,
+                approach_seed=demo_design_seed(seed),
+                settle="vision" if fixed_settle_s is None else "fixed",
+                fixed_s=fixed_settle_s or 0.0,
+            ),
+            sensors=sensors,
+            progress=lambda done, total, _record: tick(
+                "acquisition (vision settle)" if fixed_settle_s is None else "acquisition",
+                done,
+                total,
+            ),
+        )
+    with clock.stage("stereo calibration"):  # what is left of it once the poses are in
+        cal = calibration.result() if calibration is not None else cameras
+    assert cal is not None  # one of the two is there
+    truth_px = {
+        n: float(
+            np.sqrt(
+                np.mean(
+                    np.sum((c.model.project(pts) - plat.cameras[n].model.project(pts)) ** 2, axis=1)
+                )
+            )
+        )
+        for n, c in cal.cameras.items()
+    }
 
     def load(pose: int, name: str) -> list[NDArray[np.generic]]:
         frames, record = kept[pose]
@@ -342,15 +363,16 @@ def run_demo(
             return frames[name]
         return frames_from_region(frames[name], roi[:2], roi[2:])
 
-    measurements = measure_poses(
-        list(range(1, poses + 1)),
-        d,
-        load,
-        cal.models(),
-        board,
-        progress=lambda done, total: tick("measurement", done, total),
-        workers=None,  # one per core
-    )
+    with clock.stage("measurement"):
+        measurements = measure_poses(
+            list(range(1, poses + 1)),
+            d,
+            load,
+            cal.models(),
+            board,
+            progress=lambda done, total: tick("measurement", done, total),
+            workers=None,  # one per core
+        )
     result = DemoResult(
         seed,
         cal,
@@ -371,44 +393,47 @@ def run_demo(
     temps = _journaled(result.records, extra_input("temperature").column)[ok]
     if family != "quadratic" and np.all(np.isfinite(temps)) and np.ptp(temps) > 0:
         extra["temperature"] = temps
-    result.manipulator, result.models = calibrate_manipulator(
-        device,
-        d_ok,
-        p,
-        "polynomial",
-        train=n_fit,
-        extra_inputs=extra or None,
-        family=family,
-        seed=seed,
-        held_um=held_from_limits(m.limits_um),
-    )
+    with clock.stage("identification"):
+        result.manipulator, result.models = calibrate_manipulator(
+            device,
+            d_ok,
+            p,
+            "polynomial",
+            train=n_fit,
+            extra_inputs=extra or None,
+            family=family,
+            seed=seed,
+            held_um=held_from_limits(m.limits_um),
+        )
     oracle = summarize_errors(np.linalg.norm(p[n_fit:] - result.truth_um[ok][n_fit:], axis=1))
     result.oracle = {"mean": oracle.mean, "std": oracle.std, "max": oracle.max}
     if evaluate:
-        conditions = open_loop_conditions(
-            m,
-            result.manipulator,
-            extra=extra_inputs_reader(result.manipulator.model, sensors),
-            clock=plat.clock,
-        )
-        probe = VisionProbe(plat.cameras, cal.models(), board, frames=frames_per_pose)
-        options = RunOptions(settle_s=settle_s, truth=m.true_position_um, progress=progress)
-        poses_um = TABLE_5_2_POSES_UM if thesis_sized else iso_cube_poses(*workspace)
-        pa = run_pose_accuracy(
-            m, plat.clock, probe, conditions, poses_um=poses_um, cycles=cycles, **options
-        )
-        vap = run_multi_directional(
-            m, plat.clock, None, conditions, poses_um=poses_um, cycles=cycles, **options
-        )
-        for source, by_condition in vap.items():
-            for condition, figures in by_condition.items():
-                pa[source][condition] = dataclasses.replace(
-                    pa[source][condition], vap_um=figures.vap_um, max_vap_um=figures.max_vap_um
-                )
-        result.evaluation.pose_accuracy = pa
-        if thesis_sized:
-            result.evaluation.decoupling = run_decoupling(
-                m, plat.clock, probe, conditions, samples_per_axis=decoupling_samples, **options
+        with clock.stage("evaluation"):
+            conditions = open_loop_conditions(
+                m,
+                result.manipulator,
+                extra=extra_inputs_reader(result.manipulator.model, sensors),
+                clock=plat.clock,
             )
-        result.sim_time_s = plat.clock.now_s()
+            probe = VisionProbe(plat.cameras, cal.models(), board, frames=frames_per_pose)
+            options = RunOptions(settle_s=settle_s, truth=m.true_position_um, progress=progress)
+            poses_um = TABLE_5_2_POSES_UM if thesis_sized else iso_cube_poses(*workspace)
+            pa = run_pose_accuracy(
+                m, plat.clock, probe, conditions, poses_um=poses_um, cycles=cycles, **options
+            )
+            vap = run_multi_directional(
+                m, plat.clock, None, conditions, poses_um=poses_um, cycles=cycles, **options
+            )
+            for source, by_condition in vap.items():
+                for condition, figures in by_condition.items():
+                    pa[source][condition] = dataclasses.replace(
+                        pa[source][condition], vap_um=figures.vap_um, max_vap_um=figures.max_vap_um
+                    )
+            result.evaluation.pose_accuracy = pa
+            if thesis_sized:
+                result.evaluation.decoupling = run_decoupling(
+                    m, plat.clock, probe, conditions, samples_per_axis=decoupling_samples, **options
+                )
+            result.sim_time_s = plat.clock.now_s()
+    result.stages_s = dict(clock.stages_s)
     return result

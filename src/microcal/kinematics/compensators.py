@@ -29,8 +29,9 @@ from numpy.typing import ArrayLike
 
 from .._validation import FloatArray, as_array, as_rows, check_limits
 from ..errors import DegenerateDataError, InputError
+from .compensator_paths import CHUNK, PlanarNewton, ScalarNewton
 from .extra_inputs import default_extra_inputs
-from .models import KinematicModel
+from .models import KinematicModel, _Compiled
 
 __all__ = [
     "MAX_CONDITION",
@@ -69,8 +70,12 @@ def _linear_part(model: KinematicModel, extra: FloatArray) -> tuple[FloatArray, 
             f"(condition number {cond:.3g} > {MAX_CONDITION:.0e}); the joints cannot be solved "
             f"for - was every axis moved during identification?"
         )
-    n = extra.shape[0]
-    # Terms without joints: the constant and the powers of extra inputs.
+    return R, _offset(model, extra)
+
+
+def _offset(model: KinematicModel, extra: FloatArray) -> FloatArray:
+    """The terms without joints (the constant and the powers of extra inputs), (N, 3)."""
+    n, j = extra.shape[0], len(model.joints)
     offset = np.zeros((n, 3))
     u0 = np.hstack([np.broadcast_to(model.rest_um, (n, j)), extra])
     mask = np.array([not set(t.inputs) & set(model.joints) for t in model.terms])
@@ -81,7 +86,7 @@ def _linear_part(model: KinematicModel, extra: FloatArray) -> tuple[FloatArray, 
             u0, model.inputs, [t for t, keep in zip(model.terms, mask, strict=True) if keep]
         )
         offset = X @ model.coefficients[:, mask].T
-    return R, offset
+    return offset
 
 
 def _extra_inputs(model: KinematicModel, n: int, extra: ArrayLike | None) -> FloatArray:
@@ -107,9 +112,8 @@ def _solve3(J: FloatArray, r: FloatArray) -> FloatArray:
     """
     if r.shape[0] < 256:
         return np.asarray(np.linalg.solve(J, r[:, :, None])[:, :, 0], dtype=np.float64)
-    a, b, c = J[:, 0, 0], J[:, 0, 1], J[:, 0, 2]
-    d, e, f = J[:, 1, 0], J[:, 1, 1], J[:, 1, 2]
-    g, h, i = J[:, 2, 0], J[:, 2, 1], J[:, 2, 2]
+    # the nine entries as contiguous planes (one copy; strided columns cost more)
+    a, b, c, d, e, f, g, h, i = np.ascontiguousarray(J.reshape(-1, 9).T)
     A = e * i - f * h
     B = f * g - d * i
     C = d * h - e * g
@@ -166,6 +170,13 @@ class Compensator:
         self._wave_middle = middle
         self._moving = np.array([j in model.moving_joints for j in model.joints])
         self._held = model.rest_um
+        # the fast paths: a model of powers alone, every joint moving
+        compiled = model._compiled
+        self._planar: PlanarNewton | None = None
+        self._scalar: ScalarNewton | None = None
+        if isinstance(compiled, _Compiled) and bool(self._moving.all()) and not self._waves:
+            self._planar = PlanarNewton(compiled.exps, compiled.coef)
+            self._scalar = ScalarNewton(compiled.exps, compiled.coef, self._R)
 
     def _step(self, J: FloatArray, r: FloatArray) -> FloatArray:
         """The joint step (N, 3) that solves ``J step = r``: exactly for three moving joints,
@@ -184,10 +195,8 @@ class Compensator:
             J0 = self.model.jacobian(u0)
             r0 = p - self.model.predict_um(u0)
             return np.asarray(u0[:, :3] + self._step(J0, r0), dtype=np.float64)
-        if self._constant_only:
-            offset = self._p_base
-        else:
-            _, offset = _linear_part(self.model, e)
+        # (R was checked once, in __init__)
+        offset = self._p_base if self._constant_only else _offset(self.model, e)
         if self._moving.all():
             return np.asarray(np.linalg.solve(self._R, (p - offset).T).T, dtype=np.float64)
         d = np.broadcast_to(self._held, (p.shape[0], 3)).copy()
@@ -217,7 +226,67 @@ class Compensator:
         p = as_rows(p_um, "p_um", 3)
         n = p.shape[0]
         e = _extra_inputs(self.model, n, extra)
+        if n == 1 and self._scalar is not None:
+            one = self._solve_one(p, e, tol_um, max_iter)
+            if one is not None:
+                return one
         d = self._start(p, e)
+        fast = self._solve_fast(p, e, d, tol_um, max_iter)
+        if fast is not None:
+            return fast
+        return self._solve_general(p, e, d, tol_um, max_iter)
+
+    def _solve_one(
+        self, p: FloatArray, e: FloatArray, tol_um: float, max_iter: int
+    ) -> Compensation | None:
+        """One target by :class:`~.compensator_paths.ScalarNewton`; None if it gives up."""
+        assert self._scalar is not None
+        pp, ee = p[0].tolist(), e[0].tolist()
+        one = self._scalar.solve(pp, ee, self._scalar.start(pp, ee), tol_um, max_iter)
+        if one is None:
+            return None
+        joints, res, iterations = one
+        d = np.array([joints])
+        if self.limits_um is not None:
+            check_limits(d, self.limits_um, row="target", targets_um=p)
+        return Compensation(d, np.array([True]), np.array([res]), iterations, 0)
+
+    def _solve_fast(
+        self, p: FloatArray, e: FloatArray, d: FloatArray, tol_um: float, max_iter: int
+    ) -> Compensation | None:
+        """The Newton steps of :meth:`solve` by the fast paths (:mod:`.compensator_paths`),
+        None where the model has none; a chunk (or the one target) they give up on is
+        solved by the general path."""
+        if self._planar is None or self._scalar is None:
+            return None
+        n = p.shape[0]
+        if n == 1:
+            return None  # one target that the scalar path gave up on: the general path
+        else:
+            d_out, norm = np.empty_like(d), np.empty(n)
+            iterations, n_fallback = 0, 0
+            for s in range(0, n, CHUNK):
+                part = slice(s, s + CHUNK)
+                got = self._planar.solve(p[part].T, e[part].T, d[part].T, tol_um, max_iter)
+                if got is None:
+                    general = self._solve_general(p[part], e[part], d[part], tol_um, max_iter)
+                    d_out[part], norm[part] = general.d_um, general.residual_um
+                    iterations = max(iterations, general.iterations)
+                    n_fallback += general.n_fallback
+                else:
+                    d_out[part], norm[part] = got[0].T, got[1]
+                    iterations = max(iterations, got[2])
+            out = Compensation(d_out, norm <= tol_um, norm, iterations, n_fallback)
+        if self.limits_um is not None:
+            ok = out.converged
+            check_limits(out.d_um[ok], self.limits_um, row="target", targets_um=p[ok])
+        return out
+
+    def _solve_general(
+        self, p: FloatArray, e: FloatArray, d: FloatArray, tol_um: float, max_iter: int
+    ) -> Compensation:
+        """:meth:`solve`'s Newton steps for any model: backtracking, then a
+        Levenberg-Marquardt solve per target that still fails."""
         compiled = self.model._compiled
 
         def residual(dd: FloatArray, ee: FloatArray, pp: FloatArray) -> FloatArray:

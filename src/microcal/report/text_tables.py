@@ -462,11 +462,24 @@ def demo_closing(result: DemoResult, out: Path, wall_s: float) -> list[TextTable
         for i, axis in enumerate("xyz")
     )
     return [
+        *([stage_time_table(result.stages_s, wall_s)] if result.stages_s else []),
         f"wrote {out}/: the run (run.json, commands.csv, journal.jsonl, images/), "
         f"measurements.csv, cameras.json, calibration.json, results.json and report.html "
         f"({wall_s:.0f} s); open {out / 'report.html'} in a browser",
         f"polynomial terms selected stepwise: {terms}",
     ]
+
+
+def stage_time_table(stages_s: Mapping[str, float], wall_s: float) -> TextTable:
+    """The demo's wall time per stage (results.json ``timing.stages_s``), with what the
+    stages leave of the whole (start-up, imports, printing) and the total."""
+    rows = [[name, f"{t:.1f}", f"{100 * t / wall_s:.0f}" if wall_s > 0 else "-"]
+            for name, t in stages_s.items()]  # fmt: skip
+    rest = max(0.0, wall_s - sum(stages_s.values()))
+    rows.append(["other (start-up, imports)", f"{rest:.1f}",
+                 f"{100 * rest / wall_s:.0f}" if wall_s > 0 else "-"])  # fmt: skip
+    rows.append(["total", f"{wall_s:.1f}", "100"])
+    return TextTable("wall time per stage", ["stage", "s", "%"], rows, first_left=True)
 
 
 def measurement_lines(results: Sequence[PoseMeasurement], path: Path) -> list[TextTable | str]:

@@ -29,7 +29,7 @@ from .._validation import FloatArray, check_number
 from ..devices.base import Camera, Clock
 from ..errors import DeviceTimeoutError, FrameError, InputError
 from ..geometry.camera_kinds import AnyCamera
-from .render import Placement, Reflectance, render_placement, roi_of
+from .render import Placement, Reflectance, render_region, roi_of
 from .slide_render import render_slide
 
 __all__ = ["CameraFaults", "ImageFormation", "SimCamera"]
@@ -172,6 +172,11 @@ class SimCamera(Camera):
         # The background's mean DN and noise level (h, w) by (level, gain, DN per e-, read
         # noise^2): the same for every frame at one exposure.
         self._background: dict[tuple[float, ...], tuple[FloatArray32, FloatArray32]] = {}
+        # Whole frames of the background, exposed once per background (see _background_frame)
+        self._bank: dict[
+            int,
+            tuple[tuple[FloatArray32, FloatArray32], list[NDArray[np.unsignedinteger]]],
+        ] = {}
 
     def _blur_sigma(self, placement: Placement) -> float:
         f = self.formation
@@ -215,7 +220,7 @@ class SimCamera(Camera):
             truth.features_px.append(self.model.project(placement.points_world_um()) + offset_px)
             if roi is None:
                 continue
-            render = render_slide if placement.target.markers else render_placement
+            render = render_slide if placement.target.markers else render_region
             value, alpha = render(
                 self.model,
                 placement,
@@ -233,7 +238,9 @@ class SimCamera(Camera):
         patch = np.full((box[3] - by, box[2] - bx), level, dtype=np.float32)
         for (x0, y0, x1, y1), sigma, value, alpha in rendered:
             region = patch[y0 - by : y1 - by, x0 - bx : x1 - bx]
-            blend = (region * (1.0 - alpha) + value * alpha).astype(np.float32)
+            blend = value - region
+            blend *= alpha
+            blend += region
             region[...] = cv2.GaussianBlur(blend, (0, 0), sigma)
         return level, box, patch, truth
 
@@ -302,6 +309,32 @@ class SimCamera(Camera):
             self._background[key] = hit
         return hit
 
+    def _background_frame(
+        self, background: tuple[FloatArray32, FloatArray32], top: int
+    ) -> NDArray[np.unsignedinteger]:
+        """A frame of the background alone: one of :data:`BACKGROUND_FRAMES` frames exposed
+        from the noise pool at random offsets (drawn once per background), copied.
+
+        Quantising a whole frame of noise costs more than rendering the board; the region
+        the targets cover gets fresh noise in every frame all the same, and what lies
+        outside it (never read as a target) has the noise's distribution pixel by pixel.
+        """
+        key = id(background)
+        bank = self._bank.get(key)
+        if bank is None or bank[0] is not background:
+            dn0, spread0 = background
+            h, w = self._vignette.shape
+            frames = []
+            for _ in range(BACKGROUND_FRAMES):
+                start = int(self.rng.integers(0, h * w))
+                pool = self._pool[start : start + h * w].reshape(h, w)
+                frames.append(_quantise(dn0, cv2.multiply(spread0, pool), top, self.dtype))
+            if len(self._bank) >= 2:
+                self._bank.pop(next(iter(self._bank)))
+            bank = self._bank[key] = (background, frames)
+        frames = bank[1]
+        return frames[int(self.rng.integers(len(frames)))].copy()
+
     def _expose(
         self,
         patch: NDArray[np.float32] | None,
@@ -323,8 +356,7 @@ class SimCamera(Camera):
         start = int(self.rng.integers(0, h * w))
         pool = self._pool[start : start + h * w].reshape(h, w)
         if background is not None:
-            dn0, spread0 = background
-            frame = _quantise(dn0, cv2.multiply(spread0, pool), top, self.dtype)
+            frame = self._background_frame(background, top)
         else:
             frame = np.empty((h, w), dtype=self.dtype)
         if box is None or patch is None:
@@ -342,6 +374,8 @@ class SimCamera(Camera):
 
 FloatArray32 = NDArray[np.float32]
 Box = tuple[int, int, int, int]
+#: Frames of background noise exposed once per background, one copied per grab.
+BACKGROUND_FRAMES = 8
 
 
 def _bounding_box(boxes: list[Box]) -> Box:

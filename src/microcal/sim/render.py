@@ -29,12 +29,13 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+from numpy.typing import NDArray
 
 from .._validation import FloatArray
 from ..geometry.camera_kinds import AnyCamera
 from ..vision.targets import Target
 
-__all__ = ["Placement", "Reflectance", "render_placement", "roi_of"]
+__all__ = ["Placement", "Reflectance", "render_placement", "render_region", "roi_of"]
 
 
 @dataclass(frozen=True)
@@ -109,6 +110,8 @@ def _mod(x: FloatArray, period: float) -> FloatArray:
     (and exact, by Sterbenz's lemma); adding one period puts it back. Any other period, or
     non-finite input, goes to ``np.mod``.
     """
+    if x.dtype == np.float32 and math.isfinite(period) and period > 0:
+        return _mod32(x, period)
     if not (math.isfinite(period) and period > 0) or x.size == 0:
         return np.asarray(np.mod(x, period), dtype=np.float64)
     hi = float(np.max(np.abs(x)))
@@ -121,6 +124,18 @@ def _mod(x: FloatArray, period: float) -> FloatArray:
     negative = out < 0
     if negative.any():
         out[negative] += period
+    return out
+
+
+def _mod32(x: FloatArray, period: float) -> FloatArray:
+    """``x mod period`` in [0, period) for float32 ``x`` (the fast path of
+    :func:`render_region`; within a few float32 ulps of ``np.mod``)."""
+    out: FloatArray = np.multiply(x, np.float32(1.0 / period))
+    np.floor(out, out=out)
+    out *= np.float32(period)
+    np.subtract(x, out, out=out)
+    np.maximum(out, 0.0, out=out)
+    np.minimum(out, np.float32(period), out=out)
     return out
 
 
@@ -179,7 +194,9 @@ def _covered(plus: FloatArray, minus: FloatArray, a: float, b: float, w: FloatAr
     inside = np.minimum(plus, b)
     inside -= np.maximum(minus, a)
     inside /= w
-    out: FloatArray = np.clip(inside, 0.0, 1.0, out=inside)
+    # clip to [0, 1] (np.clip's result, without its wrapper's cost on small arrays)
+    np.maximum(inside, 0.0, out=inside)
+    out: FloatArray = np.minimum(inside, 1.0, out=inside)
     return out
 
 
@@ -215,13 +232,13 @@ def _chessboard_shader(
         board *= _covered(vp, vm, y0 - m, y1 + m, wv_box)
         pattern = _covered(up, um, x0, x1, wu_box)
         pattern *= _covered(vp, vm, y0, y1, wv_box)
-        value = np.full(u.shape, refl.white)
+        value = np.full(u.shape, refl.white, dtype=u.dtype)
         rows = np.flatnonzero(pattern.any(axis=1))
         cols = np.flatnonzero(pattern.any(axis=0))
         if rows.size:
             box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
-            uc = np.clip(u[box], lo_u[box], hi_u[box])
-            vc = np.clip(v[box], lo_v[box], hi_v[box])
+            uc = np.minimum(np.maximum(u[box], lo_u[box]), hi_u[box])
+            vc = np.minimum(np.maximum(v[box], lo_v[box]), hi_v[box])
             checker = _square_wave_prepared(uc, p, wu_sq[box], hu_sq[box])
             checker *= _square_wave_prepared(vc, p, wv_sq[box], hv_sq[box])
             inner = refl.white + (refl.black - refl.white) * (1.0 + checker) / 2.0
@@ -293,7 +310,7 @@ def _dotgrid_shader(
         dx = u - i * p
         dy = v - j * p
         rough = np.sqrt(dx * dx + dy * dy)
-        cover = (rough <= inside).astype(np.float64)  # 1 within, 0 beyond
+        cover = (rough <= inside).astype(u.dtype)  # 1 within, 0 beyond
         edge = np.flatnonzero(~((rough >= outside) | (rough <= inside)))
         dist = np.hypot(dx.ravel()[edge], dy.ravel()[edge])
         ramp = 0.5 + (r - dist) / width.ravel()[edge]
@@ -363,7 +380,9 @@ def _ideal_grid(
     return planes[0], planes[1], planes[2]
 
 
-def _ideal_planes(camera: AnyCamera, roi: tuple[int, int, int, int]) -> tuple[FloatArray, ...]:
+def _ideal_planes(
+    camera: AnyCamera, roi: tuple[int, int, int, int], dtype: type[np.floating] = np.float64
+) -> tuple[FloatArray, ...]:
     """Ideal pixel coordinates of a box of pixel centres, (h, w, 2), and their x and y steps.
 
     Kept for the last few boxes: a board that settles is rendered over the same box frame
@@ -373,10 +392,17 @@ def _ideal_planes(camera: AnyCamera, roi: tuple[int, int, int, int]) -> tuple[Fl
     at a 1 px shift, a thousandth of the rendering's corner bias.
     """
     roi = (int(roi[0]), int(roi[1]), int(roi[2]), int(roi[3]))
-    key = (*_camera_key(camera), roi)
+    key = (*_camera_key(camera), roi, np.dtype(dtype).str)
     hit = _GRID_CACHE.get(key)
     if hit is not None:
         return hit
+    if dtype != np.float64:  # the same planes, computed in float64, in another precision
+        planes64 = _ideal_planes(camera, roi)
+        entry = (*planes64[:3], *(p.astype(dtype) for p in planes64[3:]))
+        if len(_GRID_CACHE) >= _GRID_CACHE_SIZE:
+            _GRID_CACHE.pop(next(iter(_GRID_CACHE)))
+        _GRID_CACHE[key] = entry
+        return entry
     x0, y0, x1, y1 = roi
     if camera.has_distortion:
         ideal = _undistorted_box(camera, roi)
@@ -428,18 +454,55 @@ def render_placement(
     value, alpha : (h, w) float
         Mean reflectance of the target in each pixel, and the fraction of the pixel it covers.
     """
+    return _render(camera, placement, roi, supersample, offset_px, reflectance, np.float64)
+
+
+def render_region(
+    camera: AnyCamera,
+    placement: Placement,
+    roi: tuple[int, int, int, int],
+    *,
+    supersample: int = 4,
+    offset_px: FloatArray | None = None,
+    reflectance: Reflectance | None = None,
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """:func:`render_placement` in float32: the simulated cameras' path.
+
+    The same geometry (the ideal pixel coordinates are undistorted in float64 and kept per
+    camera) and the same box-filtered shading, evaluated in single precision: a board
+    coordinate of 10 mm is then exact to about 1 nm, a thousandth of a pixel's footprint,
+    and an 8- to 16-bit frame cannot tell the difference. About twice as fast; the values
+    differ from :func:`render_placement`'s by a few float32 ulps (see the tests).
+
+    Parameters and returns as :func:`render_placement`; ``value`` and ``alpha`` are
+    float32 (h, w).
+    """
+    value, alpha = _render(camera, placement, roi, supersample, offset_px, reflectance, np.float32)
+    return value.astype(np.float32, copy=False), alpha.astype(np.float32, copy=False)
+
+
+def _render(
+    camera: AnyCamera,
+    placement: Placement,
+    roi: tuple[int, int, int, int],
+    supersample: int,
+    offset_px: FloatArray | None,
+    reflectance: Reflectance | None,
+    dtype: type[np.floating],
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`render_placement` with the shading evaluated in ``dtype``."""
     refl = reflectance or Reflectance()
     # Ideal (undistorted) pixel coordinates at the pixel centres and their derivatives, from
     # the neighbours (distortion varies slowly: linear within a pixel), as (h, w) planes.
-    ix, iy, dx_x, dx_y, dy_x, dy_y = _ideal_planes(camera, roi)[3:]
+    ix, iy, dx_x, dx_y, dy_x, dy_y = _ideal_planes(camera, roi, dtype)[3:]
     if offset_px is not None:  # the scene shifted by a fraction of a pixel: to first order
-        ox, oy = offset_px[0], offset_px[1]
+        ox, oy = dtype(offset_px[0]), dtype(offset_px[1])
         ix = ix - dx_x * ox - dy_x * oy
         iy = iy - dx_y * ox - dy_y * oy
     shape = ix.shape
     # Homography from the target plane to ideal pixels, and its inverse.
     H = camera.plane_to_ideal_px(placement.R, placement.t_um)
-    Hinv = np.linalg.inv(H)
+    Hinv = np.linalg.inv(H).astype(dtype)
 
     def affine(a: float, b: float, c: float) -> FloatArray:
         """``a * ix + b * iy + c``, (h, w)."""
@@ -483,9 +546,9 @@ def render_placement(
     wv += np.abs(dv_dy)
     wv /= supersample
     shade = _shader(placement, wu, wv, refl)
-    value = np.zeros(shape)
-    alpha = np.zeros(shape)
-    offsets = (np.arange(supersample) + 0.5) / supersample - 0.5
+    value = np.zeros(shape, dtype=dtype)
+    alpha = np.zeros(shape, dtype=dtype)
+    offsets = ((np.arange(supersample) + 0.5) / supersample - 0.5).astype(dtype)
     # The subsample (ox, oy) is at u0 + du_dx * ox + du_dy * oy: the first two terms are
     # shared by the subsamples of a column, the last by those of a row.
     u_cols = [u0 + du_dx * ox for ox in offsets]

@@ -44,6 +44,9 @@ __all__ = [
     "write_station_outputs",
 ]
 
+#: The demo's last stage in its time table (results.json ``timing.stages_s``): writing the
+#: measurements, cameras, calibration, results and the report.
+OUTPUT_STAGE = "files and report"
 #: What a demo writes into its directory (and may replace on the next demo).
 DEMO_FILES = frozenset(RUN_FILE_NAMES)
 #: Files other microcal commands write into a demo's directory afterwards (the history that
@@ -112,7 +115,8 @@ def write_demo_outputs(out: Path, result: DemoResult, wall_s: float) -> None:
                        for r in records if r.status != "ok"],
         },
         **result.evaluation.to_json(),
-        "timing": {"simulated_s": result.sim_time_s, "wall_s": wall_s},
+        "timing": {"simulated_s": result.sim_time_s, "wall_s": wall_s,
+                   "stages_s": dict(result.stages_s)},
         "provenance": prov,
     })  # fmt: skip
     write_report(out)
@@ -201,19 +205,29 @@ def demo(
     import time
 
     from ..experiments.demo import demo_family, run_demo
+    from ..experiments.stage_clock import StageClock
+    from ..formats.results_file import update_results
 
     wall0 = time.monotonic() if wall0_s is None else wall0_s
     r = request
-    plat, writer = start_demo_run(r.out, r.seed, r.poses, r.frames_per_pose, r.preset)
+    stages = StageClock()
+    with stages.stage("start"):
+        plat, writer = start_demo_run(r.out, r.seed, r.poses, r.frames_per_pose, r.preset)
     if started is not None:
         started()
     result = run_demo(
         seed=r.seed, poses=r.poses, frames_per_pose=r.frames_per_pose, progress=progress,
         frames_per_view=4 if r.quick else 8, cycles=1 if r.quick else 3,
         decoupling_samples=5 if r.quick else 17, store=writer.store, plat=plat,
-        camera_model=r.camera_model, family=demo_family(r.preset),
+        camera_model=r.camera_model, family=demo_family(r.preset), stages=stages,
     )  # fmt: skip
-    write_demo_outputs(r.out, result, wall_s=time.monotonic() - wall0)
+    with stages.stage(OUTPUT_STAGE):
+        write_demo_outputs(r.out, result, wall_s=time.monotonic() - wall0)
+    result.stages_s = dict(stages.stages_s)
+    # the files' own stage is known only once they are written: added to results.json after,
+    # with the wall time so far (the command's start-up included)
+    timing = {"stages_s": result.stages_s, "wall_s": time.monotonic() - wall0}
+    update_results(r.out / "results.json", {"timing": timing})
     return result
 
 
