@@ -557,7 +557,7 @@ def _adaptive_figures(
     random design grown on the same seed (the study's frames per pose) for comparison."""
     final = result.final
     curve = adaptive_curve(result, times, sim, temperature_c)
-    coverage = float("nan")
+    coverage = coverage_model = float("nan")
     if final.model is not None:
         model = final.model
         targets = sim.truth.position_um(tip_test_joints_um(), np.ones((TIP_TEST_POSES, 3)),
@@ -575,6 +575,8 @@ def _adaptive_figures(
         inside = coverage_of(model, errors, np.asarray(d), temperature_c, extra,
                              inflation=final.inflation)  # fmt: skip
         coverage = float(inside.mean())
+        coverage_model = float(coverage_of(model, errors, np.asarray(d), temperature_c,
+                                           extra).mean())  # fmt: skip
     plat = platform(preset, seed=seed, overrides=config.overrides)
     acq = AcquisitionConfig(approach_um=config.approach_um, approach_seed=demo_design_seed(seed))
     counts = list(range(20, config.random_poses + 1, 10))
@@ -583,7 +585,8 @@ def _adaptive_figures(
     reached = curve[-1].tip_error_p95_um if curve else float("nan")
     return AdaptiveFigures(
         until_um=float(config.until_um or 0.0), predicted_um=final.predicted_um,
-        inflation=final.inflation, stop=final.reason, coverage_95=coverage, curve=curve,
+        inflation=final.inflation, stop=final.reason, coverage_95=coverage,
+        coverage_95_model=coverage_model, curve=curve,
         random_curve=random, random_poses_to_match=poses_to_match(random, reached),
     )  # fmt: skip
 
@@ -629,6 +632,18 @@ def summarize_runs(runs: Sequence[SeedRun]) -> dict[str, FigureSummary]:
                 f[f"ap_truth_over_oracle.{name}"] = ap[name] / ap["oracle"]
     keys = sorted({k for f in flat for k in f})
     out = {k: _summary(np.array([f[k] for f in flat if k in f])) for k in keys}
+    ratio = np.array([r.n_poses / r.adaptive.random_poses_to_match
+                      if r.adaptive is not None and r.adaptive.random_poses_to_match else np.nan
+                      for r in runs if r.adaptive is not None])  # fmt: skip
+    if ratio.size:
+        out["adaptive.poses_over_random"] = _summary(ratio)
+        within = np.array([r.tip_error_p95_um.get(ADAPTIVE, np.nan) <= (r.adaptive.until_um
+                           if r.adaptive else np.nan) for r in runs], dtype=float)  # fmt: skip
+        out["adaptive.tip_error_within_tolerance"] = _summary(np.array([within.mean()]))
+        for key in ("coverage_95", "coverage_95_model"):
+            cov = np.array([getattr(r.adaptive, key) for r in runs if r.adaptive], dtype=float)
+            pooled = float(np.nanmean(cov))
+            out[f"adaptive.{key}.pooled"] = FigureSummary(pooled, pooled, pooled, pooled, 0)
     for name in MODELS:  # every seed has as many test poses: the pooled rate is the mean
         cov = np.array([r.coverage_95[name].truth for r in runs], dtype=float)
         ok = cov[np.isfinite(cov)]

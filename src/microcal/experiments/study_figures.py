@@ -35,7 +35,10 @@ class AdaptiveFigures:
     stop : str
         Why it stopped.
     coverage_95 : float
-        Share of the test poses whose true error lies in its predicted 95 % region.
+        Share of the test poses whose true error lies in its predicted 95 % region (as the
+        stopping rule takes it: with the inflation).
+    coverage_95_model : float
+        The same with the model's own prediction covariance (no inflation).
     curve, random_curve : list of CurvePoint
         Its models' true errors against poses and rig time, and those of the random design
         grown on the same seed.
@@ -49,6 +52,7 @@ class AdaptiveFigures:
     inflation: float
     stop: str
     coverage_95: float
+    coverage_95_model: float
     curve: list[CurvePoint]
     random_curve: list[CurvePoint]
     random_poses_to_match: int | None
@@ -61,6 +65,7 @@ class AdaptiveFigures:
             "inflation": self.inflation,
             "stop": self.stop,
             "coverage_95": self.coverage_95,
+            "coverage_95_model": self.coverage_95_model,
             "random_poses_to_match": self.random_poses_to_match,
             "curve": [c.to_json() for c in self.curve],
             "random_curve": [c.to_json() for c in self.random_curve],
