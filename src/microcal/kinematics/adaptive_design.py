@@ -64,8 +64,8 @@ __all__ = [
     "predicted_workspace_error_um",
     "residual_variance_um2",
     "start_design_um",
-    "test_joints_um",
     "tip_error_draws_um",
+    "workspace_grid_um",
 ]
 
 #: The design's name (``--design adaptive``).
@@ -151,7 +151,7 @@ def candidate_joints_um(
     return _sobol(settings.candidates, low_um, high_um, settings.seed + 1)
 
 
-def test_joints_um(
+def workspace_grid_um(
     settings: AdaptiveSettings, low_um: FloatArray, high_um: FloatArray
 ) -> FloatArray:
     """The workspace's test joints: the centres of a grid of equal cells, so that each

@@ -29,8 +29,8 @@ from ..kinematics.adaptive_design import (
     joint_inputs,
     residual_variance_um2,
     start_design_um,
-    test_joints_um,
     tip_error_draws_um,
+    workspace_grid_um,
 )
 from ..kinematics.models import KinematicModel
 from ..kinematics.terms import JOINTS
@@ -181,7 +181,7 @@ class AdaptiveDesign:
         self.limits_um = np.asarray(limits_um, dtype=np.float64)
         self.approach = approach
         self.candidates_um = candidate_joints_um(settings, self.low_um, self.high_um)
-        self.test_um = test_joints_um(settings, self.low_um, self.high_um)
+        self.test_um = workspace_grid_um(settings, self.low_um, self.high_um)
         held = self.low_um == self.high_um
         self.held_um = {j: float(self.low_um[k]) for k, j in enumerate(JOINTS) if held[k]}
 
