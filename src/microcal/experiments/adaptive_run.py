@@ -312,10 +312,12 @@ def curve_point(
 
 
 def adaptive_curve(
-    result: AdaptiveResult, times: PoseTimes, sim: SimManipulator, temperature_c: float
+    result: AdaptiveResult, times: PoseTimes, sim: SimManipulator
 ) -> list[CurvePoint]:
     """The adaptive run's curve: each step's model after the poses it was fitted on and the
-    rig time until then (every pose before it, every fit up to it)."""
+    rig time until then (every pose before it, every fit up to it), at the temperature of its
+    last pose (when that model would have been used)."""
+    temps = result.measured.temperature_c
     cumulative = np.cumsum(times.per_pose_s)
     fits = 0.0
     out = []
@@ -323,7 +325,8 @@ def adaptive_curve(
         fits += step.fit_s
         if step.model is not None and step.poses:
             rig = float(cumulative[step.poses - 1]) + fits
-            out.append(curve_point(step.model, sim, temperature_c, step.poses, rig))
+            t = _last_finite(temps[: step.poses])
+            out.append(curve_point(step.model, sim, t, step.poses, rig))
     return out
 
 
@@ -351,15 +354,21 @@ def random_curve(
     design = AdaptiveDesign(settings, WORKSPACE_MIN_UM, WORKSPACE_MAX_UM,
                             plat.manipulator.limits_um, config)  # fmt: skip
     sim = plat.manipulator
-    t = sim.temperature_at(plat.clock.now_s())
     cumulative = np.cumsum(times.per_pose_s)
     out = []
     for k in counts:
         head = measured.head(k)
         model = design.fit(head)
         if model is not None:
+            t = _last_finite(head.temperature_c)
             out.append(curve_point(model, sim, t, k, float(cumulative[k - 1])))
     return out
+
+
+def _last_finite(values: FloatArray) -> float:
+    """The last finite value (the temperature at the last pose measured)."""
+    ok = values[np.isfinite(values)]
+    return float(ok[-1]) if ok.size else float("nan")
 
 
 def poses_to_match(curve: list[CurvePoint], error_um: float) -> int | None:

@@ -456,6 +456,24 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> SeedR
             extra_inputs_reader(auto, sensors), ServoConfig(tolerance_um=config.tolerance_um),
             settle_s=config.settle_s, truth=plat.truth_position_um,
         )  # fmt: skip
+    # the tip's error right after the calibration (the clock has not moved since it ended):
+    # what the calibration delivers, before the evaluation's hours let the room drift
+    t_cal = sim.temperature_at(plat.clock.now_s())
+    tip: dict[str, float] = {}
+    for name, ff in conditions.items():
+        if ff is None or isinstance(ff, ClosedLoop):
+            continue
+        if isinstance(ff, ExactFeedForward):
+            errors, _ = tip_errors_um(ff, sim)
+        else:
+            targets = sim.truth.position_um(tip_test_joints_um(), np.ones((TIP_TEST_POSES, 3)),
+                                            t_cal)  # fmt: skip
+            errors = static_tip_errors_um(ff.model, sim, targets, t_cal) if (
+                ff.method == "optimal") else tip_errors_um(ff, sim)[0]  # fmt: skip
+        tip[name] = p95_um(errors)
+    adaptive_figures = None
+    if adaptive is not None:
+        adaptive_figures = _adaptive_figures(preset, seed, config, adaptive, times, sim, t_cal)
     loop_summary: ClosedLoopSummary | None = None
     options = RunOptions(settle_s=config.settle_s, truth=plat.truth_position_um, progress=None)
     pa: BySource[PoseAccuracyFigures] = {"truth": {}, "vision": {}}
@@ -503,22 +521,6 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> SeedR
             coverage[name] = _coverage(model, ff, sim, lack, meas_cov, TABLE_5_2_POSES_UM)
         except (LimitError, DegenerateDataError):
             coverage[name] = Coverage(nan, nan, nan)
-    t_end = sim.temperature_at(plat.clock.now_s())
-    tip: dict[str, float] = {}
-    for name, ff in conditions.items():
-        if ff is None or isinstance(ff, ClosedLoop):
-            continue
-        if isinstance(ff, ExactFeedForward):
-            errors, _ = tip_errors_um(ff, sim)
-        else:
-            targets = sim.truth.position_um(tip_test_joints_um(), np.ones((TIP_TEST_POSES, 3)),
-                                            t_end)  # fmt: skip
-            errors = static_tip_errors_um(ff.model, sim, targets, t_end) if (
-                ff.method == "optimal") else tip_errors_um(ff, sim)[0]  # fmt: skip
-        tip[name] = p95_um(errors)
-    adaptive_figures = None
-    if adaptive is not None:
-        adaptive_figures = _adaptive_figures(preset, seed, config, adaptive, times, sim, t_end)
     truth, vision = pa["truth"], pa["vision"]
     return SeedRun(
         seed=seed,
@@ -556,7 +558,7 @@ def _adaptive_figures(
     """The adaptive run's curve, its predicted error's coverage at the test poses, and the
     random design grown on the same seed (the study's frames per pose) for comparison."""
     final = result.final
-    curve = adaptive_curve(result, times, sim, temperature_c)
+    curve = adaptive_curve(result, times, sim)
     coverage = coverage_model = float("nan")
     if final.model is not None:
         model = final.model

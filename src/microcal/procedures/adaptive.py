@@ -38,6 +38,10 @@ from .acquisition import AcquisitionConfig, approach_start_um
 
 __all__ = ["AdaptiveDesign", "AdaptiveResult", "AdaptiveStep", "Measured", "run_adaptive"]
 
+#: The temperature joins the model's inputs only where the poses spanned this much, °C: a
+#: thermal coefficient from a smaller span (a run of minutes) extrapolates wildly to the
+#: temperature of an hour later.
+MIN_TEMPERATURE_SPAN_C = 0.1
 #: Batches the predicted error is checked on (each by the fit made before it was measured).
 CHECK_BATCHES = 2
 #: A fit whose effective degrees of freedom exceed this share of its poses on some axis
@@ -197,10 +201,10 @@ class AdaptiveDesign:
 
     def inputs(self, measured: Measured) -> tuple[str, ...]:
         """The model's inputs: joints, approach directions and, where the temperature
-        varied, the temperature."""
+        spanned :data:`MIN_TEMPERATURE_SPAN_C` or more, the temperature."""
         ok = measured.ok
         temps = measured.temperature_c[ok]
-        varied = temps.size > 1 and float(np.ptp(temps)) > 0
+        varied = temps.size > 1 and float(np.ptp(temps)) >= MIN_TEMPERATURE_SPAN_C
         signs = tuple(f"s{a}" for k, a in enumerate("xyz") if JOINTS[k] not in self.held_um)
         return (*JOINTS, *signs, *(("T",) if varied else ()))
 
