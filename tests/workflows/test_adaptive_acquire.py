@@ -13,7 +13,8 @@ import pytest
 from microcal.errors import InputError
 from microcal.formats.run_directory import RunDirectory, RunWriter
 from microcal.workflows import adaptive_acquire
-from microcal.workflows.acquire import AcquireRequest, run_acquire
+from microcal.workflows.acquire import AcquireRequest
+from microcal.workflows.adaptive_acquire import acquire_any
 from support.runs import write_true_cameras
 
 pytestmark = pytest.mark.slow
@@ -31,7 +32,7 @@ def _request(out: Path, cameras: Path, resume: bool = False) -> AcquireRequest:
 
 
 def _run(request: AcquireRequest) -> list[str]:
-    return list(run_acquire(request))
+    return list(acquire_any(request))
 
 
 def test_adaptive_runs_resume_after_a_stop_between_and_within_batches(

@@ -46,10 +46,11 @@ def acquire(
     Example: microcal acquire --rig sim --design random --poses 170 --out runs/a
     (first: microcal acquire --rig myrig.toml --out runs/a --dry-run)
     """
-    from ..workflows.acquire import AcquireRequest, run_acquire
+    from ..workflows.acquire import AcquireRequest
+    from ..workflows.adaptive_acquire import acquire_any
 
     request = AcquireRequest(out, rig, design, poses, seed, resume, settle, frames, store,
                              dry_run, manipulator, check_calibration, check_every, until_um,
                              max_poses, cameras)  # fmt: skip
-    for line in run_acquire(request):
+    for line in acquire_any(request):
         print(line, flush=True)

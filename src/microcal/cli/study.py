@@ -44,7 +44,7 @@ def study(
     (or --rig my-sim-rig.toml: a lab's own noise and travel, the seeds as given here;
     --design adaptive --until-um 1.0: the adaptive design, beside the random one grown)
     """
-    from ..report.study_page import rig_time_table, study_table
+    from ..report.study_page import rig_time_lines, study_table
     from ..workflows.study import SeedRun, StudyConfig
     from ..workflows.study import study as run
 
@@ -63,10 +63,6 @@ def study(
     path, result = run(out, preset, rig, seed_range, config, workers or None, tick)
     for name, med, p90 in study_table(result):
         console.print(f"{name:48s} median {med:9.3g}  p90 {p90:9.3g}")
-    curve = rig_time_table(result)
-    if curve:
-        console.print("true error against rig time (median over seeds; AP by truth / tip p95, µm):")
-        for minutes, row in curve:
-            cells = "  ".join(f"{d} {ap:6.3g} / {tip:6.3g}" for d, (ap, tip) in row.items())
-            console.print(f"  {minutes:4g} min  {cells}")
+    for line in rig_time_lines(result):
+        console.print(line)
     console.print(f"Wrote {path} and study.html")

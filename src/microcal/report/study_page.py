@@ -14,7 +14,7 @@ from .figures import _uri
 if TYPE_CHECKING:
     from ..experiments.study_figures import SeedRun, Study
 
-__all__ = ["rig_time_table", "study_page", "study_table"]
+__all__ = ["rig_time_lines", "rig_time_table", "study_page", "study_table"]
 
 #: Rig minutes the curves of an adaptive study are read at.
 RIG_MINUTES: tuple[float, ...] = (2, 4, 6, 8, 10, 12, 15, 20, 25, 30, 40)
@@ -80,6 +80,18 @@ def rig_time_table(study: Study) -> list[tuple[float, dict[str, tuple[float, flo
             tip = [_at_minutes(c[design], "tip_error_p95_um", minutes) for c in curves if c]
             row[design] = (_median(ap), _median(tip))
         out.append((minutes, row))
+    return out
+
+
+def rig_time_lines(study: Study) -> list[str]:
+    """:func:`rig_time_table` as the lines ``microcal study`` prints (none without it)."""
+    table = rig_time_table(study)
+    if not table:
+        return []
+    out = ["true error against rig time (median over seeds; AP by truth / tip error p95, µm):"]
+    for minutes, row in table:
+        cells = "  ".join(f"{d} {ap:6.3g} / {tip:6.3g}" for d, (ap, tip) in row.items())
+        out.append(f"  {minutes:4g} min  {cells}")
     return out
 
 

@@ -200,7 +200,6 @@ def run_acquire(request: AcquireRequest) -> Iterator[str]:
     """
     from ..formats.rig_file import load_rig, rig_from_record
     from ..procedures.dry_run import dry_run as check_rig
-    from .adaptive_acquire import ADAPTIVE_FILE, run_adaptive_acquire
     from .check import PeriodicCheck, parse_every
     from .options import parse_settle
     from .rigs import open_rig
@@ -208,13 +207,6 @@ def run_acquire(request: AcquireRequest) -> Iterator[str]:
     out = request.out
     if request.resume and request.dry_run:
         raise InputError("--dry-run and --resume: choose one")
-    adaptive = request.design == "adaptive" or (request.resume and (out / ADAPTIVE_FILE).is_file())
-    if adaptive and (request.dry_run or request.poses is not None or request.check_calibration):
-        raise InputError("--design adaptive: chooses its own poses; leave out --poses, "
-                         "--dry-run and --check-calibration")  # fmt: skip
-    if adaptive:
-        yield from run_adaptive_acquire(request)
-        return
     if request.until_um is not None or request.max_poses is not None or request.cameras:
         raise InputError("--until-um, --max-poses and --cameras: for --design adaptive only")
     check_out(out, request.resume, request.dry_run)

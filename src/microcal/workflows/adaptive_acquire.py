@@ -34,7 +34,13 @@ from ..kinematics.models import held_from_limits
 from ..procedures.acquisition import AcquisitionConfig
 from ..procedures.adaptive import AdaptiveDesign, Measured
 
-__all__ = ["ADAPTIVE_FILE", "ADAPTIVE_FORMAT", "APPROACH_UM", "run_adaptive_acquire"]
+__all__ = [
+    "ADAPTIVE_FILE",
+    "ADAPTIVE_FORMAT",
+    "APPROACH_UM",
+    "acquire_any",
+    "run_adaptive_acquire",
+]
 
 #: The adaptive run's options, in the run directory.
 ADAPTIVE_FILE = "adaptive.json"
@@ -166,6 +172,22 @@ def _measured(batch: Path, cameras: str) -> Measured:
         if isinstance(rep, list) and len(rep) == 3:
             reported[k] = [float(v) for v in rep]
     return Measured(np.asarray(d, dtype=np.float64), p, signs, temps, reported)
+
+
+def acquire_any(request: Any) -> Iterator[str]:
+    """``microcal acquire``: the adaptive run (``--design adaptive``, or ``--resume`` of a run
+    directory holding adaptive.json), else :func:`~microcal.workflows.acquire.run_acquire`."""
+    from .acquire import run_acquire
+
+    out: Path = request.out
+    adaptive = request.design == ADAPTIVE or (request.resume and (out / ADAPTIVE_FILE).is_file())
+    if not adaptive:
+        yield from run_acquire(request)
+        return
+    if request.dry_run or request.poses is not None or request.check_calibration:
+        raise InputError("--design adaptive: chooses its own poses; leave out --poses, "
+                         "--dry-run and --check-calibration")  # fmt: skip
+    yield from run_adaptive_acquire(request)
 
 
 def run_adaptive_acquire(request: Any) -> Iterator[str]:
