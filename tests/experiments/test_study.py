@@ -36,8 +36,11 @@ def test_one_seed_of_a_study_measures_models_against_the_oracle():
     assert list(run.to_json()) == [
         "seed", "uncalibrated_ap_truth_mean_um", "validation_mean_um", "ap_truth_mean_um",
         "ap_truth_max_um", "ap_vision_mean_um", "vap_truth_mean_um", "coverage_95", "family",
-        "closed_loop", "failed", "n_poses", "render", "wall_s",
+        "closed_loop", "failed", "n_poses", "render", "wall_s", "design", "rig_time_s",
+        "tip_error_p95_um",
     ]  # fmt: skip
+    assert run.rig_time_s > 0
+    assert set(run.tip_error_p95_um) >= {"matrix", "quadratic", "smooth", "auto", "oracle"}
 
 
 def test_study_command_writes_and_refuses_a_foreign_file(tmp_path):

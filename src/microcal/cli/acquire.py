@@ -22,6 +22,9 @@ _Manip = Annotated[str | None, Option(help="The rig's device to move (m1, m2, p1
 _CheckCal = Annotated[str | None, Option(help="Check this calibration during this run.")]
 _Every = Annotated[str | None, Option(help="Its check every N poses or Mmin minutes. [20]")]
 _DryRun = Annotated[bool, Option("--dry-run", help="Check rig and design; nothing moves.")]
+_Until = Annotated[float | None, Option(help="Adaptive: stop at this predicted 95 % error, µm.")]
+_MaxPoses = Annotated[int | None, Option(min=20, help="Adaptive: at most this many poses. [400]")]
+_Cameras = Annotated[str | None, Option(help="Adaptive: cameras.json it measures with.")]
 
 
 @app.command(short_help="Move through a design, settle and store images.")
@@ -29,20 +32,25 @@ def acquire(
     out: _Out, rig: _Rig = None, design: _Design = None, poses: _Poses = None,
     seed: _Seed = None, resume: _Resume = False, settle: _Settle = None, frames: _Frames = None,
     store: _Store = None, dry_run: _DryRun = False, manipulator: _Manip = None,
-    check_calibration: _CheckCal = None, check_every: _Every = None,
+    check_calibration: _CheckCal = None, check_every: _Every = None, until_um: _Until = None,
+    max_poses: _MaxPoses = None, cameras: _Cameras = None,
 ) -> None:  # fmt: skip
     """Drive the manipulator through a design and store images of every pose.
 
     Designs: random, sobol, lhs, grid (over the rig's soft limits); table-5-2, decoupling,
-    iso-cube (evaluation trajectories). run.json records every option: a stopped run
-    continues with `microcal acquire --out DIR --resume` alone.
+    iso-cube (evaluation trajectories); adaptive: batches chosen from what was measured
+    until the predicted 95 % error of the compensated tip is below --until-um. run.json
+    records every option: a stopped run continues with `microcal acquire --out DIR --resume`
+    alone.
 
     Example: microcal acquire --rig sim --design random --poses 170 --out runs/a
     (first: microcal acquire --rig myrig.toml --out runs/a --dry-run)
     """
-    from ..workflows.acquire import AcquireRequest, run_acquire
+    from ..workflows.acquire import AcquireRequest
+    from ..workflows.adaptive_acquire import acquire_any
 
     request = AcquireRequest(out, rig, design, poses, seed, resume, settle, frames, store,
-                             dry_run, manipulator, check_calibration, check_every)  # fmt: skip
-    for line in run_acquire(request):
+                             dry_run, manipulator, check_calibration, check_every, until_um,
+                             max_poses, cameras)  # fmt: skip
+    for line in acquire_any(request):
         print(line, flush=True)

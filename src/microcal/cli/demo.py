@@ -22,7 +22,7 @@ _Preset = Annotated[
     str,
     Option(
         help="Simulated platform: thesis, telecentric, thesis-3cam, population, "
-        "thesis-platform (two manipulators and a positioner)."
+        "thesis-platform (two manipulators and a positioner), thesis-real (motion noise)."
     ),
 ]
 _Model = Annotated[str, Option(help="Camera model: pinhole, affine or auto (by held-out error).")]

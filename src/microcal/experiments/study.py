@@ -52,12 +52,14 @@ from ..control.feedforward import APPROACH_UM, FeedForward, extra_inputs_reader
 from ..control.visual_servo import ServoConfig
 from ..devices.base import Clock
 from ..errors import DegenerateDataError, DeviceError, InputError, LimitError
+from ..kinematics.adaptive_design import ADAPTIVE, AdaptiveSettings
 from ..kinematics.designs import DESIGNS, make_design
 from ..kinematics.extra_inputs import APPROACH_INPUTS, extra_input
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..kinematics.models import KinematicModel, fit_model
 from ..kinematics.terms import JOINTS
 from ..procedures.acquisition import AcquisitionConfig, approach_start_um
+from ..procedures.adaptive import AdaptiveDesign, AdaptiveResult
 from ..procedures.evaluation import (
     PositionProbe,
     RunOptions,
@@ -73,8 +75,22 @@ from ..sim.platforms import PRESETS
 from ..sim.population_prior import PriorEstimator, fit_prior_estimator, known_form_terms
 from ..sim.synthetic_run import ProjectedProbe
 from ..thesis.experiment import TABLE_5_2_POSES_UM, WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
+from .adaptive_run import (
+    FRAME_S,
+    TIP_TEST_POSES,
+    PoseTimes,
+    adaptive_curve,
+    coverage_of,
+    p95_um,
+    poses_to_match,
+    random_curve,
+    run_adaptive_fast,
+    static_tip_errors_um,
+    tip_errors_um,
+    tip_test_joints_um,
+)
 from .demo import demo_design_seed
-from .study_figures import Coverage, FigureSummary, SeedRun, Study
+from .study_figures import AdaptiveFigures, Coverage, FigureSummary, SeedRun, Study
 
 __all__ = ["MODELS", "StudyConfig", "run_seed", "run_study", "summarize_runs"]
 
@@ -105,10 +121,24 @@ class StudyConfig:
     """On ``population`` platforms, add the ``prior`` figures: the Bayes estimator under the
     draw's own prior (:mod:`~microcal.sim.population_prior`): what estimating the
     profiles costs any model."""
+    until_um: float | None = None
+    """The adaptive design's tolerance (``--until-um``): needed with ``design="adaptive"``."""
+    max_poses: int = 400
+    """The adaptive design's most poses."""
+    adaptive_frames: int = 20
+    """Frames per camera the adaptive design averages per pose (a pose costs its moves and
+    settling; its frames little)."""
+    random_poses: int = 300
+    """With the adaptive design: the random design on the same seed is grown to this many
+    poses (in steps of 10) to find how many it needs for the adaptive run's true error."""
 
     def __post_init__(self) -> None:
-        if self.design not in DESIGNS:
-            raise InputError(f"design: expected one of {list(DESIGNS)}, got {self.design!r}")
+        if self.design not in (*DESIGNS, ADAPTIVE):
+            raise InputError(f"design: expected one of {[*DESIGNS, ADAPTIVE]}, got {self.design!r}")
+        if self.design == ADAPTIVE and self.until_um is None:
+            raise InputError("--design adaptive: give the tolerance with --until-um")
+        if self.design != ADAPTIVE and self.until_um is not None:
+            raise InputError("--until-um: only the adaptive design stops on a tolerance")
         if self.poses < 40:
             raise InputError(f"poses: expected 40 or more, got {self.poses}")
         if self.cycles < 1:
@@ -327,16 +357,23 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> SeedR
     plat = platform(preset, seed=seed, overrides=config.overrides)
     if config.prior and plat.population is None:
         raise InputError(_PRIOR_ONLY.format(preset=preset))
-    d = make_design(config.design, config.poses, WORKSPACE_MIN_UM, WORKSPACE_MAX_UM,
+    kind = "random" if config.design == ADAPTIVE else config.design
+    d = make_design(kind, config.poses, WORKSPACE_MIN_UM, WORKSPACE_MAX_UM,
                     demo_design_seed(seed))  # fmt: skip
+    adaptive: AdaptiveResult | None = None
+    times = PoseTimes.empty()
+    rig_time_s = float("nan")
     fast_probe = ProjectedProbe.on_platform(plat, np.random.default_rng([seed, 7]))
     acq = AcquisitionConfig(approach_um=config.approach_um, approach_seed=demo_design_seed(seed))
     probe: PositionProbe = fast_probe
     servo_measure: Measure = fast_probe.measure_with_covariance
+    if config.render and config.design == ADAPTIVE:
+        raise InputError("--render: the adaptive design runs on the fast path only")
     if config.render:
         from ..vision.probe import VisionProbe
         from .demo import run_demo
 
+        t_acq = plat.clock.now_s()
         demo = run_demo(seed, config.poses, plat=plat, evaluate=False,
                         approach_um=config.approach_um,
                         frames_per_pose=config.frames_per_pose)  # fmt: skip
@@ -350,9 +387,23 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> SeedR
         temps = np.array([r.readings[extra_input("temperature").column] for r in rec], dtype=float)
         rendered = VisionProbe(plat.cameras, demo.calibration.models(), plat.scene.board,
                                frames=config.frames_per_pose)  # fmt: skip
+        rig_time_s = plat.clock.now_s() - t_acq
         probe, servo_measure = rendered, rendered.measure_with_covariance
+    elif config.design == ADAPTIVE:
+        times = PoseTimes.empty()
+        settings = adaptive_settings(config, seed)
+        adaptive = run_adaptive_fast(plat, settings, acq, config.settle_s, fast_probe, times,
+                                     config.adaptive_frames)  # fmt: skip
+        seen = adaptive.measured
+        ok = seen.ok
+        assert seen.cov_um2 is not None
+        d, p, cov = seen.d_um[ok], seen.p_um[ok], seen.cov_um2[ok]
+        signs, temps = seen.signs[ok], seen.temperature_c[ok]
+        rig_time_s = times.total_s + adaptive.fit_s
     else:
+        t_acq = plat.clock.now_s()
         p, cov, signs, temps = _acquire_fast(plat, d, acq, config.settle_s, fast_probe)
+        rig_time_s = plat.clock.now_s() - t_acq + FRAME_S * fast_probe.frames * len(d)
         ok = np.all(np.isfinite(p), axis=1)
         d, p, cov, signs, temps = d[ok], p[ok], cov[ok], signs[ok], temps[ok]
     n_fit = default_train(len(d))
@@ -384,6 +435,10 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> SeedR
         conditions[name] = FeedForward(sim, model, "optimal",
                                        extra_inputs_reader(model, sensors), plat.clock)  # fmt: skip
     conditions["oracle"] = oracle_feed_forward(sim, plat.clock, correction)
+    if adaptive is not None and adaptive.final.model is not None:
+        final = adaptive.final.model
+        reader = extra_inputs_reader(final, sensors)
+        conditions[ADAPTIVE] = FeedForward(sim, final, "optimal", reader, plat.clock)
     if config.prior and plat.population is not None:
         inputs = _oracle_inputs(temps)
         u = _input_columns(d, signs, temps, inputs)
@@ -401,6 +456,24 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> SeedR
             extra_inputs_reader(auto, sensors), ServoConfig(tolerance_um=config.tolerance_um),
             settle_s=config.settle_s, truth=plat.truth_position_um,
         )  # fmt: skip
+    # the tip's error right after the calibration (the clock has not moved since it ended):
+    # what the calibration delivers, before the evaluation's hours let the room drift
+    t_cal = sim.temperature_at(plat.clock.now_s())
+    tip: dict[str, float] = {}
+    for name, ff in conditions.items():
+        if ff is None or isinstance(ff, ClosedLoop):
+            continue
+        if isinstance(ff, ExactFeedForward):
+            errors, _ = tip_errors_um(ff, sim)
+        else:
+            targets = sim.truth.position_um(tip_test_joints_um(), np.ones((TIP_TEST_POSES, 3)),
+                                            t_cal)  # fmt: skip
+            errors = static_tip_errors_um(ff.model, sim, targets, t_cal) if (
+                ff.method == "optimal") else tip_errors_um(ff, sim)[0]  # fmt: skip
+        tip[name] = p95_um(errors)
+    adaptive_figures = None
+    if adaptive is not None:
+        adaptive_figures = _adaptive_figures(preset, seed, config, adaptive, times, sim, t_cal)
     loop_summary: ClosedLoopSummary | None = None
     options = RunOptions(settle_s=config.settle_s, truth=plat.truth_position_um, progress=None)
     pa: BySource[PoseAccuracyFigures] = {"truth": {}, "vision": {}}
@@ -464,7 +537,60 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> SeedR
         n_poses=len(d),
         render=config.render,
         wall_s=time.perf_counter() - t0,
+        rig_time_s=rig_time_s,
+        tip_error_p95_um=tip,
+        design=config.design,
+        adaptive=adaptive_figures,
     )
+
+
+def adaptive_settings(config: StudyConfig, seed: int) -> AdaptiveSettings:
+    """The adaptive design of a study's seed."""
+    assert config.until_um is not None
+    return AdaptiveSettings(until_um=config.until_um, max_poses=config.max_poses,
+                            seed=demo_design_seed(seed))  # fmt: skip
+
+
+def _adaptive_figures(
+    preset: str, seed: int, config: StudyConfig, result: AdaptiveResult, times: PoseTimes,
+    sim: SimManipulator, temperature_c: float,
+) -> AdaptiveFigures:  # fmt: skip
+    """The adaptive run's curve, its predicted error's coverage at the test poses, and the
+    random design grown on the same seed (the study's frames per pose) for comparison."""
+    final = result.final
+    curve = adaptive_curve(result, times, sim)
+    coverage = coverage_model = float("nan")
+    if final.model is not None:
+        model = final.model
+        targets = sim.truth.position_um(tip_test_joints_um(), np.ones((TIP_TEST_POSES, 3)),
+                                        temperature_c)  # fmt: skip
+        errors = static_tip_errors_um(model, sim, targets, temperature_c)
+        from ..kinematics.compensators import Compensator
+
+        read = extra_inputs_reader(model, {"temperature": lambda: temperature_c})
+        d = Compensator(model, sim.limits_um).solve(targets, extra=None if read is None else
+                                                    read()).d_um  # fmt: skip
+        design = AdaptiveDesign(adaptive_settings(config, seed), WORKSPACE_MIN_UM,
+                                WORKSPACE_MAX_UM, sim.limits_um, AcquisitionConfig(
+                                    approach_um=config.approach_um))  # fmt: skip
+        extra = design.scatter_var_um2(result.measured)
+        inside = coverage_of(model, errors, np.asarray(d), temperature_c, extra,
+                             inflation=final.inflation)  # fmt: skip
+        coverage = float(inside.mean())
+        coverage_model = float(coverage_of(model, errors, np.asarray(d), temperature_c,
+                                           extra).mean())  # fmt: skip
+    plat = platform(preset, seed=seed, overrides=config.overrides)
+    acq = AcquisitionConfig(approach_um=config.approach_um, approach_seed=demo_design_seed(seed))
+    counts = list(range(20, config.random_poses + 1, 10))
+    random = random_curve(plat, seed, counts, acq, config.settle_s, config.frames_per_pose,
+                          adaptive_settings(config, seed))  # fmt: skip
+    reached = curve[-1].tip_error_p95_um if curve else float("nan")
+    return AdaptiveFigures(
+        until_um=float(config.until_um or 0.0), predicted_um=final.predicted_um,
+        inflation=final.inflation, stop=final.reason, coverage_95=coverage,
+        coverage_95_model=coverage_model, curve=curve,
+        random_curve=random, random_poses_to_match=poses_to_match(random, reached),
+    )  # fmt: skip
 
 
 def _flatten(run: SeedRun) -> dict[str, float]:
@@ -508,6 +634,18 @@ def summarize_runs(runs: Sequence[SeedRun]) -> dict[str, FigureSummary]:
                 f[f"ap_truth_over_oracle.{name}"] = ap[name] / ap["oracle"]
     keys = sorted({k for f in flat for k in f})
     out = {k: _summary(np.array([f[k] for f in flat if k in f])) for k in keys}
+    ratio = np.array([r.n_poses / r.adaptive.random_poses_to_match
+                      if r.adaptive is not None and r.adaptive.random_poses_to_match else np.nan
+                      for r in runs if r.adaptive is not None])  # fmt: skip
+    if ratio.size:
+        out["adaptive.poses_over_random"] = _summary(ratio)
+        within = np.array([r.tip_error_p95_um.get(ADAPTIVE, np.nan) <= (r.adaptive.until_um
+                           if r.adaptive else np.nan) for r in runs], dtype=float)  # fmt: skip
+        out["adaptive.tip_error_within_tolerance"] = _summary(np.array([within.mean()]))
+        for key in ("coverage_95", "coverage_95_model"):
+            cov = np.array([getattr(r.adaptive, key) for r in runs if r.adaptive], dtype=float)
+            pooled = float(np.nanmean(cov))
+            out[f"adaptive.{key}.pooled"] = FigureSummary(pooled, pooled, pooled, pooled, 0)
     for name in MODELS:  # every seed has as many test poses: the pooled rate is the mean
         cov = np.array([r.coverage_95[name].truth for r in runs], dtype=float)
         ok = cov[np.isfinite(cov)]

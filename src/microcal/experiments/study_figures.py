@@ -9,11 +9,67 @@ null).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from ..control.closed_loop import ClosedLoopSummary
 from ..json_value import JsonValue
 
-__all__ = ["Coverage", "FigureSummary", "SeedRun", "Study"]
+if TYPE_CHECKING:
+    from .adaptive_run import CurvePoint
+
+__all__ = ["AdaptiveFigures", "Coverage", "FigureSummary", "SeedRun", "Study"]
+
+
+@dataclass(frozen=True)
+class AdaptiveFigures:
+    """An adaptive run's own figures (study.json's ``adaptive`` of a run).
+
+    Attributes
+    ----------
+    until_um : float
+        The tolerance it stopped on.
+    predicted_um : float
+        Its predicted 95 % error of the compensated tip over the workspace when it stopped.
+    inflation : float
+        The factor its check on new poses put on the model's predicted error.
+    stop : str
+        Why it stopped.
+    coverage_95 : float
+        Share of the test poses whose true error lies in its predicted 95 % region (as the
+        stopping rule takes it: with the inflation).
+    coverage_95_model : float
+        The same with the model's own prediction covariance (no inflation).
+    curve, random_curve : list of CurvePoint
+        Its models' true errors against poses and rig time, and those of the random design
+        grown on the same seed.
+    random_poses_to_match : int or None
+        Poses the random design needed to reach the adaptive run's true error (None: not
+        within the poses it was grown to).
+    """
+
+    until_um: float
+    predicted_um: float
+    inflation: float
+    stop: str
+    coverage_95: float
+    coverage_95_model: float
+    curve: list[CurvePoint]
+    random_curve: list[CurvePoint]
+    random_poses_to_match: int | None
+
+    def to_json(self) -> dict[str, JsonValue]:
+        """``adaptive`` of a run."""
+        return {
+            "until_um": self.until_um,
+            "predicted_um": self.predicted_um,
+            "inflation": self.inflation,
+            "stop": self.stop,
+            "coverage_95": self.coverage_95,
+            "coverage_95_model": self.coverage_95_model,
+            "random_poses_to_match": self.random_poses_to_match,
+            "curve": [c.to_json() for c in self.curve],
+            "random_curve": [c.to_json() for c in self.random_curve],
+        }
 
 
 @dataclass(frozen=True)
@@ -65,6 +121,15 @@ class SeedRun:
         The full pipeline ran (rendered images) instead of the projected probe.
     wall_s : float
         Wall-clock time of the seed, s.
+    rig_time_s : float
+        Rig time of the calibration: moves, settling, frames and (adaptive) the fits in
+        between, s.
+    tip_error_p95_um : dict of str -> float
+        Per compensating condition (models, matrix, oracle, adaptive): the 95th percentile
+        of the compensated tip's true error over test poses across the workspace, µm.
+    design : str
+    adaptive : AdaptiveFigures or None
+        The adaptive design's own figures.
     """
 
     seed: int
@@ -81,6 +146,10 @@ class SeedRun:
     n_poses: int
     render: bool
     wall_s: float
+    rig_time_s: float = float("nan")
+    tip_error_p95_um: dict[str, float] = field(default_factory=dict)
+    design: str = "random"
+    adaptive: AdaptiveFigures | None = None
 
     def to_json(self) -> dict[str, JsonValue]:
         """The run's object in study.json. A closed loop that was evaluated but failed (see
@@ -105,7 +174,12 @@ class SeedRun:
             "n_poses": self.n_poses,
             "render": self.render,
             "wall_s": self.wall_s,
+            "design": self.design,
+            "rig_time_s": self.rig_time_s,
+            "tip_error_p95_um": self.tip_error_p95_um,
         }
+        if self.adaptive is not None:
+            out["adaptive"] = self.adaptive.to_json()
         return out
 
 

@@ -235,6 +235,8 @@ class AcquisitionSection:
     frames: int | None
     mean_settle_s: float | None
     max_settle_s: float | None
+    rig_time_s: float | None
+    rig_time_per_pose_s: float | None
     design_figure: str | None
     settle_figure: str | None
     failed: Shown[FailedRow]
@@ -267,6 +269,8 @@ def _acquisition(data: RunData) -> AcquisitionSection | None:
         frames=manifest.frames_per_pose if manifest is not None else None,
         mean_settle_s=float(settle.mean()) if settle.size else None,
         max_settle_s=float(settle.max()) if settle.size else None,
+        rig_time_s=float(journal.rig_time_s.sum()) if journal.rig_time_s.size else None,
+        rig_time_per_pose_s=float(journal.rig_time_s.mean()) if journal.rig_time_s.size else None,
         design_figure=(
             figures.command_design(data.commands_um, n_fit)
             if data.commands_um is not None

@@ -21,6 +21,7 @@ from .._validation import FloatArray
 from ..errors import FormatError
 from ..formats.json_file import parse_schema
 from ..formats.records import JournalLine
+from ..procedures.rig_time import pose_rig_times_s
 from .bounds import MAX_ROWS
 
 __all__ = ["MAX_LINE_BYTES", "JournalSummary", "summarise_journal"]
@@ -45,6 +46,9 @@ class JournalSummary:
         The first :data:`~.bounds.MAX_ROWS` poses that failed, in journal order.
     n_failed : int
         All poses that failed.
+    rig_time_s : (m,) float
+        Rig time of every pose that records when it began, its moves and its settling
+        (:func:`~microcal.procedures.rig_time.pose_rig_times_s`), in journal order.
     """
 
     n_poses: int = 0
@@ -52,6 +56,7 @@ class JournalSummary:
     settle_s: FloatArray = field(default_factory=lambda: np.zeros(0))
     failed: list[tuple[int, str]] = field(default_factory=list)
     n_failed: int = 0
+    rig_time_s: FloatArray = field(default_factory=lambda: np.zeros(0))
 
 
 def _lines(path: Path) -> Iterator[bytes | None]:
@@ -82,6 +87,7 @@ def summarise_journal(path: Path) -> JournalSummary:
         return out
     seen: set[int] = set()
     settle = array("d")
+    timed: list[tuple[float, float, float]] = []
     try:
         for raw in _lines(path):
             if raw is None or not raw.strip():
@@ -96,6 +102,9 @@ def summarise_journal(path: Path) -> JournalSummary:
             out.n_poses += 1
             if line.settle_s is not None:
                 settle.append(float(line.settle_s))
+                start, move = line.get("sim_time_s"), line.get("move_s")
+                if isinstance(start, int | float) and isinstance(move, int | float):
+                    timed.append((float(start), float(move), float(line.settle_s)))
             if line.status == "ok":
                 out.n_ok += 1
             else:
@@ -105,4 +114,7 @@ def summarise_journal(path: Path) -> JournalSummary:
     except OSError as exc:
         raise FormatError(f"{path}: cannot be read ({exc.strerror})") from None
     out.settle_s = np.frombuffer(settle, dtype=np.float64).copy() if settle else np.zeros(0)
+    if timed:
+        start_s, move_s, settle_s = zip(*timed, strict=True)
+        out.rig_time_s = pose_rig_times_s(start_s, move_s, settle_s)
     return out

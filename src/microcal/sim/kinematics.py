@@ -12,7 +12,9 @@ sources the thesis names (thesis 2.2):
   each joint's position sensor;
 - hysteresis: an offset along each axis whose sign is the direction from which that axis
   last approached its position, its size changing linearly along the travel if
-  ``hysteresis_slope`` is set;
+  ``hysteresis_slope`` is set; with ``play`` (:mod:`~microcal.sim.motion`), the direction
+  is a play-operator sum in [-1, 1] that remembers how far the joint travelled since it
+  last turned (the manipulator keeps that memory and passes it as ``signs``);
 - thermal drift: a shift proportional to the temperature's departure from the reference;
 - creep: after a move the end-effector keeps going, the remaining error decaying
   exponentially, ``-creep_fraction * step * exp(-t / creep_tau_s)``, or logarithmically
@@ -34,6 +36,7 @@ from scipy.interpolate import CubicSpline
 from .._validation import FloatArray, as_array, as_rows
 from ..errors import DegenerateDataError
 from ..kinematics.models import KinematicModel
+from .motion import PlayHysteresis
 
 __all__ = ["JointErrors", "TrueKinematics", "approach_signs", "invert_map"]
 
@@ -164,6 +167,8 @@ class TrueKinematics:
     creep_law : {"exp", "log"}
     creep_end_s : float
         For the logarithmic law: when the creep has ended.
+    play : PlayHysteresis, optional
+        Reversal error with memory (none by default: the sign of the last move alone).
     """
 
     static: KinematicModel
@@ -178,6 +183,7 @@ class TrueKinematics:
     hysteresis_half_travel_um: FloatArray = field(default_factory=lambda: np.ones(3))
     creep_law: str = "exp"
     creep_end_s: float = 60.0
+    play: PlayHysteresis | None = None
 
     def hysteresis_at_um(self, d_um: FloatArray) -> FloatArray:
         """Each joint's half gap at joints ``d_um`` (N, 3), µm."""
@@ -198,7 +204,8 @@ class TrueKinematics:
         d_um : (N, 3) or (3,) float
             Joint values, µm.
         signs : (N, 3) float, optional
-            +1 / -1: the direction each joint last moved in; 0 (no hysteresis) by default.
+            +1 / -1: the direction each joint last moved in (or, with ``play``, the
+            effective direction in [-1, 1]); 0 (no hysteresis) by default.
         temperature_c : float or (N,) float, optional
             Ambient temperature; the reference by default.
 

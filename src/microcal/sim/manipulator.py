@@ -4,7 +4,10 @@ Each joint travels at ``speed_um_s`` to its target; the device's own position lo
 "moving" until ``loop_settle_s`` after the last joint arrived. The end-effector's true
 position follows :class:`TrueKinematics` (static errors, hysteresis from each joint's
 approach direction, thermal drift) and keeps creeping after the move with the kinematics'
-time constant. The position readout has its own sensor noise. Faults are injected at the
+time constant. The position readout has its own sensor noise. Optionally (``motion``,
+:mod:`~microcal.sim.motion`) a move ends on the joint's step grid and off by a random
+scatter, and with the kinematics' ``play`` the reversal error remembers how far each joint
+travelled since it last turned. Faults are injected at the
 given rates: a move the controller refuses (:class:`MoveError`) and a command that times out
 (:class:`DeviceTimeoutError`); neither moves anything.
 """
@@ -21,6 +24,7 @@ from .._validation import FloatArray, check_number
 from ..devices.base import Clock, Manipulator
 from ..errors import DeviceTimeoutError, MoveError
 from .kinematics import TrueKinematics
+from .motion import MotionNoise
 
 __all__ = ["ManipulatorFaults", "SimManipulator", "joints_travelled_um"]
 
@@ -75,6 +79,11 @@ class SimManipulator(Manipulator):
         A periodic swing of the ambient temperature (a room's air conditioning cycling):
         amplitude (default 0), period and phase.
     faults : ManipulatorFaults
+    motion : MotionNoise, optional
+        Step quantisation and scatter of each move (none by default).
+    motion_rng : numpy.random.Generator, optional
+        The scatter's own stream (so that the sensor noise and faults draw as without it);
+        needed with a ``motion`` that scatters.
     """
 
     def __init__(
@@ -94,6 +103,8 @@ class SimManipulator(Manipulator):
         temperature_swing_c: float = 0.0,
         temperature_period_h: float = 1.0,
         temperature_phase: float = 0.0,
+        motion: MotionNoise | None = None,
+        motion_rng: np.random.Generator | None = None,
     ) -> None:
         super().__init__(name, ("x", "y", "z"), limits_um)
         self.truth = truth
@@ -123,6 +134,10 @@ class SimManipulator(Manipulator):
         self.mount_offset_um = np.zeros(3)
         #: ... and each joint's scale (1: as calibrated; 1.002: moves 0.2 % further).
         self.joint_scale = np.ones(3)
+        self.motion = motion if motion is not None and motion.active else None
+        self.motion_rng = motion_rng or np.random.default_rng(0)
+        play = truth.play
+        self._play = None if play is None else play.start_state_um(self._start)
 
     @property
     def identity(self) -> str:
@@ -142,7 +157,12 @@ class SimManipulator(Manipulator):
         current = self.joints_um(now)
         step = d_um - current
         self._signs = np.where(step > 0, 1.0, np.where(step < 0, -1.0, self._signs))
-        self._start, self._target, self._t0 = current, d_um.copy(), now
+        end = d_um.copy()
+        if self.motion is not None:
+            end = np.where(self.held, d_um, self.motion.end_um(current, d_um, self.motion_rng))
+        if self._play is not None and self.truth.play is not None:
+            self._play = self.truth.play.moved(self._play, end)
+        self._start, self._target, self._t0 = current, end, now
         self.last_move_s = now
         self._step = step
         self._t_arrive = now + float(np.abs(step).max()) / self.speed_um_s
@@ -162,6 +182,8 @@ class SimManipulator(Manipulator):
         now = self.clock.now_s()
         current = self.joints_um(now)
         self._step = current - self._start
+        if self._play is not None and self.truth.play is not None:
+            self._play = self.truth.play.moved(self._play, current)
         self._start = self._target = current
         self._t0 = self._t_arrive = now
 
@@ -172,6 +194,14 @@ class SimManipulator(Manipulator):
     def joints_um(self, t_s: float) -> FloatArray:
         """True joint positions at time ``t_s`` (each joint at its own constant speed)."""
         return joints_travelled_um(self._start, self._target, self.speed_um_s, t_s - self._t0)
+
+    def approach_directions(self) -> FloatArray:
+        """Each joint's effective approach direction now: the sign of its last move, or
+        with play operators their sum in [-1, 1] at the joints' targets, (3,)."""
+        play = self.truth.play
+        if play is None or self._play is None:
+            return self._signs.copy()
+        return play.direction(self._play, self._target)
 
     def temperature_at(self, t_s: float) -> float:
         """Ambient temperature at time ``t_s``, °C."""
@@ -185,7 +215,8 @@ class SimManipulator(Manipulator):
         """True end-effector position in {G} at time ``t_s`` (now by default), (3,) µm."""
         t = self.clock.now_s() if t_s is None else t_s
         d = self.joints_um(t) * self.joint_scale
-        p = self.truth.position_um(d, self._signs[None, :], self.temperature_at(t))[0]
+        signs = self._signs if self._play is None else self.approach_directions()
+        p = self.truth.position_um(d, signs[None, :], self.temperature_at(t))[0]
         creep = self.truth.creep_um(self._step, t - self._t_arrive)[0]
         out: FloatArray = p + creep + self.mount_offset_um
         return out

@@ -19,7 +19,13 @@ The other presets (:data:`PRESETS`) change the cameras only, but for ``populatio
   side camera's axis, so that depth (z) is seen twice and no longer dominates the error.
 - ``population``: every seed another platform: its true kinematics (with errors outside the
   polynomial family), its room's temperature cycle and its cameras' placement and
-  magnification drawn by :func:`~microcal.sim.population.draw_population`.
+  magnification drawn by :func:`~microcal.sim.population.draw_population`, its motion noise
+  and reversal error with memory drawn with them.
+- ``thesis-real``: the ``thesis`` platform with motion noise and reversal error with memory
+  (:data:`THESIS_PLAY`, :data:`THESIS_MOTION`, :mod:`~microcal.sim.motion`); everything
+  else, frames included, as ``thesis``.
+
+A rig file turns these effects on or off on any preset with ``manipulator.real_motion``.
 """
 
 from __future__ import annotations
@@ -42,6 +48,7 @@ from ..vision.targets import Target, parse_target
 from .camera import CameraFaults, ImageFormation, SimCamera
 from .clock import SimClock
 from .manipulator import ManipulatorFaults, SimManipulator
+from .motion import MotionNoise, PlayHysteresis, play_radii_um
 from .population import PopulationDraw, draw_population
 from .render import Placement
 from .stage import SimStage
@@ -101,6 +108,10 @@ class ManipulatorConfig:
     #: {G} (a re-mounted device, an exchanged tool), µm, and each joint's scale.
     mount_offset_um: tuple[float, float, float] = (0.0, 0.0, 0.0)
     joint_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    #: Motion noise (step quantisation, scatter) and reversal error with memory (play
+    #: operators): the preset's sizes (:data:`THESIS_PLAY`, :data:`THESIS_MOTION`, or the
+    #: population's draw) when on; the ideal motion of the ``thesis`` preset when off.
+    real_motion: bool = False
 
     def __post_init__(self) -> None:
         lim = np.asarray(self.limits_um, dtype=np.float64) if _rows_of_two(self.limits_um) else None
@@ -182,7 +193,17 @@ class PlatformConfig:
 
 
 #: The simulator's presets (see the module docstring).
-PRESETS = ("thesis", "telecentric", "thesis-3cam", "population", "thesis-platform")
+PRESETS = ("thesis", "telecentric", "thesis-3cam", "population", "thesis-platform", "thesis-real")
+
+#: The ``thesis-real`` reversal error with memory: per joint five play operators of radii
+#: 0.25-4 µm, equal weights: the reversal builds up over the first 8 µm after a turn.
+THESIS_PLAY = PlayHysteresis(np.tile(play_radii_um(4.0), (3, 1)), np.full((3, 5), 0.2))
+#: The ``thesis-real`` motion noise: a 20 nm scatter and a 50 nm stick-slip step per joint.
+THESIS_MOTION = MotionNoise(scatter_um=(0.02, 0.02, 0.02), step_um=(0.05, 0.05, 0.05))
+
+#: Where the motion noise draws from: its own stream per seed (``[seed, MOTION_STREAM]``),
+#: so that turning it on changes no other draw.
+MOTION_STREAM = 92830
 
 #: The travel of the ``thesis-platform`` positioner, µm: x and y 0-6000 with 0.5 mm to spare,
 #: as the manipulators'; it has no z drive, so its z joint is held at 0.
@@ -219,6 +240,10 @@ def preset_config(preset: str) -> PlatformConfig:
         )
     elif preset == "thesis-3cam":
         config = dataclasses.replace(config, front=dataclasses.replace(config.side))
+    elif preset in ("thesis-real", "population"):
+        config = dataclasses.replace(
+            config, manipulator=dataclasses.replace(config.manipulator, real_motion=True)
+        )
     elif preset == "thesis-platform":
         config = dataclasses.replace(
             config,
@@ -397,14 +422,18 @@ def platform(
     mc = config.manipulator
     n_cameras = 2 if config.front is None else 3
     draw = draw_population(root.spawn(1)[0], n_cameras) if preset == "population" else None
+    truth = thesis_kinematics() if draw is None else draw.truth
+    motion = None
+    if mc.real_motion:
+        play, motion = (THESIS_PLAY, THESIS_MOTION) if draw is None else (draw.play, draw.motion)
+        truth = dataclasses.replace(truth, play=play)
     manipulator = SimManipulator(
-        thesis_kinematics() if draw is None else draw.truth, clock,
-        np.random.default_rng(s_manip),
+        truth, clock, np.random.default_rng(s_manip),
         limits_um=mc.limits_um, speed_um_s=mc.speed_um_s, loop_settle_s=mc.loop_settle_s,
         sensor_noise_um=mc.sensor_noise_um, temperature_c=mc.temperature_c,
         temperature_drift_c_per_h=mc.temperature_drift_c_per_h
         + (0.0 if draw is None else draw.temperature_drift_c_per_h),
-        faults=mc.faults,
+        faults=mc.faults, motion=motion, motion_rng=np.random.default_rng([seed, MOTION_STREAM]),
     )  # fmt: skip
     manipulator.mount_offset_um = np.array(mc.mount_offset_um, dtype=np.float64)
     manipulator.joint_scale = np.array(mc.joint_scale, dtype=np.float64)
@@ -454,11 +483,15 @@ def _further_devices(
             continue
         truth = second_manipulator_kinematics(m1.truth) if name == "m2" else (
             positioner_kinematics())  # fmt: skip
+        if mc.real_motion:
+            truth = dataclasses.replace(truth, play=THESIS_PLAY)
         device = SimManipulator(
             truth, clock, np.random.default_rng(seq), name=name, limits_um=mc.limits_um,
             speed_um_s=mc.speed_um_s, loop_settle_s=mc.loop_settle_s,
             sensor_noise_um=mc.sensor_noise_um, temperature_c=mc.temperature_c,
             temperature_drift_c_per_h=mc.temperature_drift_c_per_h, faults=mc.faults,
+            motion=THESIS_MOTION if mc.real_motion else None,
+            motion_rng=np.random.default_rng(seq.spawn(1)[0]),
         )  # fmt: skip
         device.mount_offset_um = np.array(mc.mount_offset_um, dtype=np.float64)
         device.joint_scale = np.array(mc.joint_scale, dtype=np.float64)

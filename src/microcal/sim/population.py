@@ -24,7 +24,11 @@ it says ±):
 - thermal: ±U(0.3, 1.5) µm/°C per axis; the room swings by U(0.05, 0.3) °C with a period of
   U(0.5, 2) h and drifts by ±U(0, 0.3) °C/h;
 - cameras: each turned about the travel's middle by up to 2 degrees about each axis, its
-  magnification within ±10 % of the thesis camera's.
+  magnification within ±10 % of the thesis camera's;
+- motion (drawn last, so the draws above are those of a platform without it): per joint five
+  play operators, the largest radius U(2, 8) µm, the others down to a sixteenth of it, their
+  weights from a flat Dirichlet; positioning scatter U(0.01, 0.04) µm and stick-slip step
+  U(0.01, 0.1) µm per joint (:mod:`~microcal.sim.motion`).
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ from .._validation import FloatArray
 from ..kinematics.models import KinematicModel
 from ..kinematics.terms import JOINTS, polynomial_terms
 from .kinematics import JointErrors, TrueKinematics
+from .motion import MotionNoise, PlayHysteresis, play_radii_um
 
 __all__ = ["PopulationDraw", "draw_population"]
 
@@ -68,6 +73,11 @@ class PopulationDraw:
         The prior each joint's straightness and angular profiles were drawn from: the
         process's length scale and standard deviations (for
         :mod:`~microcal.sim.population_prior`).
+    play : PlayHysteresis
+        The reversal error's memory (``truth`` has it only where the platform's
+        ``manipulator.real_motion`` is on).
+    motion : MotionNoise
+        The moves' scatter and step.
     """
 
     truth: TrueKinematics
@@ -80,6 +90,8 @@ class PopulationDraw:
     profile_length_um: FloatArray
     straightness_sd_um: FloatArray
     angle_sd_urad: FloatArray
+    play: PlayHysteresis
+    motion: MotionNoise
 
 
 def _signed_log_uniform(rng: np.random.Generator, low: float, high: float, size: int) -> FloatArray:
@@ -186,15 +198,27 @@ def draw_population(seed: int | np.random.SeedSequence, n_cameras: int = 2) -> P
         creep_law="log",
         creep_end_s=float(rng.uniform(10.0, 60.0)),
     )
+    room = (float(rng.uniform(0.05, 0.3)), float(rng.uniform(0.5, 2.0)),
+            float(rng.uniform(0.0, 2 * np.pi)), float(rng.uniform(-0.3, 0.3)))  # fmt: skip
+    rotation = rng.uniform(-2.0, 2.0, (n_cameras, 3))
+    magnification = rng.uniform(0.9, 1.1, n_cameras)
+    radii = np.array([play_radii_um(r) for r in rng.uniform(2.0, 8.0, 3)])
+    play = PlayHysteresis(radii, rng.dirichlet(np.ones(radii.shape[1]), 3))
+    motion = MotionNoise(
+        scatter_um=tuple(rng.uniform(0.01, 0.04, 3).tolist()),
+        step_um=tuple(rng.uniform(0.01, 0.1, 3).tolist()),
+    )
     return PopulationDraw(
         truth=truth,
-        temperature_swing_c=float(rng.uniform(0.05, 0.3)),
-        temperature_period_h=float(rng.uniform(0.5, 2.0)),
-        temperature_phase=float(rng.uniform(0.0, 2 * np.pi)),
-        temperature_drift_c_per_h=float(rng.uniform(-0.3, 0.3)),
-        camera_rotation_deg=rng.uniform(-2.0, 2.0, (n_cameras, 3)),
-        camera_magnification=rng.uniform(0.9, 1.1, n_cameras),
+        temperature_swing_c=room[0],
+        temperature_period_h=room[1],
+        temperature_phase=room[2],
+        temperature_drift_c_per_h=room[3],
+        camera_rotation_deg=rotation,
+        camera_magnification=magnification,
         profile_length_um=prior[0],
         straightness_sd_um=prior[1],
         angle_sd_urad=prior[2],
+        play=play,
+        motion=motion,
     )

@@ -76,6 +76,9 @@ class AcquireRequest:
     manipulator: str | None = None
     check_calibration: str | None = None
     check_every: str | None = None
+    until_um: float | None = None
+    max_poses: int | None = None
+    cameras: str | None = None
 
     def filled(self, manifest: RunManifest | None = None) -> AcquireRequest:
         """Every option set: a new run's defaults, or what a resumed run recorded.
@@ -204,6 +207,8 @@ def run_acquire(request: AcquireRequest) -> Iterator[str]:
     out = request.out
     if request.resume and request.dry_run:
         raise InputError("--dry-run and --resume: choose one")
+    if request.until_um is not None or request.max_poses is not None or request.cameras:
+        raise InputError("--until-um, --max-poses and --cameras: for --design adaptive only")
     check_out(out, request.resume, request.dry_run)
     manifest = RunDirectory(out).manifest if request.resume else None
     req = request.filled(manifest)

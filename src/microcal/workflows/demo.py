@@ -81,6 +81,7 @@ def write_demo_outputs(out: Path, result: DemoResult, wall_s: float) -> None:
     from ..formats.cameras_file import cameras_to_dict, write_cameras
     from ..formats.provenance import provenance
     from ..formats.results_file import update_results
+    from ..procedures.rig_time import RigTime
     from ..report import write_report
 
     out.mkdir(parents=True, exist_ok=True)
@@ -115,6 +116,9 @@ def write_demo_outputs(out: Path, result: DemoResult, wall_s: float) -> None:
                        for r in records if r.status != "ok"],
         },
         **result.evaluation.to_json(),
+        "rig_time": RigTime.of_records([r.sim_time_s for r in records],
+                                       [r.move_s for r in records],
+                                       [r.settle_s for r in records]).to_json(),
         "timing": {"simulated_s": result.sim_time_s, "wall_s": wall_s,
                    "stages_s": dict(result.stages_s)},
         "provenance": prov,
