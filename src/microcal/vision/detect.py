@@ -25,7 +25,6 @@ detected features: near the detection noise for a good detection.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Any
 
 import cv2
@@ -36,41 +35,12 @@ from .._validation import FloatArray
 from ..errors import InputError
 from .board_symmetry import turn_ids
 from .corner_refinement import WINDOW_FRACTIONS, refine_corners, refine_grid_corners
+from .detection import Detection
+from .detection import homography_rms_px as _homography_rms
+from .marker_grid import detect_marker_grid
 from .targets import Target
 
 __all__ = ["Detection", "detect", "to_gray"]
-
-
-@dataclass(frozen=True)
-class Detection:
-    """Features of one target found in one image.
-
-    Attributes
-    ----------
-    found : bool
-    ids : (N,) int
-        Indices into ``target.points_um()``.
-    q_px : (N, 2) float
-        Pixel positions (OpenCV convention), in the whole image's coordinates.
-    quality_px : float
-        RMS residual of a plane homography through the features (NaN if not found).
-    reason : str
-        Why nothing was found ("" when found).
-    method : str
-        Which detector found it.
-    """
-
-    found: bool
-    ids: NDArray[np.intp] = field(default_factory=lambda: np.zeros(0, dtype=np.intp))
-    q_px: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
-    quality_px: float = float("nan")
-    reason: str = ""
-    method: str = ""
-
-    @classmethod
-    def none(cls, reason: str) -> Detection:
-        """Nothing found, for ``reason``."""
-        return cls(False, reason=reason)
 
 
 def to_gray(image: NDArray[np.generic]) -> NDArray[np.float32]:
@@ -90,17 +60,6 @@ def _to_uint8(gray: NDArray[np.float32]) -> NDArray[np.uint8]:
         return np.zeros(gray.shape, dtype=np.uint8)
     out: NDArray[np.uint8] = np.clip((gray - lo) * (255.0 / (hi - lo)), 0, 255).astype(np.uint8)
     return out
-
-
-def _homography_rms(target: Target, ids: NDArray[np.intp], q: FloatArray) -> float:
-    if len(ids) < 4:
-        return float("nan")
-    plane = target.points_um()[ids, :2]
-    H: Any = cv2.findHomography(plane, q, 0)[0]  # None when degenerate (the stubs omit it)
-    if H is None:
-        return float("nan")
-    proj = cv2.perspectiveTransform(plane.reshape(-1, 1, 2), H).reshape(-1, 2)
-    return float(np.sqrt(np.mean(np.sum((proj - q) ** 2, axis=1))))
 
 
 def _square_levels(gray: NDArray[np.float32], grid: FloatArray) -> FloatArray:
@@ -515,8 +474,6 @@ def detect(
     if target.kind == "chessboard":
         det = _detect_chessboard_coarse_to_fine(gray, target)
     elif target.kind == "dotgrid" and target.markers:
-        from .marker_grid import detect_marker_grid  # it builds on this module
-
         det = detect_marker_grid(gray, target)
     elif target.kind == "dotgrid":
         det = _detect_dotgrid(gray, target)

@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 
 from .._validation import FloatArray
 from ..errors import InputError
-from .detect import Detection
+from .detection import Detection, homography_rms_px
 from .dot_centres import refine_dot_centres
 from .targets import Target, marker_text
 
@@ -439,11 +439,10 @@ def detect_marker_grid(gray: NDArray[np.float32], target: Target) -> Detection:
     q = dots.q_px[inside]
     order = np.argsort(ids)
     ids, q = ids[order], q[order]
-    from .detect import _homography_rms
 
     left = len(grid) - len(ids)
     method = "marker dots" + (f" ({left} beyond the spec's grid left out)" if left else "")
-    return Detection(True, ids, q, _homography_rms(target, ids, q), method=method)
+    return Detection(True, ids, q, homography_rms_px(target, ids, q), method=method)
 
 
 def check_marker_spec(target: Target, detections: list[Detection]) -> None:
