@@ -171,11 +171,6 @@ class SimCamera(Camera):
         # The background's mean DN and noise level (h, w) by (level, gain, DN per e-, read
         # noise^2): the same for every frame at one exposure.
         self._background: dict[tuple[float, ...], tuple[FloatArray32, FloatArray32]] = {}
-        # Whole frames of the background, exposed once per background (see _background_frame)
-        self._bank: dict[
-            int,
-            tuple[tuple[FloatArray32, FloatArray32], list[NDArray[np.unsignedinteger]]],
-        ] = {}
 
     def _blur_sigma(self, placement: Placement) -> float:
         f = self.formation
@@ -307,32 +302,6 @@ class SimCamera(Camera):
             self._background[key] = hit
         return hit
 
-    def _background_frame(
-        self, background: tuple[FloatArray32, FloatArray32], top: int
-    ) -> NDArray[np.unsignedinteger]:
-        """A frame of the background alone: one of :data:`BACKGROUND_FRAMES` frames exposed
-        from the noise pool at random offsets (drawn once per background), copied.
-
-        Quantising a whole frame of noise costs more than rendering the board; the region
-        the targets cover gets fresh noise in every frame all the same, and what lies
-        outside it (never read as a target) has the noise's distribution pixel by pixel.
-        """
-        key = id(background)
-        bank = self._bank.get(key)
-        if bank is None or bank[0] is not background:
-            dn0, spread0 = background
-            h, w = self._vignette.shape
-            frames = []
-            for _ in range(BACKGROUND_FRAMES):
-                start = int(self.rng.integers(0, h * w))
-                pool = self._pool[start : start + h * w].reshape(h, w)
-                frames.append(_quantise(dn0, cv2.multiply(spread0, pool), top, self.dtype))
-            if len(self._bank) >= 2:
-                self._bank.pop(next(iter(self._bank)))
-            bank = self._bank[key] = (background, frames)
-        frames = bank[1]
-        return frames[int(self.rng.integers(len(frames)))].copy()
-
     def _expose(
         self,
         patch: NDArray[np.float32] | None,
@@ -354,7 +323,8 @@ class SimCamera(Camera):
         start = int(self.rng.integers(0, h * w))
         pool = self._pool[start : start + h * w].reshape(h, w)
         if background is not None:
-            frame = self._background_frame(background, top)
+            dn0, spread0 = background
+            frame = _quantise(dn0, cv2.multiply(spread0, pool), top, self.dtype)
         else:
             frame = np.empty((h, w), dtype=self.dtype)
         if box is None or patch is None:
@@ -372,8 +342,6 @@ class SimCamera(Camera):
 
 FloatArray32 = NDArray[np.float32]
 Box = tuple[int, int, int, int]
-#: Frames of background noise exposed once per background, one copied per grab.
-BACKGROUND_FRAMES = 8
 
 
 def _bounding_box(boxes: list[Box]) -> Box:
