@@ -37,20 +37,26 @@ class PlanarNewton:
         Exponent of each input in each of the model's m terms (joints first).
     coef : (3, m) float
         The terms' coefficients per output axis.
+    R : (3, 3) float
+        The coefficients of the joints' linear terms: the start is ``R^-1 (p - offset(e))``,
+        the offset being the terms without joints, as the general path's.
     """
 
-    def __init__(self, exps: np.ndarray, coef: FloatArray) -> None:
+    def __init__(self, exps: np.ndarray, coef: FloatArray, R: FloatArray) -> None:
         self.k = exps.shape[1]
         self.max_exp = int(exps.max()) if exps.size else 0
-        self.exps = exps
+        self.exps = _factors(exps)
         self.coef = coef
-        self.rows = np.arange(self.k)[:, None]
-        self.deriv: list[tuple[np.ndarray, FloatArray]] = []
+        # the start: R^-1 (p - offset(e)), the offset from the terms without joints
+        self.R_inv = np.linalg.inv(R)
+        free = np.flatnonzero((exps[:, :3] == 0).all(axis=1))
+        self.free = (_factors(exps[free]), np.ascontiguousarray(coef[:, free]))
+        self.deriv: list[tuple[list[list[tuple[int, int]]], FloatArray]] = []
         for j in range(3):
             used = np.flatnonzero(exps[:, j] > 0)
             lowered = exps[used].copy()
             lowered[:, j] -= 1
-            self.deriv.append((lowered, coef[:, used] * exps[used, j]))
+            self.deriv.append((_factors(lowered), coef[:, used] * exps[used, j]))
 
     def _table(self, u: FloatArray) -> FloatArray:
         """Powers 0 .. max_exp of every input, (k, max_exp + 1, n), from u (k, n)."""
@@ -62,23 +68,35 @@ class PlanarNewton:
             np.multiply(T[:, e - 1], u, out=T[:, e])
         return T
 
-    def _eval(self, T: FloatArray, exps: np.ndarray, coef: FloatArray) -> FloatArray:
-        """``coef @ terms``, (3, n)."""
-        if exps.shape[0] == 0:
-            return np.zeros((3, T.shape[2]))
-        terms = T[self.rows, exps.T].prod(axis=0)
+    def _eval(
+        self, T: FloatArray, factors: list[list[tuple[int, int]]], coef: FloatArray
+    ) -> FloatArray:
+        """``coef @ terms``, (3, n): each term the product of its factors' rows of T."""
+        n = T.shape[2]
+        if not factors:
+            return np.zeros((3, n))
+        terms = np.empty((len(factors), n))
+        for row, term in zip(terms, factors, strict=True):
+            if not term:
+                row.fill(1.0)
+                continue
+            (i, q), *rest = term
+            row[...] = T[i, q]
+            for i, q in rest:
+                row *= T[i, q]
         out: FloatArray = coef @ terms
         return out
 
     def solve(
-        self, p: FloatArray, e: FloatArray, d: FloatArray, tol_um: float, max_iter: int
+        self, p: FloatArray, e: FloatArray, tol_um: float, max_iter: int
     ) -> tuple[FloatArray, FloatArray, int] | None:
         """Joints (3, n), residual norms (n,) and Newton iterations for targets ``p`` (3, n),
-        extra inputs ``e`` (k - 3, n), from ``d`` (3, n); None if a full step fails to lower
-        some target's residual (the general path then solves the chunk)."""
-        u = np.empty((self.k, p.shape[1]))
-        u[:3] = d
+        extra inputs ``e`` (k - 3, n), from the linear part's solution; None if a full step
+        fails to lower some target's residual (the general path then solves the chunk)."""
+        u = np.zeros((self.k, p.shape[1]))
         u[3:] = e
+        offset = self._eval(self._table(u), *self.free)
+        u[:3] = self.R_inv @ (p - offset)
         T = self._table(u)
         r = self._eval(T, self.exps, self.coef) - p
         norm = np.sqrt(np.einsum("ij,ij->j", r, r))
@@ -98,6 +116,11 @@ class PlanarNewton:
         if bool((norm > tol_um).any()):
             return None
         return u[:3].copy(), norm, iterations
+
+
+def _factors(exps: np.ndarray) -> list[list[tuple[int, int]]]:
+    """Each term (a row of exponents, (m, k)) as its (input, power) factors."""
+    return [[(i, int(q)) for i, q in enumerate(row) if q > 0] for row in exps.tolist()]
 
 
 def _cramer(j0: FloatArray, j1: FloatArray, j2: FloatArray, r: FloatArray) -> FloatArray:
@@ -122,8 +145,7 @@ def _cramer(j0: FloatArray, j1: FloatArray, j2: FloatArray, r: FloatArray) -> Fl
 class ScalarNewton:
     """Newton steps for one target in plain floating point (see the module docstring).
 
-    Parameters as :class:`PlanarNewton`, and ``R`` (3, 3), the coefficients of the joints'
-    linear terms (the start is ``R^-1 (p - offset(e))``, as the general path's).
+    Parameters as :class:`PlanarNewton`.
     """
 
     def __init__(self, exps: np.ndarray, coef: FloatArray, R: FloatArray) -> None:

@@ -175,7 +175,7 @@ class Compensator:
         self._planar: PlanarNewton | None = None
         self._scalar: ScalarNewton | None = None
         if isinstance(compiled, _Compiled) and bool(self._moving.all()) and not self._waves:
-            self._planar = PlanarNewton(compiled.exps, compiled.coef)
+            self._planar = PlanarNewton(compiled.exps, compiled.coef, self._R)
             self._scalar = ScalarNewton(compiled.exps, compiled.coef, self._R)
 
     def _step(self, J: FloatArray, r: FloatArray) -> FloatArray:
@@ -230,11 +230,10 @@ class Compensator:
             one = self._solve_one(p, e, tol_um, max_iter)
             if one is not None:
                 return one
-        d = self._start(p, e)
-        fast = self._solve_fast(p, e, d, tol_um, max_iter)
+        fast = self._solve_fast(p, e, tol_um, max_iter)
         if fast is not None:
             return fast
-        return self._solve_general(p, e, d, tol_um, max_iter)
+        return self._solve_general(p, e, self._start(p, e), tol_um, max_iter)
 
     def _solve_one(
         self, p: FloatArray, e: FloatArray, tol_um: float, max_iter: int
@@ -252,7 +251,7 @@ class Compensator:
         return Compensation(d, np.array([True]), np.array([res]), iterations, 0)
 
     def _solve_fast(
-        self, p: FloatArray, e: FloatArray, d: FloatArray, tol_um: float, max_iter: int
+        self, p: FloatArray, e: FloatArray, tol_um: float, max_iter: int
     ) -> Compensation | None:
         """The Newton steps of :meth:`solve` by the fast paths (:mod:`.compensator_paths`),
         None where the model has none; a chunk (or the one target) they give up on is
@@ -263,13 +262,16 @@ class Compensator:
         if n == 1:
             return None  # one target that the scalar path gave up on: the general path
         else:
-            d_out, norm = np.empty_like(d), np.empty(n)
+            d_out, norm = np.empty((n, 3)), np.empty(n)
             iterations, n_fallback = 0, 0
             for s in range(0, n, CHUNK):
                 part = slice(s, s + CHUNK)
-                got = self._planar.solve(p[part].T, e[part].T, d[part].T, tol_um, max_iter)
+                got = self._planar.solve(p[part].T, e[part].T, tol_um, max_iter)
                 if got is None:
-                    general = self._solve_general(p[part], e[part], d[part], tol_um, max_iter)
+                    start = self._start(p[part], e[part])
+                    general = self._solve_general(
+                        p[part], e[part], start, tol_um, max_iter, limits=False
+                    )
                     d_out[part], norm[part] = general.d_um, general.residual_um
                     iterations = max(iterations, general.iterations)
                     n_fallback += general.n_fallback
@@ -283,10 +285,17 @@ class Compensator:
         return out
 
     def _solve_general(
-        self, p: FloatArray, e: FloatArray, d: FloatArray, tol_um: float, max_iter: int
+        self,
+        p: FloatArray,
+        e: FloatArray,
+        d: FloatArray,
+        tol_um: float,
+        max_iter: int,
+        limits: bool = True,
     ) -> Compensation:
         """:meth:`solve`'s Newton steps for any model: backtracking, then a
-        Levenberg-Marquardt solve per target that still fails."""
+        Levenberg-Marquardt solve per target that still fails. ``limits``: check the
+        solutions against the soft limits (a chunk of a batch leaves it to the batch)."""
         compiled = self.model._compiled
 
         def residual(dd: FloatArray, ee: FloatArray, pp: FloatArray) -> FloatArray:
@@ -342,7 +351,7 @@ class Compensator:
             if res < norm[i]:
                 d[i], norm[i] = sol.x, res
         converged = norm <= tol_um
-        if self.limits_um is not None:
+        if limits and self.limits_um is not None:
             check_limits(d[converged], self.limits_um, row="target", targets_um=p[converged])
         return Compensation(d, converged, norm, iterations, n_fallback)
 
