@@ -11,6 +11,9 @@ Target specs are strings:
   pitch) numbered from FIRST (default 0). Boards whose markers' numbers do not overlap are
   told apart in one image: give each device of a station its own (``charuco:5x4:400:id0``,
   ``charuco:5x4:400:id10``).
+- ``tip[:KIND][:TAPER_DEG][:TIP_UM]``: not a board but a tool's tip (a pipette, a needle, a
+  gripper jaw; :mod:`microcal.vision.tip_target`); :func:`parse_spec` reads every kind,
+  :func:`parse_target` the boards alone.
 
 The target frame: x along the columns, y along the rows, z = 0 on the target; the first
 feature (inner corner or dot) is at the origin. On a chessboard the square between the first
@@ -29,8 +32,9 @@ import numpy as np
 
 from .._validation import FloatArray
 from ..errors import InputError
+from .tip_target import TipTarget, is_tip_spec, parse_tip
 
-__all__ = ["Target", "parse_target"]
+__all__ = ["Target", "parse_spec", "parse_target"]
 
 TargetKind = Literal["chessboard", "dotgrid", "charuco"]
 _SPEC = re.compile(
@@ -131,6 +135,11 @@ def parse_target(spec: str) -> Target:
         A one-line message with the expected form.
     """
     m = _SPEC.match(spec.strip())
+    if not m and is_tip_spec(spec):
+        raise InputError(
+            f"target {spec!r}: a tool's tip, not a board; this needs a board such as "
+            f"chessboard:4x3:400"
+        )
     if not m:
         raise InputError(
             f"target {spec!r}: expected KIND:COLSxROWS:PITCH_UM with KIND chessboard, dotgrid "
@@ -179,3 +188,15 @@ def parse_target(spec: str) -> Target:
                 f"{MARKERS - cols * rows // 2}"
             )
     return Target(kind, cols, rows, pitch, feature, first)  # type: ignore[arg-type]
+
+
+def parse_spec(spec: str) -> Target | TipTarget:
+    """Parse any target spec: a board (:func:`parse_target`) or a tool's tip
+    (:func:`~microcal.vision.tip_target.parse_tip`).
+
+    Raises
+    ------
+    InputError
+        A one-line message with the expected form.
+    """
+    return parse_tip(spec) if is_tip_spec(spec) else parse_target(spec)
