@@ -143,7 +143,7 @@ def test_the_reference_matches_the_tool_with_its_focus_and_an_uncertainty():
     frames = []
     for f in offsets:
         optics = Optics(NUMERICAL_APERTURE, focus_depth_um=1000.0 + f)
-        frame, truths = tool_image(population_camera(), ToolScene([moved], optics,
+        frame, _ = tool_image(population_camera(), ToolScene([moved], optics,
                                                                   scene.background), rng)  # fmt: skip
         frames.append(frame)
     anchor = detect_tip(frames[4], parse_tip(image.spec)).apex_px
