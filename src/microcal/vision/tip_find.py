@@ -110,9 +110,10 @@ def find_tool(gray: NDArray[np.float32]) -> ToolBlob | str:
     if not tools:
         return "no tool in view (nothing darker than the background reaches the image's edge)"
     if len(tools) > 1:
-        areas = sorted((int(stats[i, 4]) for i in tools), reverse=True)
-        if areas[1] > 0.1 * areas[0]:
-            return f"{len(tools)} tools in view: expected one"
+        big = [i for i in tools if max(int(stats[i, 2]), int(stats[i, 3])) >= 2 * MIN_LENGTH_PX
+               and int(stats[i, 4]) >= 60]  # fmt: skip
+        if len(big) > 1:
+            return f"{len(big)} tools in view: expected one"
         tools = [max(tools, key=lambda i: int(stats[i, 4]))]
     ys, xs = np.nonzero(labels == tools[0])
     pts = np.column_stack([xs, ys]).astype(np.float64)

@@ -6,8 +6,10 @@ place and the focus stepped through known offsets, the tip located in the frame 
 the model fit, averaged over frames at known offsets across the field), and a window around
 it cut from every frame. Matching a new image:
 
-- every template is correlated over the image (OpenCV's ``TM_CCOEFF_NORMED``); the best
-  template names the focus offset (interpolated between the neighbouring templates' scores);
+- every other template is correlated over the image at half its resolution (OpenCV's
+  ``TM_CCOEFF_NORMED``), which picks the template and the place; the best and its neighbours
+  are correlated again at full resolution around that place: the best names the focus offset
+  (interpolated between the neighbours' scores);
 - the peak is refined by Gauss-Newton on the shift, the template moved by bicubic
   interpolation and scaled in brightness and contrast to the image (least squares);
 - its covariance is the noise of that fit over the template's gradient energy,
@@ -117,9 +119,11 @@ def _refine(
         if not (pos[0] >= 0 and pos[0] + tw < w - 1 and pos[1] >= 0 and pos[1] + th < h - 1):
             return None
         patch = cv2.warpAffine(gray, M, (tw, th), flags=cv2.INTER_CUBIC | cv2.WARP_INVERSE_MAP)
-        A = np.column_stack([np.ones(template.size), template.ravel().astype(np.float64)])
-        (a, b), *_ = np.linalg.lstsq(A, patch.ravel().astype(np.float64), rcond=None)
-        r = patch.ravel() - (a + b * template.ravel())
+        tv, pv = template.ravel().astype(np.float64), patch.ravel().astype(np.float64)
+        tc = tv - tv.mean()
+        b = float(tc @ (pv - pv.mean())) / max(float(tc @ tc), 1e-12)
+        a = float(pv.mean()) - b * float(tv.mean())
+        r = pv - (a + b * tv)
         J = np.column_stack([b * gx.ravel(), b * gy.ravel()]).astype(np.float64)
         H = J.T @ J
         try:
@@ -158,36 +162,47 @@ def match_tip(
     K, th, tw = reference.templates.shape
     if gray.shape[0] <= th or gray.shape[1] <= tw:
         return TipDetection.none("the image is smaller than the reference's window", "reference")
-    scores = []
-    maps = []
-    for k in range(K):
-        res = cv2.matchTemplate(gray, reference.templates[k], cv2.TM_CCOEFF_NORMED)
-        maps.append(res)
-        scores.append(float(res.max()))
-    best = int(np.argmax(scores))
+    # Coarse: every template at half the resolution picks the focus and the place.
+    small = cv2.pyrDown(gray)
+    every = list(range(0, K, 2)) if K > 4 else list(range(K))
+    coarse = {k: cv2.matchTemplate(small, cv2.pyrDown(reference.templates[k]),
+                                   cv2.TM_CCOEFF_NORMED) for k in every}  # fmt: skip
+    best = max(coarse, key=lambda k: float(coarse[k].max()))
+    cmap = coarse[best]
+    cy, cx = np.unravel_index(int(np.argmax(cmap)), cmap.shape)
+    # A second peak as high, farther than two windows from the first: two tools.
+    far = cmap.copy()
+    far[max(cy - th, 0) : cy + th + 1, max(cx - tw, 0) : cx + tw + 1] = -1.0
+    # Fine: the neighbouring templates in full resolution around the coarse place.
+    h, w = gray.shape
+    m = 5
+    gx0, gy0 = max(2 * cx - m, 0), max(2 * cy - m, 0)
+    sub = gray[gy0 : min(2 * cy + th + m, h), gx0 : min(2 * cx + tw + m, w)]
+    picks = [k for k in (best - 1, best, best + 1) if 0 <= k < K]
+    fine = {k: cv2.matchTemplate(sub, reference.templates[k], cv2.TM_CCOEFF_NORMED) for k in picks}
+    scores = {k: float(v.max()) for k, v in fine.items()}
+    best = max(scores, key=lambda k: scores[k])
     score = scores[best]
     if score < min_score:
         return TipDetection.none(
             f"no tool like the reference in view (best correlation {score:.2f}, at least "
             f"{min_score:g})", "reference",
         )  # fmt: skip
-    res = maps[best]
-    iy, ix = np.unravel_index(int(np.argmax(res)), res.shape)
-    # A second peak as high, farther than a window from the first: two tools.
-    far = res.copy()
-    far[max(iy - th, 0) : iy + th, max(ix - tw, 0) : ix + tw] = -1.0
     if far.size and float(far.max()) > max(min_score, score - 0.1):
         return TipDetection.none("2 tools in view: expected one", "reference")
-    if ix in (0, res.shape[1] - 1) or iy in (0, res.shape[0] - 1):
+    res = fine[best]
+    iy, ix = np.unravel_index(int(np.argmax(res)), res.shape)
+    ix, iy = ix + gx0, iy + gy0
+    if ix <= 0 or iy <= 0 or ix >= w - tw or iy >= h - th:
         return TipDetection.none("the tip is out of the field (the match is at the edge)",
                                  "reference")  # fmt: skip
     refined = _refine(gray, reference.templates[best], np.array([ix, iy], dtype=np.float64))
-    if refined is None or float(np.hypot(*(refined[0] - (ix, iy)))) > 1.5:
+    if refined is None or float(np.hypot(*(refined[0] - (ix, iy)))) > 2.5:
         return TipDetection.none("the match did not settle to sub-pixel precision", "reference")
     corner, cov = refined
     cov = cov + np.eye(2) * reference.scatter_px**2
     focus = float(reference.focus_um[best])
-    if 0 < best < K - 1:  # the peak of a parabola through the neighbours' scores
+    if best - 1 in scores and best + 1 in scores:  # a parabola through the neighbours' scores
         s0, s1, s2 = scores[best - 1], score, scores[best + 1]
         denom = s0 - 2 * s1 + s2
         if denom < 0:
