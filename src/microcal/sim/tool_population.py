@@ -31,7 +31,7 @@ from .tools import (
     tool_image,
 )
 
-__all__ = ["PopulationImage", "draw_tool_image", "population_camera"]
+__all__ = ["Case", "PopulationImage", "draw_tool_image", "population_camera"]
 
 Case = Literal["tool", "none", "two", "outside"]
 #: The population's objective: numerical aperture and pixel in the object.

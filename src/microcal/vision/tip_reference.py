@@ -64,7 +64,7 @@ class TipReference:
 
 def build_reference(
     frames: Sequence[NDArray[np.generic]],
-    focus_um: Sequence[float],
+    focus_um: Sequence[float] | FloatArray,
     apex_px: FloatArray,
     *,
     half_px: int = 20,
@@ -169,7 +169,8 @@ def match_tip(
                                    cv2.TM_CCOEFF_NORMED) for k in every}  # fmt: skip
     best = max(coarse, key=lambda k: float(coarse[k].max()))
     cmap = coarse[best]
-    cy, cx = np.unravel_index(int(np.argmax(cmap)), cmap.shape)
+    peak = np.unravel_index(int(np.argmax(cmap)), cmap.shape)
+    cy, cx = int(peak[0]), int(peak[1])
     # A second peak as high, farther than two windows from the first: two tools.
     far = cmap.copy()
     far[max(cy - th, 0) : cy + th + 1, max(cx - tw, 0) : cx + tw + 1] = -1.0
@@ -191,8 +192,8 @@ def match_tip(
     if far.size and float(far.max()) > max(min_score, score - 0.1):
         return TipDetection.none("2 tools in view: expected one", "reference")
     res = fine[best]
-    iy, ix = np.unravel_index(int(np.argmax(res)), res.shape)
-    ix, iy = ix + gx0, iy + gy0
+    py, px = np.unravel_index(int(np.argmax(res)), res.shape)
+    ix, iy = int(px) + gx0, int(py) + gy0
     if ix <= 0 or iy <= 0 or ix >= w - tw or iy >= h - th:
         return TipDetection.none("the tip is out of the field (the match is at the edge)",
                                  "reference")  # fmt: skip
