@@ -17,12 +17,15 @@ from __future__ import annotations
 import argparse
 import time
 from collections import Counter
+from typing import Any
 
 import numpy as np
 
 from microcal.sim.tool_population import (
     NUMERICAL_APERTURE,
     UM_PER_PX,
+    Case,
+    PopulationImage,
     draw_tool_image,
     population_camera,
 )
@@ -34,7 +37,9 @@ from microcal.vision.tip_target import parse_tip
 KINDS = ("pipette", "needle", "jaw")
 
 
-def _reference_detect(seed: int, kind: str, focus_dof: float) -> tuple[TipDetection, object, float]:
+def _reference_detect(
+    seed: int, kind: str, focus_dof: float
+) -> tuple[TipDetection, PopulationImage, float]:
     image = draw_tool_image(seed, kind, focus_dof)
     placement = image.scene.placements[0]
     moved = ToolPlacement(placement.tool, placement.tip_um + [10.0, -6.0, 0.0], placement.axis)
@@ -55,7 +60,7 @@ def _reference_detect(seed: int, kind: str, focus_dof: float) -> tuple[TipDetect
     return det, image, time.perf_counter() - t0
 
 
-def _row(method: str, kind: str, focus: float, results: list) -> str:
+def _row(method: str, kind: str, focus: float, results: list[tuple[Any, Any, float]]) -> str:
     found = [(d, im) for d, im, _ in results if d.found]
     times = [t for *_, t in results]
     if not found:
@@ -107,9 +112,10 @@ def main() -> None:
             rows.append(_row("reference", kind, focus, results))
     refusals: Counter[str] = Counter()
     false_tips = 0
-    for case, n in (("none", args.empty), ("two", 20), ("outside", 20)):
+    cases: tuple[tuple[Case, int], ...] = (("none", args.empty), ("two", 20), ("outside", 20))
+    for case, n in cases:
         for i in range(n):
-            image = draw_tool_image(90_000 + i, KINDS[i % 3], 0.0, case)  # type: ignore[arg-type]
+            image = draw_tool_image(90_000 + i, KINDS[i % 3], 0.0, case)
             det = detect_tip(image.image, parse_tip(f"tip:{KINDS[i % 3]}"))
             if det.found:
                 false_tips += case == "none"
