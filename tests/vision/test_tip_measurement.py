@@ -65,3 +65,24 @@ def test_a_camera_without_the_tip_is_named_and_the_pose_fails_cleanly():
                     parse_tip("tip:needle"))  # fmt: skip
     assert m.status == "failed"
     assert "side: no tool in view" in m.reason
+
+
+def test_a_tool_leaving_the_field_mid_run_fails_that_pose_alone_with_its_reason():
+    from microcal.vision.measurement import measure_poses
+
+    rng = np.random.default_rng(8)
+    tips = [np.array([0.0, 0.0, 0.0]), np.array([300.0, 0.0, 0.0]), np.array([10.0, 5.0, 0.0])]
+    frames = {}
+    for k, tip in enumerate(tips):
+        placement = ToolPlacement(Tool("needle", taper_deg=12.0, tip_um=2.0), tip,
+                                  tool_axis(5.0, 200.0))  # fmt: skip
+        for cam in (TOP, SIDE):
+            optics = Optics(0.3, focus_depth_um=float(cam.depth_um(tip)[0]))
+            frames[k, cam.name] = [tool_image(cam, ToolScene([placement], optics), rng)[0]]
+    results = measure_poses([0, 1, 2], np.array(tips), lambda p, c: frames[p, c],
+                            {"top": TOP, "side": SIDE}, parse_tip("tip:needle:12"))  # fmt: skip
+    assert [m.status for m in results] == ["ok", "failed", "ok"]
+    assert "top: " in results[1].reason
+    assert "out of the field" in results[1].reason or "no tool" in results[1].reason
+    for m, tip in zip(results[::2], tips[::2], strict=True):
+        assert np.linalg.norm(m.p_um - tip) < 0.5
