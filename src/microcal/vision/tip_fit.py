@@ -54,6 +54,10 @@ def _blur_at(p: FloatArray, t: float) -> float:
 #: Radius around the first tip within which pixels are taken in parts, px.
 _PATCH_PX = 8.0
 
+#: The offsets of a pixel's 4 x 4 parts, (16, 2).
+_PARTS = np.array([(ox, oy) for oy in (-0.375, -0.125, 0.125, 0.375)
+                   for ox in (-0.375, -0.125, 0.125, 0.375)])  # fmt: skip
+
 #: Starts of the outline's fit (the best of a coarse grid that differ).
 _STARTS = 2
 
@@ -142,13 +146,10 @@ class _Model:
         # Around the end, where the outline bends within a pixel, each pixel is 4 x 4 parts.
         iy, ix = self.patch
         if iy.size:
-            parts = np.zeros(iy.size)
-            for oy in (-0.375, -0.125, 0.125, 0.375):
-                for ox in (-0.375, -0.125, 0.125, 0.375):
-                    ddx, ddy = dx[iy, ix] + ox, dy[iy, ix] + oy
-                    tt, xx = ddx * c + ddy * s, np.abs(ddy * c - ddx * s)
-                    parts += _cover(tt, xx, beta, rho, k, D, tc, 0.25)[0]
-            cover[iy, ix] = parts / 16.0
+            ddx = dx[iy, ix][:, None] + _PARTS[:, 0]
+            ddy = dy[iy, ix][:, None] + _PARTS[:, 1]
+            tt, xx = ddx * c + ddy * s, np.abs(ddy * c - ddx * s)
+            cover[iy, ix] = _cover(tt, xx, beta, rho, k, D, tc, 0.25)[0].mean(axis=1)
         floor = 0.3 + math.exp(np.clip(p[5], -8.0, 3.0))
         s0 = _blur_at(p, 0.0)
         layers = [cover]
@@ -283,7 +284,7 @@ def fit_tip(
         # along the fitted axis and fit again from the lowest point when it is lower.
         u = np.array([math.cos(fit.x[2]), math.sin(fit.x[2])])
         scan = []
-        for sft in np.arange(-3.0, 3.01, 0.25):
+        for sft in np.arange(-3.0, 3.01, 0.5):
             q = fit.x.copy()
             q[:2] += u * sft
             scan.append((float(np.sum(model.residuals(q) ** 2)), sft))
