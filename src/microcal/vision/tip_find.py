@@ -72,7 +72,7 @@ def background_light(gray: NDArray[np.float32]) -> NDArray[np.float32]:
     x = ((xx.ravel() + 0.5) * n) / w - 0.5
     y = ((yy.ravel() + 0.5) * n) / h - 0.5
     A = np.column_stack([np.ones_like(x), x, y, x * x, x * y, y * y])
-    keep = np.ones(level.size, dtype=bool)
+    keep = level >= np.median(level)  # a tool may cover half the field: start from the light half
     for _ in range(4):
         coef, *_ = np.linalg.lstsq(A[keep], level[keep], rcond=None)
         resid = level - A @ coef
