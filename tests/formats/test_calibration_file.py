@@ -169,3 +169,25 @@ def test_cameras_are_typed_models_and_a_malformed_one_fails_on_load(tmp_path, ca
     path.write_text(json.dumps(raw))
     with pytest.raises(FormatError, match=r"calibration.json.*side"):
         load_calibration(path)
+
+
+def test_a_tool_centre_is_carried_and_read_back(tmp_path, calibration):
+    from microcal.formats.calibration_file import tool_centre_of
+    from microcal.vision.tool_centre import fit_tool_centre
+
+    rng = np.random.default_rng(1)
+    board = rng.uniform(0, 8000, (6, 3))
+    tool = fit_tool_centre(board, board + [35.0, -12.0, 120.0] + rng.normal(0, 0.2, (6, 3)))
+    m = calibration.manipulator("m1")
+    with_tool = ManipulatorCalibration("m1", m.model, m.validation, {"tool_centre": tool.to_json()})
+    path = write_calibration(tmp_path / "c.json", Calibration({"m1": with_tool}))
+    back = tool_centre_of(load_calibration(path).manipulator("m1"))
+    assert back is not None
+    np.testing.assert_allclose(back.offset_um, tool.offset_um)
+    np.testing.assert_allclose(back.cov_um2, tool.cov_um2)
+    assert tool_centre_of(m) is None
+    raw = json.loads(path.read_text())
+    raw["manipulators"]["m1"]["tool_centre"]["cov_um2"][1][1] = -1.0
+    path.write_text(json.dumps(raw))
+    with pytest.raises(FormatError, match=r"manipulators.m1.tool_centre.cov_um2"):
+        load_calibration(path)

@@ -21,6 +21,7 @@ from .._validation import name_problem
 from ..errors import FormatError, InputError
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..kinematics.models import KinematicModel
+from ..vision.tool_centre import ToolCentre
 from .atomic import write_atomic, write_text_atomic
 from .hashing import sha256_file
 from .json_file import FileSchema, parse_schema, read_versioned_json
@@ -36,6 +37,7 @@ __all__ = [
     "export_mat",
     "load_calibration",
     "sha256_file",
+    "tool_centre_of",
     "write_calibration",
 ]
 
@@ -62,9 +64,17 @@ class _ValidationSchema(FileSchema):
     rms_um: float
 
 
+class _ToolCentreSchema(FileSchema):
+    offset_um: list[float] = Field(min_length=3, max_length=3)
+    cov_um2: list[list[float]] = Field(min_length=3, max_length=3)
+    rms_um: float = Field(ge=0)
+    poses: int = Field(ge=2)
+
+
 class _ManipulatorSchema(FileSchema):
     model: _ModelSchema
     validation: _ValidationSchema | None = None
+    tool_centre: _ToolCentreSchema | None = None
 
 
 class _CalibrationSchema(FileSchema):
@@ -166,12 +176,35 @@ def load_calibration(path: str | os.PathLike[str], *, link_ok: bool = True) -> C
         except FormatError as exc:
             raise FormatError(f"{p}: manipulators.{name}.{exc}") from None
         _check_validation(p, name, schema.manipulators[name].validation)
+        _check_tool_centre(p, name, schema.manipulators[name].tool_centre)
         extra = {k: v for k, v in data.items() if k not in ("model", "validation")}
         validation = data.get("validation") or {}
         manipulators[name] = ManipulatorCalibration(name, model, validation, extra)
     calibration = Calibration(manipulators, schema.cameras, schema.provenance, p)
     calibration.camera_models()  # a malformed camera fails here, naming the file
     return calibration
+
+
+def _check_tool_centre(path: Path, name: str, tool: _ToolCentreSchema | None) -> None:
+    """Refuse a tool-centre covariance that is not 3 x 3 with variances >= 0."""
+    if tool is None:
+        return
+    cov = tool.cov_um2
+    if any(len(row) != 3 for row in cov) or any(cov[i][i] < 0 for i in range(3)):
+        raise FormatError(
+            f"{path}: manipulators.{name}.tool_centre.cov_um2: expected 3 x 3 numbers with "
+            f"variances >= 0"
+        )
+
+
+def tool_centre_of(calibration: ManipulatorCalibration) -> ToolCentre | None:
+    """A manipulator's tool-centre point (the tip's offset in its board's frame), if any."""
+    entry = calibration.extra.get("tool_centre")
+    if not isinstance(entry, dict):
+        return None
+    return ToolCentre(np.asarray(entry["offset_um"], dtype=np.float64),
+                      np.asarray(entry["cov_um2"], dtype=np.float64),
+                      float(entry["rms_um"]), int(entry["poses"]))  # fmt: skip
 
 
 def _check_validation(path: Path, name: str, validation: _ValidationSchema | None) -> None:

@@ -28,6 +28,8 @@ from ..geometry import AnyCamera, CameraModelProtocol, triangulate_views
 from .detect import detect
 from .roi import RoiPredictor, box_around
 from .targets import Target
+from .tip_measurement import tip_of_frames
+from .tip_target import TipTarget
 from .virtual_point import virtual_point
 
 __all__ = ["PoseMeasurement", "measure_one", "measure_poses"]
@@ -56,9 +58,15 @@ class PoseMeasurement:
 
 
 def _vp_of_frames(
-    frames: Frames, target: Target, model: AnyCamera, roi: tuple[int, int, int, int] | None
+    frames: Frames,
+    target: Target | TipTarget,
+    model: AnyCamera,
+    roi: tuple[int, int, int, int] | None,
 ) -> tuple[FloatArray, FloatArray, FloatArray] | str:
-    """Virtual points (k, 2), their mean residual covariance (2, 2), and corners of frame 0."""
+    """Virtual points (k, 2), their mean residual covariance (2, 2), and corners of frame 0
+    (a tool's tip: its apexes, their covariance and the first apex)."""
+    if isinstance(target, TipTarget):
+        return tip_of_frames(frames, target, model, roi)
     vps, covs, corners0 = [], [], None
     for image in frames:
         if corners0 is not None:  # the board stays put during a pose: search around frame 0
@@ -113,7 +121,7 @@ def measure_poses(
     commands_um: FloatArray,
     load_frames: Callable[[int, str], Frames],
     cameras: Mapping[str, AnyCamera],
-    target: Target,
+    target: Target | TipTarget,
     *,
     progress: Callable[[int, int], None] | None = None,
     workers: int | None = 1,
@@ -134,8 +142,9 @@ def measure_poses(
         The frames of one pose from one camera; raise ``FormatError`` for a broken file.
     cameras : dict name -> camera model
         Two or more cameras in {G}, of any kind.
-    target : Target
-        The end-effector board.
+    target : Target or TipTarget
+        The end-effector board, or the tool whose tip is measured (its apex in each camera
+        triangulated as the board's virtual point is).
     progress : callable (done, total), optional
         Counts a camera's frames of a pose at a time (total: poses x cameras).
     workers : int or None
@@ -184,7 +193,7 @@ def _camera_track(
     load_frames: Callable[[int, str], Frames],
     camera: AnyCamera,
     name: str,
-    target: Target,
+    target: Target | TipTarget,
     tick: Callable[[], None],
 ) -> list[Seen]:
     """One camera's view of every pose, in order (where it finds the board is predicted
@@ -267,7 +276,7 @@ def _triangulate(
 def measure_one(
     frames: Mapping[str, Frames],
     cameras: Mapping[str, AnyCamera],
-    target: Target,
+    target: Target | TipTarget,
     rois: dict[str, tuple[int, int, int, int] | None] | None = None,
     frame_cov_px2: dict[str, FloatArray] | None = None,
 ) -> PoseMeasurement:

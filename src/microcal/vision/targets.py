@@ -18,6 +18,9 @@ Target specs are strings:
   that no turn of the slide maps them onto themselves (an L with arms of different lengths:
   ``dotgrid:16x14:3500:1750:markers=4,8/9,8/4,5``). Dots found beyond the COLS x ROWS grid
   are left out; give the grid of the whole slide, or of the part that may be seen.
+- ``tip[:KIND][:TAPER_DEG][:TIP_UM]``: not a board but a tool's tip (a pipette, a needle, a
+  gripper jaw; :mod:`microcal.vision.tip_target`); :func:`parse_spec` reads every kind,
+  :func:`parse_target` the boards alone.
 
 The target frame: x along the columns, y along the rows, z = 0 on the target; the first
 feature (inner corner or dot) is at the origin. On a chessboard the square between the first
@@ -36,8 +39,9 @@ import numpy as np
 
 from .._validation import FloatArray
 from ..errors import InputError
+from .tip_target import TipTarget, is_tip_spec, parse_tip
 
-__all__ = ["Target", "parse_target"]
+__all__ = ["Target", "parse_spec", "parse_target"]
 
 TargetKind = Literal["chessboard", "dotgrid", "charuco"]
 _SPEC = re.compile(
@@ -205,6 +209,11 @@ def parse_target(spec: str) -> Target:
         A one-line message with the expected form.
     """
     m = _SPEC.match(spec.strip())
+    if not m and is_tip_spec(spec):
+        raise InputError(
+            f"target {spec!r}: a tool's tip, not a board; this needs a board such as "
+            f"chessboard:4x3:400"
+        )
     if not m:
         raise InputError(
             f"target {spec!r}: expected KIND:COLSxROWS:PITCH_UM with KIND chessboard, dotgrid "
@@ -261,3 +270,15 @@ def parse_target(spec: str) -> Target:
             )
         markers = _parse_markers(spec, m.group(7), cols, rows)
     return Target(kind, cols, rows, pitch, feature, first, markers)  # type: ignore[arg-type]
+
+
+def parse_spec(spec: str) -> Target | TipTarget:
+    """Parse any target spec: a board (:func:`parse_target`) or a tool's tip
+    (:func:`~microcal.vision.tip_target.parse_tip`).
+
+    Raises
+    ------
+    InputError
+        A one-line message with the expected form.
+    """
+    return parse_tip(spec) if is_tip_spec(spec) else parse_target(spec)
