@@ -26,7 +26,8 @@ from microcal.vision.targets import parse_target
 #: The slide's spec: 13 x 11 dots of 3.5 mm (all that any view shows), hollow dots at (3, 7),
 #: 5 dots to its right and 3 above it.
 SPEC = "dotgrid:13x11:3500:1400:markers=3,7/8,7/3,4"
-LENS = "radial2-tangential"
+#: The lens model (--lens-model NAME): the default, as a user gets it.
+LENS = "auto"
 SIZE = (2448, 2048)
 
 
@@ -113,6 +114,9 @@ def main() -> None:
     n_views = 14
     if "--views" in sys.argv:
         n_views = int(sys.argv[sys.argv.index("--views") + 1])
+    global LENS
+    if "--lens-model" in sys.argv:
+        LENS = sys.argv[sys.argv.index("--lens-model") + 1]
     from microcal.workflows.stereo import stereo_calibrate_images
 
     with tempfile.TemporaryDirectory() as tmp:

@@ -55,8 +55,7 @@ def calibrated(tmp_path_factory):
             SPEC,
             [f"left={folder}/CalB-sys2-*_0.jpeg", f"right={folder}/CalB-sys2-*_1.jpeg"],
             out,
-            lens_model="radial2-tangential",
-        )
+        )  # the automatic lens choice, as a user gets it
     target = parse_target(SPEC)
     assert len(seen) == 2 * len(VIEWS)  # camera by camera, views in order
     images = {(v, s): seen[s * len(VIEWS) + k][0] for k, v in enumerate(VIEWS) for s in (0, 1)}

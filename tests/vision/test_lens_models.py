@@ -70,3 +70,29 @@ def test_radial2_fixes_the_terms_it_leaves_out(mono_views):
     assert (p1, p2, k3) == (0.0, 0.0, 0.0)  # fixed by the flags: exactly zero
     assert k1 != 0.0
     assert k2 != 0.0
+
+
+def test_a_refused_guessed_start_is_fitted_from_opencvs_own(mono_views, monkeypatch):
+    """Where OpenCV refuses a richer model's fit started from the simpler one's intrinsics
+    (as on nearly frontal views: "principal point must be within the image"), the ladder
+    fits that model from OpenCV's own start instead of stopping below it."""
+    from microcal.errors import DegenerateDataError
+    from microcal.vision import lens_models
+
+    obj, img, size = mono_views
+    models = tuple(lens_model(n) for n in ("radial1", "radial2", "radial2-tangential"))
+    plain = lens_models.fit_camera
+
+    def refusing(*args, guess=None, **kwargs):
+        if guess is not None:
+            raise DegenerateDataError("OpenCV refused the guessed start")
+        return plain(*args, **kwargs)
+
+    expected = choose_lens_model(obj, img, size, models=models)
+    monkeypatch.setattr(lens_models, "fit_camera", refusing)
+    choice = choose_lens_model(obj, img, size, models=models)
+    # every model of the ladder was fitted and judged, as without the refusals
+    assert [c["name"] for c in choice.candidates] == [m.name for m in models]
+    assert all(c["held_out_rms_px"] is not None for c in choice.candidates)
+    assert "ladder stopped" not in choice.reason
+    assert choice.fit.model.name == expected.fit.model.name

@@ -258,6 +258,24 @@ def fit_camera(
     )
 
 
+def _fit_from_guess(
+    object_points: Sequence[FloatArray],
+    image_points: Sequence[FloatArray],
+    size: tuple[int, int],
+    model: LensModel,
+    guess: tuple[FloatArray, FloatArray] | None,
+) -> MonoFit:
+    """:func:`fit_camera` started from ``guess`` (the simpler model's intrinsics), and from
+    OpenCV's own start where that start is refused (OpenCV rejects a guessed principal point
+    it judges outside the image, where a fit from scratch succeeds)."""
+    try:
+        return fit_camera(object_points, image_points, size, model, guess=guess)
+    except DegenerateDataError:
+        if guess is None:
+            raise
+    return fit_camera(object_points, image_points, size, model)
+
+
 def field_of_view_deg(K: FloatArray, size: tuple[int, int]) -> float:
     """Diagonal field of view of a pinhole camera, degrees."""
     w, h = size
@@ -289,8 +307,8 @@ class _Folds:
         for f, test in enumerate(self.tests):
             train = [i for i in range(n) if i not in test]
             try:
-                fit = fit_camera([self.obj[i] for i in train], [self.img[i] for i in train],
-                                 self.size, model, guess=self.guesses[f])  # fmt: skip
+                fit = _fit_from_guess([self.obj[i] for i in train], [self.img[i] for i in train],
+                                      self.size, model, self.guesses[f])  # fmt: skip
             except DegenerateDataError:
                 return None
             self.guesses[f] = (fit.K, fit.dist)
@@ -406,8 +424,8 @@ def choose_lens_model(
             fit = (
                 first
                 if not fits
-                else fit_camera(
-                    object_points, image_points, size, model, guess=(fits[-1].K, fits[-1].dist)
+                else _fit_from_guess(
+                    object_points, image_points, size, model, (fits[-1].K, fits[-1].dist)
                 )
             )
         except DegenerateDataError:
