@@ -133,3 +133,81 @@ def test_board_spec_round_trips_and_is_checked():
     ]:
         with pytest.raises(InputError, match=words):
             parse_target(spec)
+
+
+#: A board larger than both thesis cameras' crops (500 µm squares, about 22 px), its circles
+#: near its middle.
+PAIR_BOARD = "chessboard:60x50:500:markers=30,25/30,26/31,26"
+#: Each camera's crop (x0, y0, x1, y1) about where both optical axes pass nearest.
+PAIR_BOXES = {"side": (364, 336, 864, 736), "top": (575, 430, 1075, 830)}
+#: Views: (tilt about the board's x and y axes and in-plane turn, rad; shift in the board's
+#: plane, µm).
+PAIR_VIEWS = [
+    ((0.0, 0.0, 0.05), (0.0, 0.0)),
+    ((0.12, 0.0, 0.3), (300.0, -200.0)),
+    ((-0.12, 0.05, -0.2), (-300.0, 200.0)),
+    ((0.05, 0.12, 0.1), (200.0, 300.0)),
+    ((-0.08, -0.08, -0.15), (-200.0, -300.0)),
+    ((0.1, -0.1, 0.2), (0.0, 400.0)),
+]
+
+
+def _pair_placements(cams, target):
+    """Placements seen by both thesis cameras: the board faces the two, its corner marker's
+    square near the point where their optical axes pass nearest."""
+    rays = []
+    for cam in cams.values():
+        rays.append((-cam.R.T @ cam.t_um, cam.R.T @ np.array([0.0, 0.0, 1.0])))
+    (o1, d1), (o2, d2) = rays
+    s = np.linalg.lstsq(np.column_stack([d1, -d2]), o2 - o1, rcond=None)[0]
+    meet = 0.5 * (o1 + s[0] * d1 + o2 + s[1] * d2)
+    z = (d1 + d2) / np.linalg.norm(d1 + d2)  # the board's +z points away from the cameras
+    x = np.array([1.0, 0.0, 0.0]) - z[0] * z
+    x /= np.linalg.norm(x)
+    base = np.column_stack([x, np.cross(z, x), z])
+    out = []
+    for (ax, ay, az), shift in PAIR_VIEWS:
+        R = base @ _rot((ax, ay, 0.0)) @ _rot((0.0, 0.0, az))
+        centre = _marker_um(target) + np.array([*shift, 0.0])
+        out.append(Placement(target, R, meet - R @ centre))
+    return out
+
+
+def _write_pair(tmp_path, target, rng):
+    cams = sim.platform("thesis", seed=0).camera_models
+    for i, placement in enumerate(_pair_placements(cams, target)):
+        for name, cam in cams.items():
+            image = _image(cam, placement, rng, box=PAIR_BOXES[name], frames=4)
+            x0, y0, x1, y1 = PAIR_BOXES[name]
+            crop = np.clip(np.rint(image[y0:y1, x0:x1]), 0, 255).astype(np.uint8)
+            cv2.imwrite(str(tmp_path / f"{name}_{i}.png"), crop)
+    return cams
+
+
+def test_partial_board_views_calibrate_the_thesis_cameras_and_a_wrong_spec_is_refused(tmp_path):
+    from microcal.workflows.stereo import stereo_calibrate_images
+
+    rng = np.random.default_rng(7)
+    target = parse_target(PAIR_BOARD)
+    cams = _write_pair(tmp_path, target, rng)
+    images = [f"{name}={tmp_path}/{name}_*.png" for name in cams]
+    # a spec whose circles sit one square off: the marker squares' colours contradict it
+    wrong = "chessboard:60x50:500:markers=31,25/31,26/32,26"
+    refused = tmp_path / "refused.json"
+    with pytest.raises(InputError) as err:
+        stereo_calibrate_images(wrong, images, refused)
+    assert "\n" not in str(err.value)
+    assert "do not match the spec's markers" in str(err.value)
+    assert not refused.exists()
+
+    out = tmp_path / "cameras.json"
+    cal = stereo_calibrate_images(PAIR_BOARD, images, out, lens_model="radial1")
+    assert out.exists()
+    for name, cam in cams.items():
+        assert cal.cameras[name].views_used == len(PAIR_VIEWS)
+        K = cal.cameras[name].model.K
+        # Metric: the focal length (px) against the true camera's, relative (the principal
+        # point is left alone: 500 x 400 px of a lens of 12800-14900 px fix it loosely)
+        assert abs(K[0, 0] / cam.K[0, 0] - 1.0) < 0.02, name
+    # Metric: the stereo RMS reprojection error, px
+    assert cal.rms_px < 0.1
