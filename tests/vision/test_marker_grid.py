@@ -158,7 +158,7 @@ def test_slide_spec_round_trips_and_is_checked():
         ("dotgrid:10x8:3500:markers=2,2/12,2/2,5", "outside the 10x8 grid"),
         ("dotgrid:10x8:3500:markers=2,2/2,2/2,5", "given twice"),
         ("dotgrid:10x8:3500:markers=2;2", "expected markers=C,R/C,R"),
-        ("chessboard:9x6:400:markers=2,2/7,2/2,5", "only a dot grid"),
+        ("chessboard:9x6:400:markers=2,2/7,2/2,5", "an L of neighbouring squares"),
     ]:
         with pytest.raises(InputError, match=words):
             parse_target(spec)

@@ -16,6 +16,9 @@ pixel positions with sub-pixel accuracy and a quality figure; or, when there is 
 - Dot grid with marker dots (a slide that overfills the field): any part of the grid,
   numbered from its hollow dots (:mod:`~microcal.vision.marker_grid`), centres corrected for
   perspective (:mod:`~microcal.vision.dot_centres`).
+- Chessboard with marker circles (a board that overfills the field): any part of the board,
+  numbered from its three circles (:mod:`~microcal.vision.chessboard_markers`), corners
+  refined as a chessboard's.
 - ChArUco: OpenCV's ChArUco detector; ids are OpenCV's corner ids; the corners refined as
   a chessboard's (those found, each by its own neighbours' spacing).
 
@@ -34,6 +37,7 @@ from numpy.typing import NDArray
 from .._validation import FloatArray
 from ..errors import InputError
 from .board_symmetry import turn_ids
+from .chessboard_markers import detect_marker_chessboard
 from .corner_refinement import WINDOW_FRACTIONS, refine_corners, refine_grid_corners
 from .detection import Detection
 from .detection import homography_rms_px as _homography_rms
@@ -471,7 +475,9 @@ def detect(
     if bad:
         where = "region of interest" if roi is not None else "image"
         return Detection.none(f"the {where} has {bad} NaN or infinite pixels")
-    if target.kind == "chessboard":
+    if target.kind == "chessboard" and target.markers:
+        det = detect_marker_chessboard(gray, _to_uint8(gray), target)
+    elif target.kind == "chessboard":
         det = _detect_chessboard_coarse_to_fine(gray, target)
     elif target.kind == "dotgrid" and target.markers:
         det = detect_marker_grid(gray, target)

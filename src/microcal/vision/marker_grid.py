@@ -446,7 +446,8 @@ def detect_marker_grid(gray: NDArray[np.float32], target: Target) -> Detection:
 
 
 def check_marker_spec(target: Target, detections: list[Detection]) -> None:
-    """Refuse a marker spec that the slide contradicts in most views where markers are seen.
+    """Refuse a marker spec that the slide (dot grid or chessboard) contradicts in most views
+    where markers are seen.
 
     Parameters
     ----------
@@ -462,7 +463,10 @@ def check_marker_spec(target: Target, detections: list[Detection]) -> None:
     """
     if not target.markers:
         return
-    mismatches = [d.reason for d in detections if d.reason.startswith(MISMATCH_PREFIX)]
+    from .chessboard_markers import MISMATCH_PREFIX as CIRCLES_MISMATCH
+
+    prefixes = (MISMATCH_PREFIX, CIRCLES_MISMATCH)
+    mismatches = [d.reason for d in detections if d.reason.startswith(prefixes)]
     numbered = sum(d.found for d in detections)
     if mismatches and len(mismatches) >= numbered:
         raise InputError(

@@ -18,6 +18,14 @@ Target specs are strings:
   that no turn of the slide maps them onto themselves (an L with arms of different lengths:
   ``dotgrid:16x14:3500:1750:markers=4,8/9,8/4,5``). Dots found beyond the COLS x ROWS grid
   are left out; give the grid of the whole slide, or of the part that may be seen.
+- ``chessboard:COLSxROWS:PITCH_UM:markers=C,R/C,R/C,R``: a chessboard of which any part may
+  be in view, numbered from three circles printed inside squares (dark circles in light
+  squares, light in dark; OpenCV's calibration pattern generator's "radon checkerboard"). The
+  markers are given by their squares' (column, row) among the board's (COLS + 1) x (ROWS + 1)
+  squares, counted from 0 at the top-left (border) square; square (C, R) lies between inner
+  corners (C - 1, R - 1) and (C, R). They must be an L of neighbouring inner squares (a square
+  and one neighbour along each axis: ``chessboard:30x24:250:markers=15,12/15,13/16,13``), the
+  layout OpenCV's sector-based finder numbers a board from.
 - ``tip[:KIND][:TAPER_DEG][:TIP_UM]``: not a board but a tool's tip (a pipette, a needle, a
   gripper jaw; :mod:`microcal.vision.tip_target`); :func:`parse_spec` reads every kind,
   :func:`parse_target` the boards alone.
@@ -196,6 +204,52 @@ def _parse_markers(spec: str, text: str, cols: int, rows: int) -> tuple[tuple[in
     return tuple(out)
 
 
+def _parse_square_markers(
+    spec: str, text: str, cols: int, rows: int
+) -> tuple[tuple[int, int], ...]:
+    """A chessboard's three marker circles: (column, row) of their squares, an L of
+    neighbouring squares (the layout OpenCV's sector-based finder numbers a board from)."""
+    example = "markers=4,3/4,4/5,4"
+    out: list[tuple[int, int]] = []
+    for item in (t.strip() for t in text.split("/")):
+        m = re.fullmatch(r"(\d+),(\d+)", item)
+        if not m:
+            raise InputError(
+                f"target {spec!r}: expected markers=C,R/C,R/C,R (column, row of each square "
+                f"with a circle, from 0), e.g. {example}; got {item!r}"
+            )
+        c, r = int(m.group(1)), int(m.group(2))
+        if not (1 <= c <= cols - 1 and 1 <= r <= rows - 1):
+            raise InputError(
+                f"target {spec!r}: marker square {c},{r} is outside the board's inner squares "
+                f"(columns 1-{cols - 1}, rows 1-{rows - 1} of its {cols + 1}x{rows + 1} squares)"
+            )
+        out.append((c, r))
+    if len(set(out)) != len(out):
+        raise InputError(f"target {spec!r}: a marker square is given twice")
+    if len(out) != 3:
+        raise InputError(
+            f"target {spec!r}: a chessboard takes exactly 3 marker circles (OpenCV's layout), "
+            f"got {len(out)}, e.g. {example}"
+        )
+    if _l_corner(tuple(out)) is None:
+        raise InputError(
+            f"target {spec!r}: OpenCV numbers a chessboard from 3 circles in an L of "
+            f"neighbouring squares (a square and one neighbour along each axis), e.g. {example}"
+        )
+    return tuple(out)
+
+
+def _l_corner(markers: tuple[tuple[int, int], ...]) -> tuple[int, int] | None:
+    """The square of an L of three neighbouring squares that touches both others (None
+    when the three are not such an L)."""
+    for c, r in markers:
+        others = [(a - c, b - r) for a, b in markers if (a, b) != (c, r)]
+        if len(others) == 2 and sorted(abs(a) + 2 * abs(b) for a, b in others) == [1, 2]:
+            return (c, r)
+    return None
+
+
 #: More features than this is a typing slip, not a target (a 1000 x 1000 dot grid).
 MAX_FEATURES = 1_000_000
 
@@ -264,11 +318,15 @@ def parse_target(spec: str) -> Target:
             )
     markers: tuple[tuple[int, int], ...] = ()
     if m.group(7) is not None:
-        if kind != "dotgrid":
+        if kind == "charuco":
             raise InputError(
-                f"target {spec!r}: only a dot grid carries hollow marker dots (markers=...)"
+                f"target {spec!r}: a charuco board is numbered by its own codes; markers=... "
+                f"is for a dot grid's hollow dots or a chessboard's circles"
             )
-        markers = _parse_markers(spec, m.group(7), cols, rows)
+        if kind == "chessboard":
+            markers = _parse_square_markers(spec, m.group(7), cols, rows)
+        else:
+            markers = _parse_markers(spec, m.group(7), cols, rows)
     return Target(kind, cols, rows, pitch, feature, first, markers)  # type: ignore[arg-type]
 
 
