@@ -502,8 +502,6 @@ def stereo_cases() -> list[Case]:
         Case(s + "images-empty-camera-name", lambda w: _stereo(w, left=f"={w / 'cal'}/left_*.png"), "CAMERA=GLOB"),
         Case(s + "images-empty-glob", lambda w: _stereo(w, left="left="), "CAMERA=GLOB"),
         Case(s + "images-camera-given-twice", lambda w: _stereo(w, right=f"left={w / 'cal'}/right_*.png"), "left"),
-        Case(s + "images-one-camera",
-             lambda w: [*_stereo(w)[:5], "--out", str(w / "cameras.json")], "--images"),
         Case(s + "images-three-cameras-one-short",
              lambda w: _stereo(w, "--images", f"third={w / 'cal'}/left_0[1-9].png"), "one image per view"),
         Case(s + "images-glob-matches-nothing", lambda w: _stereo(w, left=f"left={w.root}/nothing_*.png"), "nothing_"),

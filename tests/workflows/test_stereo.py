@@ -260,6 +260,9 @@ def test_one_camera_alone_calibrates_through_calibrate_cameras(rendered_pair, tm
     assert run.returncode == 0, run.stderr
     assert "lens model of left" in run.stdout
     assert "held-out views" in run.stdout
+    assert "one camera, RMS" in run.stdout
+    assert "baseline" not in run.stdout  # no second camera
+    assert "stereo RMS" not in run.stdout
     data = json.loads(out.read_text())
     assert list(data["cameras"]) == ["left"]
     left = data["cameras"]["left"]

@@ -568,6 +568,9 @@ def stereo_lines(calibration: StereoCalibration, out: Path) -> list[TextTable | 
     lines += model_choice_lines(calibration)
     lines += [f"warning: {n}" for n in calibration.notes]
     lines += consistency_lines(calibration.consistency)
+    if len(calibration.cameras) == 1:
+        lines.append(f"one camera, RMS {calibration.rms_px:.4f} px; wrote {out}")
+        return lines
     baseline = calibration.baseline_um
     lines.append(
         (f"baseline {baseline:.0f} µm; " if np.isfinite(baseline) else "")
