@@ -65,12 +65,28 @@ class _SharedTip:
                 self.mover.close()
 
 
-class TipXYStage(XYStageDevice):
-    """x and y of the tip in {G}, µm."""
+class _TipDevice:
+    """What both stages do alike: the shared tip's motion state, stop, no home, release."""
 
     def __init__(self, shared: _SharedTip) -> None:
         super().__init__()
         self._tip = shared
+
+    def busy(self) -> bool:
+        return self._tip.mover.busy()
+
+    def stop(self) -> None:
+        self._tip.mover.stop()
+
+    def home(self) -> None:
+        raise NotImplementedError("the calibrated tip has no home; set a position in {G}")
+
+    def shutdown(self) -> None:
+        self._tip.release()
+
+
+class TipXYStage(_TipDevice, XYStageDevice):
+    """x and y of the tip in {G}, µm."""
 
     def set_position_um(self, x: float, y: float) -> None:
         self._tip.go(slice(0, 2), [float(x), float(y)])
@@ -79,31 +95,15 @@ class TipXYStage(XYStageDevice):
         p = self._tip.mover.tip_um()
         return float(p[0]), float(p[1])
 
-    def busy(self) -> bool:
-        return self._tip.mover.busy()
-
-    def stop(self) -> None:
-        self._tip.mover.stop()
-
-    def home(self) -> None:
-        raise NotImplementedError("the calibrated tip has no home; set a position in {G}")
-
     def set_origin_x(self) -> None:
         raise NotImplementedError("the calibrated tip's origin is {G}'s; it cannot be moved")
 
     def set_origin_y(self) -> None:
         raise NotImplementedError("the calibrated tip's origin is {G}'s; it cannot be moved")
 
-    def shutdown(self) -> None:
-        self._tip.release()
 
-
-class TipZStage(StageDevice):
+class TipZStage(_TipDevice, StageDevice):
     """z of the tip in {G}, µm."""
-
-    def __init__(self, shared: _SharedTip) -> None:
-        super().__init__()
-        self._tip = shared
 
     def set_position_um(self, val: float) -> None:
         self._tip.go(slice(2, 3), [float(val)])
@@ -111,20 +111,8 @@ class TipZStage(StageDevice):
     def get_position_um(self) -> float:
         return float(self._tip.mover.tip_um()[2])
 
-    def busy(self) -> bool:
-        return self._tip.mover.busy()
-
-    def stop(self) -> None:
-        self._tip.mover.stop()
-
-    def home(self) -> None:
-        raise NotImplementedError("the calibrated tip has no home; set a position in {G}")
-
     def set_origin(self) -> None:
         raise NotImplementedError("the calibrated tip's origin is {G}'s; it cannot be moved")
-
-    def shutdown(self) -> None:
-        self._tip.release()
 
 
 def register_tip_stage(
