@@ -23,6 +23,8 @@ PYTHON_VERSION := $(if $(PYTHON),$(shell $(PYTHON) $(PYTHON_PROBE) 2>/dev/null))
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 JOBS   ?= auto
+# which tests `make test` runs (pytest -m): CI's second Python leaves out the slow ones too
+MARKS  ?= not docs_long
 # extras to install: dev (tests, lint); CI adds hardware-test (drivers and peers) and docs
 EXTRAS ?= dev
 comma  := ,
@@ -60,7 +62,7 @@ demo: $(STAMP)  ## run the calibration demo on the simulated platform
 	$(BIN)/microcal demo
 
 test: $(STAMP)  ## run the test suite (the long documentation examples: make test-docs)
-	$(BIN)/python -m pytest -n $(JOBS) -q -m "not docs_long"
+	$(BIN)/python -m pytest -n $(JOBS) -q -m "$(MARKS)"
 
 test-docs: $(STAMP)  ## run the documentation examples that take minutes (whole calibrations)
 	$(BIN)/python -m pytest -n $(JOBS) -q -m docs_long tests/docs

@@ -64,6 +64,7 @@ def calibrated(tmp_path_factory):
     return cal, out, target, images, dets
 
 
+@pytest.mark.slow
 def test_the_partial_grids_calibrate_a_stereo_pair_below_a_third_of_a_pixel(calibrated):
     cal, out, _, _, dets = calibrated
     assert out.is_file()
@@ -77,6 +78,7 @@ def test_the_partial_grids_calibrate_a_stereo_pair_below_a_third_of_a_pixel(cali
     assert any("measured" in n for n in cal.notes)
 
 
+@pytest.mark.slow
 def test_the_triangulated_pitch_is_the_slides_along_both_axes(calibrated):
     cal, _, target, _, dets = calibrated
     left, right = cal.cameras["left"].model, cal.cameras["right"].model
@@ -111,6 +113,7 @@ def _opencv_centres(gray: np.ndarray, det: Detection) -> Detection:
     return Detection(True, det.ids[ok], pts[nearest[ok]])
 
 
+@pytest.mark.slow
 def test_microcal_is_at_least_as_good_as_opencv_given_the_same_dots(calibrated):
     """OpenCV cannot find a partial grid; it is given microcal's numbering with its own blob
     centres, and its best of calibrateCamera / calibrateCameraRO (which also refines the
