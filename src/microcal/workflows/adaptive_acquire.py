@@ -213,7 +213,8 @@ def run_adaptive_acquire(request: Any) -> Iterator[str]:
     with open_rig(spec, options["manipulator"]) as opened:
         design = BatchedDesign(options, opened.manipulator.limits_um)
         out.mkdir(parents=True, exist_ok=True)
-        if not (out / ADAPTIVE_FILE).is_file():
+        if "workspace_um" not in options:  # the workspace the design covers: the limits
+            options["workspace_um"] = np.asarray(opened.manipulator.limits_um).tolist()
             write_text_atomic(out / ADAPTIVE_FILE, json.dumps(options, indent=1) + "\n")
         with run_lock(out, "acquire"):
             measured = Measured.empty()
@@ -228,7 +229,20 @@ def run_adaptive_acquire(request: Any) -> Iterator[str]:
                 if step.stop:
                     break
                 plan, index = step.next_um, index + 1
+            yield from _finish(out, options)
     yield f"adaptive run in {out}: {len(measured)} poses in {index + 1} batches ({step.reason})"
+
+
+def _finish(out: Path, options: dict[str, Any]) -> Iterator[str]:
+    """Every pose in ``RUN/measurements.csv`` and the design's calibration of them in
+    ``RUN/calibration.json`` (:mod:`~microcal.workflows.adaptive_fit`)."""
+    from .adaptive_fit import fit_adaptive_run, merge_measurements, predicted_line
+
+    merged = merge_measurements(out)
+    target = out / "calibration.json"
+    _, entry, _, poses, _ = fit_adaptive_run(out, target, Path(options["cameras"]))
+    yield (f"wrote {merged} ({len(poses)} poses) and {target}: {predicted_line(entry)}; "
+           f"microcal fit {out} --out OTHER.json fits it again")  # fmt: skip
 
 
 def _acquire_batch(
