@@ -112,6 +112,8 @@ class AdaptiveSettings:
     grid_per_axis: int = 7
     near_share: float = 0.8
     seed: int = 0
+    boundary_grid: int = 0
+    exchange: int = 0
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.until_um) and self.until_um > 0):
@@ -148,7 +150,15 @@ def candidate_joints_um(
     settings: AdaptiveSettings, low_um: FloatArray, high_um: FloatArray
 ) -> FloatArray:
     """The joints every next pose is chosen among, (candidates, 3) µm."""
-    return _sobol(settings.candidates, low_um, high_um, settings.seed + 1)
+    sobol = _sobol(settings.candidates, low_um, high_um, settings.seed + 1)
+    k = settings.boundary_grid
+    if k < 2:
+        return sobol
+    axes = [np.linspace(lo, hi, k) if hi > lo else np.array([lo])
+            for lo, hi in zip(low_um, high_um, strict=True)]  # fmt: skip
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    out: FloatArray = np.vstack([grid, sobol])
+    return out
 
 
 def workspace_grid_um(
@@ -250,6 +260,7 @@ def choose_batch(
     start_um: FloatArray,
     available: np.ndarray,
     near_share: float = 0.8,
+    exchange: int = 0,
 ) -> list[int]:
     """Candidates for the next ``count`` poses, chosen one after the other (module docstring).
 
@@ -269,6 +280,9 @@ def choose_batch(
         The joints before the batch (the last pose).
     available : (C,) bool
         Candidates not yet taken.
+    exchange : int
+        Passes of exchange after the greedy choice: each pose of the batch in turn is
+        replaced by the candidate that reduces the summed variance most with the others kept.
 
     Returns
     -------
@@ -278,21 +292,20 @@ def choose_batch(
     if not np.any(available):
         raise DegenerateDataError("adaptive design: every candidate has been taken")
     T = _design_rows(model, u_test)
-    S = np.array(model.covariance, dtype=np.float64)
+    S0 = np.array(model.covariance, dtype=np.float64)
+    S = S0.copy()
     s2 = np.maximum(np.asarray(sigma2_um2, dtype=np.float64), 1e-12)
     free = np.array(available, dtype=bool)
     last = np.asarray(start_um, dtype=np.float64)
     chosen: list[int] = []
+    rows: list[FloatArray] = []
     for i in range(count):
         if not np.any(free):
             break
         u_c = inputs_for(i)
         Z = _design_rows(model, u_c)
-        gain = np.zeros(Z.shape[0])
-        for a in range(3):
-            cross = (T @ S[a]) @ Z.T  # (M, C): x_t S z
-            q = np.sum((Z @ S[a]) * Z, axis=1)
-            gain += np.sum(cross**2, axis=0) / (s2[a] + q)
+        rows.append(Z)
+        gain = _gain(T, S, Z, s2)
         gain[~free] = -np.inf
         best = float(gain.max())
         near = np.flatnonzero(free & (gain >= near_share * best))
@@ -300,12 +313,45 @@ def choose_batch(
         pick = int(near[np.argmin(move)])
         chosen.append(pick)
         free[pick] = False
-        z = Z[pick]
-        for a in range(3):
-            Sz = S[a] @ z
-            S[a] -= np.outer(Sz, Sz) / (s2[a] + float(z @ Sz))
+        _add(S, Z[pick], s2)
         last = u_c[pick, :3]
+    for _ in range(exchange):  # each pose again, the others kept: the best candidate for it
+        changed = False
+        for i in range(len(chosen)):
+            S = S0.copy()
+            for j, c in enumerate(chosen):
+                if j != i:
+                    _add(S, rows[j][c], s2)
+            gain = _gain(T, S, rows[i], s2)
+            gain[~free] = -np.inf
+            gain[chosen[i]] = _gain(T, S, rows[i][chosen[i]][None, :], s2)[0]
+            pick = int(np.argmax(gain))
+            if pick != chosen[i] and gain[pick] > gain[chosen[i]] * (1 + 1e-9):
+                free[chosen[i]], free[pick] = True, False
+                chosen[i], changed = pick, True
+        if not changed:
+            break
     return chosen
+
+
+def _gain(T: FloatArray, S: FloatArray, Z: FloatArray, s2: FloatArray) -> FloatArray:
+    """(C,) the summed variance reduction over the test rows ``T`` (M, m) of measuring
+    each candidate row of ``Z`` (C, m), given the coefficients' covariance ``S`` (3, m, m)
+    and residual variance ``s2`` (3,)."""
+    gain = np.zeros(Z.shape[0])
+    for a in range(3):
+        cross = (T @ S[a]) @ Z.T  # (M, C): x_t S z
+        q = np.sum((Z @ S[a]) * Z, axis=1)
+        gain += np.sum(cross**2, axis=0) / (s2[a] + q)
+    return gain
+
+
+def _add(S: FloatArray, z: FloatArray, s2: FloatArray) -> None:
+    """Update the covariance ``S`` (3, m, m) in place for one more row ``z`` (Sherman-
+    Morrison)."""
+    for a in range(3):
+        Sz = S[a] @ z
+        S[a] -= np.outer(Sz, Sz) / (s2[a] + float(z @ Sz))
 
 
 def joint_inputs(
