@@ -98,22 +98,29 @@ class AdaptiveSettings:
     grid_per_axis : int
         Test joints per axis of the workspace grid the predicted error is judged on.
     near_share : float
-        A candidate within this share of the best reduction may be taken for a shorter move.
+        A candidate within this share of the best reduction may be taken for a shorter move
+        (1: the best alone).
     seed : int
         Seed of the start design and of the candidates.
+    boundary_grid : int
+        The candidates also hold a regular grid of this many joints per axis from low to
+        high (the corners, edges and faces of the workspace, where a random or Sobol design
+        is thinnest and a polynomial's variance largest); below 2: none.
+    exchange : int
+        Passes of exchange over each batch after its greedy choice.
     """
 
     until_um: float
     max_poses: int = 400
     start_poses: int = 20
-    batch: int = 10
+    batch: int = 5
     level: float = 0.95
     candidates: int = 2048
     grid_per_axis: int = 7
-    near_share: float = 0.8
+    near_share: float = 1.0
     seed: int = 0
-    boundary_grid: int = 0
-    exchange: int = 0
+    boundary_grid: int = 5
+    exchange: int = 2
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.until_um) and self.until_um > 0):
