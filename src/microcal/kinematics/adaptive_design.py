@@ -24,14 +24,20 @@ then adds batches of poses chosen from that fit:
   but greedy steps on the largest chase one corner at a time and leave the rest of the
   workspace where it was, while the integral lowers the whole map (the largest with it) and
   is what the percentile of the tip's error over the workspace measures.
-- **Short moves, varied approaches.** Among the candidates whose reduction is within
-  ``near_share`` of the best, the one nearest (largest joint move, the move's duration) to
-  the previous pose is taken. Each pose's approach directions are those the acquisition
-  gives it (:func:`~microcal.procedures.acquisition.approach_start_um`: a side per joint
-  drawn from the pose number), so a model with direction terms sees them vary; the
-  candidates are scored with the directions their pose will have.
-- **Stopping rule**: the largest predicted error over the test joints is at most
-  ``until_um`` (or the poses reach ``max_poses``).
+- **Candidates**: scrambled Sobol joints over the workspace and a regular grid from its low
+  to its high limits (``boundary_grid`` per axis: the corners, edges and faces, where a
+  random or Sobol design is thinnest and a polynomial's variance largest).
+- **Exchange**: after the greedy choice, each pose of the batch in turn is replaced by the
+  candidate that reduces the summed variance most with the others kept (``exchange``
+  passes, until none changes).
+- **Varied approaches.** Each pose's approach directions are those the acquisition gives it
+  (:func:`~microcal.procedures.acquisition.approach_start_um`: a side per joint drawn from
+  the pose number), so a model with direction terms sees them vary; the candidates are
+  scored with the directions their pose will have. ``near_share`` below 1 takes, among
+  the candidates within that share of the best reduction, the one nearest the previous
+  pose (shorter moves, more poses: 1 by default).
+- **Stopping rule** (:mod:`~microcal.procedures.adaptive`): the predicted ``level`` error
+  over the workspace is at most ``until_um`` (or the poses reach ``max_poses``).
 
 Everything here is a deterministic function of the poses measured so far (their commands,
 positions, approach directions and temperatures): a run stopped and resumed chooses the
