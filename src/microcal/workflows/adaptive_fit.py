@@ -37,6 +37,7 @@ from ..kinematics.validation import validate_split
 from ..procedures.adaptive import Measured
 from ..procedures.identification import Identification, find_outliers, identify
 from . import calibration_update as update
+from .adaptive_batches import ADAPTIVE_FILE, ADAPTIVE_FORMAT, BatchedDesign
 
 __all__ = [
     "MEASUREMENTS",
@@ -95,8 +96,6 @@ def merge_measurements(run: Path) -> Path:
 
 
 def _options(run: Path) -> dict[str, Any]:
-    from .adaptive_acquire import ADAPTIVE_FILE, ADAPTIVE_FORMAT
-
     path = run / ADAPTIVE_FILE
     try:
         options: dict[str, Any] = json.loads(path.read_text(encoding="utf-8"))
@@ -156,8 +155,6 @@ def fit_adaptive_run(
     FormatError, DegenerateDataError
         A run not read whole (no measurements.csv: resume it), too few poses.
     """
-    from .adaptive_acquire import BatchedDesign
-
     options = _options(run)
     path = run / MEASUREMENTS
     if not path.is_file():
