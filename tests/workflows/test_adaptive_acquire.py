@@ -106,7 +106,7 @@ def test_the_same_measurements_choose_the_same_batch(tmp_path: Path) -> None:
     # the calibration the run ended with, and microcal fit of the run: the same numbers
     written = load_calibration(a / "calibration.json").manipulators["m1"]
     again = fit(FitRequest(a, tmp_path / "again.json")).entry
-    np.testing.assert_array_equal(again.model.coef, written.model.coef)
+    np.testing.assert_array_equal(again.model.coefficients, written.model.coefficients)
     np.testing.assert_array_equal(again.model.covariance, written.model.covariance)
     assert again.validation == written.validation
     assert again.extra["adaptive"] == written.extra["adaptive"]
