@@ -24,14 +24,20 @@ then adds batches of poses chosen from that fit:
   but greedy steps on the largest chase one corner at a time and leave the rest of the
   workspace where it was, while the integral lowers the whole map (the largest with it) and
   is what the percentile of the tip's error over the workspace measures.
-- **Short moves, varied approaches.** Among the candidates whose reduction is within
-  ``near_share`` of the best, the one nearest (largest joint move, the move's duration) to
-  the previous pose is taken. Each pose's approach directions are those the acquisition
-  gives it (:func:`~microcal.procedures.acquisition.approach_start_um`: a side per joint
-  drawn from the pose number), so a model with direction terms sees them vary; the
-  candidates are scored with the directions their pose will have.
-- **Stopping rule**: the largest predicted error over the test joints is at most
-  ``until_um`` (or the poses reach ``max_poses``).
+- **Candidates**: scrambled Sobol joints over the workspace and a regular grid from its low
+  to its high limits (``boundary_grid`` per axis: the corners, edges and faces, where a
+  random or Sobol design is thinnest and a polynomial's variance largest).
+- **Exchange**: after the greedy choice, each pose of the batch in turn is replaced by the
+  candidate that reduces the summed variance most with the others kept (``exchange``
+  passes, until none changes).
+- **Varied approaches.** Each pose's approach directions are those the acquisition gives it
+  (:func:`~microcal.procedures.acquisition.approach_start_um`: a side per joint drawn from
+  the pose number), so a model with direction terms sees them vary; the candidates are
+  scored with the directions their pose will have. ``near_share`` below 1 takes, among
+  the candidates within that share of the best reduction, the one nearest the previous
+  pose (shorter moves, more poses: 1 by default).
+- **Stopping rule** (:mod:`~microcal.procedures.adaptive`): the predicted ``level`` error
+  over the workspace is at most ``until_um`` (or the poses reach ``max_poses``).
 
 Everything here is a deterministic function of the poses measured so far (their commands,
 positions, approach directions and temperatures): a run stopped and resumed chooses the
@@ -98,20 +104,29 @@ class AdaptiveSettings:
     grid_per_axis : int
         Test joints per axis of the workspace grid the predicted error is judged on.
     near_share : float
-        A candidate within this share of the best reduction may be taken for a shorter move.
+        A candidate within this share of the best reduction may be taken for a shorter move
+        (1: the best alone).
     seed : int
         Seed of the start design and of the candidates.
+    boundary_grid : int
+        The candidates also hold a regular grid of this many joints per axis from low to
+        high (the corners, edges and faces of the workspace, where a random or Sobol design
+        is thinnest and a polynomial's variance largest); below 2: none.
+    exchange : int
+        Passes of exchange over each batch after its greedy choice.
     """
 
     until_um: float
     max_poses: int = 400
     start_poses: int = 20
-    batch: int = 10
+    batch: int = 5
     level: float = 0.95
     candidates: int = 2048
     grid_per_axis: int = 7
-    near_share: float = 0.8
+    near_share: float = 1.0
     seed: int = 0
+    boundary_grid: int = 5
+    exchange: int = 2
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.until_um) and self.until_um > 0):
@@ -148,7 +163,15 @@ def candidate_joints_um(
     settings: AdaptiveSettings, low_um: FloatArray, high_um: FloatArray
 ) -> FloatArray:
     """The joints every next pose is chosen among, (candidates, 3) µm."""
-    return _sobol(settings.candidates, low_um, high_um, settings.seed + 1)
+    sobol = _sobol(settings.candidates, low_um, high_um, settings.seed + 1)
+    k = settings.boundary_grid
+    if k < 2:
+        return sobol
+    axes = [np.linspace(lo, hi, k) if hi > lo else np.array([lo])
+            for lo, hi in zip(low_um, high_um, strict=True)]  # fmt: skip
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    out: FloatArray = np.vstack([grid, sobol])
+    return out
 
 
 def workspace_grid_um(
@@ -250,6 +273,7 @@ def choose_batch(
     start_um: FloatArray,
     available: np.ndarray,
     near_share: float = 0.8,
+    exchange: int = 0,
 ) -> list[int]:
     """Candidates for the next ``count`` poses, chosen one after the other (module docstring).
 
@@ -269,6 +293,9 @@ def choose_batch(
         The joints before the batch (the last pose).
     available : (C,) bool
         Candidates not yet taken.
+    exchange : int
+        Passes of exchange after the greedy choice: each pose of the batch in turn is
+        replaced by the candidate that reduces the summed variance most with the others kept.
 
     Returns
     -------
@@ -278,21 +305,20 @@ def choose_batch(
     if not np.any(available):
         raise DegenerateDataError("adaptive design: every candidate has been taken")
     T = _design_rows(model, u_test)
-    S = np.array(model.covariance, dtype=np.float64)
+    S0 = np.array(model.covariance, dtype=np.float64)
+    S = S0.copy()
     s2 = np.maximum(np.asarray(sigma2_um2, dtype=np.float64), 1e-12)
     free = np.array(available, dtype=bool)
     last = np.asarray(start_um, dtype=np.float64)
     chosen: list[int] = []
+    rows: list[FloatArray] = []
     for i in range(count):
         if not np.any(free):
             break
         u_c = inputs_for(i)
         Z = _design_rows(model, u_c)
-        gain = np.zeros(Z.shape[0])
-        for a in range(3):
-            cross = (T @ S[a]) @ Z.T  # (M, C): x_t S z
-            q = np.sum((Z @ S[a]) * Z, axis=1)
-            gain += np.sum(cross**2, axis=0) / (s2[a] + q)
+        rows.append(Z)
+        gain = _gain(T, S, Z, s2)
         gain[~free] = -np.inf
         best = float(gain.max())
         near = np.flatnonzero(free & (gain >= near_share * best))
@@ -300,12 +326,45 @@ def choose_batch(
         pick = int(near[np.argmin(move)])
         chosen.append(pick)
         free[pick] = False
-        z = Z[pick]
-        for a in range(3):
-            Sz = S[a] @ z
-            S[a] -= np.outer(Sz, Sz) / (s2[a] + float(z @ Sz))
+        _add(S, Z[pick], s2)
         last = u_c[pick, :3]
+    for _ in range(exchange):  # each pose again, the others kept: the best candidate for it
+        changed = False
+        for i in range(len(chosen)):
+            S = S0.copy()
+            for j, c in enumerate(chosen):
+                if j != i:
+                    _add(S, rows[j][c], s2)
+            gain = _gain(T, S, rows[i], s2)
+            gain[~free] = -np.inf
+            gain[chosen[i]] = _gain(T, S, rows[i][chosen[i]][None, :], s2)[0]
+            pick = int(np.argmax(gain))
+            if pick != chosen[i] and gain[pick] > gain[chosen[i]] * (1 + 1e-9):
+                free[chosen[i]], free[pick] = True, False
+                chosen[i], changed = pick, True
+        if not changed:
+            break
     return chosen
+
+
+def _gain(T: FloatArray, S: FloatArray, Z: FloatArray, s2: FloatArray) -> FloatArray:
+    """(C,) the summed variance reduction over the test rows ``T`` (M, m) of measuring
+    each candidate row of ``Z`` (C, m), given the coefficients' covariance ``S`` (3, m, m)
+    and residual variance ``s2`` (3,)."""
+    gain = np.zeros(Z.shape[0])
+    for a in range(3):
+        cross = (T @ S[a]) @ Z.T  # (M, C): x_t S z
+        q = np.sum((Z @ S[a]) * Z, axis=1)
+        gain += np.sum(cross**2, axis=0) / (s2[a] + q)
+    return gain
+
+
+def _add(S: FloatArray, z: FloatArray, s2: FloatArray) -> None:
+    """Update the covariance ``S`` (3, m, m) in place for one more row ``z`` (Sherman-
+    Morrison)."""
+    for a in range(3):
+        Sz = S[a] @ z
+        S[a] -= np.outer(Sz, Sz) / (s2[a] + float(z @ Sz))
 
 
 def joint_inputs(

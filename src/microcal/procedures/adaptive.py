@@ -42,8 +42,11 @@ __all__ = ["AdaptiveDesign", "AdaptiveResult", "AdaptiveStep", "Measured", "run_
 #: thermal coefficient from a smaller span (a run of minutes) extrapolates wildly to the
 #: temperature of an hour later.
 MIN_TEMPERATURE_SPAN_C = 0.1
-#: Batches the predicted error is checked on (each by the fit made before it was measured).
+#: Batches the predicted error is checked on (each by the fit made before it was measured):
+#: at least this many, and as many as make :data:`CHECK_POSES` poses.
 CHECK_BATCHES = 2
+#: Poses the predicted error is checked on, at least (small batches: more of them).
+CHECK_POSES = 20
 #: A fit whose effective degrees of freedom exceed this share of its poses on some axis
 #: (it follows the noise) is not trusted to stop on.
 MAX_EDF_SHARE = 0.67
@@ -250,7 +253,8 @@ class AdaptiveDesign:
         ok = measured.ok
         starts = self.batch_starts(len(measured))
         m2: list[FloatArray] = []
-        for a, b in list(itertools.pairwise(starts))[-CHECK_BATCHES:]:
+        checked = max(CHECK_BATCHES, -(-CHECK_POSES // self.settings.batch))
+        for a, b in list(itertools.pairwise(starts))[-checked:]:
             before = np.zeros(len(measured), dtype=bool)
             before[:a] = True
             fit_rows, new_rows = ok & before, ok & ~before
@@ -284,6 +288,16 @@ class AdaptiveDesign:
                                       self.held_um)  # fmt: skip
         except DegenerateDataError:
             return None
+
+    def fit_rows(self, u: FloatArray, inputs: tuple[str, ...], p_um: FloatArray) -> KinematicModel:
+        """The design's model of (N, k) input rows (columns ``inputs``) and (N, 3) positions.
+
+        Raises
+        ------
+        DegenerateDataError
+            Too few rows.
+        """
+        return fit_adaptive_model(u, inputs, p_um, self.low_um, self.high_um, self.held_um)
 
     def _taken(self, commanded_um: FloatArray) -> np.ndarray:
         """(C,) bool: candidates already commanded."""
@@ -340,7 +354,7 @@ class AdaptiveDesign:
             sigma2 = residual_variance_um2(model, u, p)
             last = measured.d_um[-1] if n else self.low_um
             picks = choose_batch(model, sigma2, self.test_inputs(measured, inputs), inputs_for,
-                                 count, last, free, s.near_share)  # fmt: skip
+                                 count, last, free, s.near_share, s.exchange)  # fmt: skip
         reason = ("too few poses measured to fit" if model is None else
                   f"predicted {level} error over the workspace {figure:.3g} µm > "
                   f"{s.until_um:g} µm" if trusted or figure > s.until_um else

@@ -31,67 +31,21 @@ from ..formats.run_lock import run_lock
 from ..formats.run_manifest import new_manifest
 from ..kinematics.adaptive_design import ADAPTIVE, AdaptiveSettings
 from ..kinematics.models import held_from_limits
-from ..procedures.acquisition import AcquisitionConfig
-from ..procedures.adaptive import AdaptiveDesign, Measured
+from ..procedures.adaptive import Measured
+from .adaptive_batches import ADAPTIVE_FILE, ADAPTIVE_FORMAT, APPROACH_UM, BatchedDesign
 
 __all__ = [
     "ADAPTIVE_FILE",
     "ADAPTIVE_FORMAT",
     "APPROACH_UM",
+    "BatchedDesign",
     "acquire_any",
     "run_adaptive_acquire",
 ]
 
-#: The adaptive run's options, in the run directory.
-ADAPTIVE_FILE = "adaptive.json"
-ADAPTIVE_FORMAT = "microcal.adaptive/1"
-#: Each pose of an adaptive run is approached from this far past it, on a side drawn from
-#: the pose (the approach directions vary apart from the positions), µm.
-APPROACH_UM = 300.0
-
 
 def _batch_dir(out: Path, index: int) -> Path:
     return out / f"batch-{index + 1:03d}"
-
-
-class BatchedDesign(AdaptiveDesign):
-    """The adaptive design whose batches are runs of their own: each batch's poses are
-    numbered from 1 and approached with that batch's seed."""
-
-    def __init__(self, options: dict[str, Any], limits_um: FloatArray) -> None:
-        self.options = options
-        lim = np.asarray(limits_um, dtype=np.float64)
-        settings = AdaptiveSettings(until_um=float(options["until_um"]),
-                                    max_poses=int(options["max_poses"]),
-                                    seed=int(options["seed"]))  # fmt: skip
-        super().__init__(settings, lim[:, 0], lim[:, 1], lim, self.batch_config(0))
-
-    def batch_config(self, index: int) -> AcquisitionConfig:
-        """How batch ``index`` (0-based) is acquired."""
-        o = self.options
-        fixed = str(o["settle"]).startswith("fixed")
-        return AcquisitionConfig(
-            settle="fixed" if fixed else "vision",
-            fixed_s=float(str(o["settle"]).partition(":")[2] or 30.0) if fixed else 30.0,
-            frames_per_pose=int(o["frames"]), store_roi=o["store"] == "roi",
-            approach_um=APPROACH_UM, approach_seed=int(o["seed"]) * 1000 + index,
-        )  # fmt: skip
-
-    def where(self, pose: int) -> tuple[int, int]:
-        """(batch index, pose within it) of a pose of the whole run (both from 1 / 0)."""
-        first, size = self.settings.start_poses, self.settings.batch
-        if pose <= first:
-            return 0, pose
-        return 1 + (pose - first - 1) // size, (pose - first - 1) % size + 1
-
-    def signs_for(self, d_um: FloatArray, pose: int) -> FloatArray:
-        index, local = self.where(pose)
-        config = self.batch_config(index)
-        from ..procedures.acquisition import approach_start_um
-
-        start = approach_start_um(d_um, local, config, self.limits_um)
-        out: FloatArray = np.where(d_um > start, 1.0, np.where(d_um < start, -1.0, 1.0))
-        return out
 
 
 def _options(request: Any, out: Path) -> dict[str, Any]:
@@ -213,7 +167,8 @@ def run_adaptive_acquire(request: Any) -> Iterator[str]:
     with open_rig(spec, options["manipulator"]) as opened:
         design = BatchedDesign(options, opened.manipulator.limits_um)
         out.mkdir(parents=True, exist_ok=True)
-        if not (out / ADAPTIVE_FILE).is_file():
+        if "workspace_um" not in options:  # the workspace the design covers: the limits
+            options["workspace_um"] = np.asarray(opened.manipulator.limits_um).tolist()
             write_text_atomic(out / ADAPTIVE_FILE, json.dumps(options, indent=1) + "\n")
         with run_lock(out, "acquire"):
             measured = Measured.empty()
@@ -228,7 +183,20 @@ def run_adaptive_acquire(request: Any) -> Iterator[str]:
                 if step.stop:
                     break
                 plan, index = step.next_um, index + 1
+            yield from _finish(out, options)
     yield f"adaptive run in {out}: {len(measured)} poses in {index + 1} batches ({step.reason})"
+
+
+def _finish(out: Path, options: dict[str, Any]) -> Iterator[str]:
+    """Every pose in ``RUN/measurements.csv`` and the design's calibration of them in
+    ``RUN/calibration.json`` (:mod:`~microcal.workflows.adaptive_fit`)."""
+    from .adaptive_fit import fit_adaptive_run, merge_measurements, predicted_line
+
+    merged = merge_measurements(out)
+    target = out / "calibration.json"
+    _, entry, _, poses, _ = fit_adaptive_run(out, target, Path(options["cameras"]))
+    yield (f"wrote {merged} ({len(poses)} poses) and {target}: {predicted_line(entry)}; "
+           f"microcal fit {out} --out OTHER.json fits it again")  # fmt: skip
 
 
 def _acquire_batch(

@@ -199,6 +199,8 @@ def fit(request: FitRequest) -> FitResult:
     """
     r = request
     update.check_fit_outputs(r.out, r.mat, r.manipulator)
+    if r.source.is_dir() and (r.source / "adaptive.json").is_file():
+        return _fit_adaptive(r)
     in_run = r.source.is_dir()  # a run's file may not be a link; a file the user names may
     path = r.source / "measurements.csv" if in_run else r.source
     meas = read_measurements(path, min_poses=MIN_DESIGN_POSES, link_ok=not in_run)
@@ -221,6 +223,25 @@ def fit(request: FitRequest) -> FitResult:
     written = [r.out] if r.mat is None else [r.out, r.mat]
     return FitResult(path, calibration.manipulators[entry.name], fits[r.model], meas.pose,
                      meas.n_failed, calibration, tuple(written), notes)  # fmt: skip
+
+
+def _fit_adaptive(r: FitRequest) -> FitResult:
+    """An adaptive run (``microcal acquire --design adaptive``) fitted whole, as its design
+    fits it (:mod:`~microcal.workflows.adaptive_fit`)."""
+    from .adaptive_fit import (
+        MEASUREMENTS,
+        check_adaptive_fit_options,
+        fit_adaptive_run,
+        predicted_line,
+    )
+
+    check_adaptive_fit_options(r)
+    calibration, entry, ident, poses, n_failed = fit_adaptive_run(r.source, r.out, r.cameras,
+                                                                  r.manipulator)  # fmt: skip
+    note = (f"note: an adaptive run: its design's smooth model fitted on all {len(poses)} "
+            f"poses; {predicted_line(entry)}")  # fmt: skip
+    return FitResult(r.source / MEASUREMENTS, entry, ident, poses, n_failed, calibration,
+                     (r.out,), (note,))  # fmt: skip
 
 
 @dataclass(frozen=True)
