@@ -296,6 +296,9 @@ def _taper(gray: NDArray[np.float32], origin: FloatArray, u: FloatArray, beta: f
     return b, 0.5 * (left[0][0] + right[0][0]), a1, 0.25 * (left[1] + right[1])
 
 
+#: How much wider the strip summed across grows per px behind the tip (the blur of a tool
+#: held at an angle to the focal plane grows along it).
+_GROWTH = 0.15
 #: Least width of the tool, in blurs, where its edges give the taper's angle.
 _WIDE = 6.0
 #: How far behind the tip the edges are followed, px.
@@ -330,7 +333,7 @@ def profile_tip(gray: NDArray[np.float32], blob: ToolBlob, target: TipTarget) ->
             strip = hw + margin
         else:  # the fitted outline
             hw = np.maximum((t + D) * math.tan(beta), rho)
-            strip = hw + 2.5 * sigma + 0.5
+            strip = hw + 2.5 * sigma + 0.5 + _GROWTH * np.maximum(t, 0.0)
         centre = np.zeros_like(t)
         inner = hw + margin
         d = frame.darkness(centre, inner, inner + 8.0)
