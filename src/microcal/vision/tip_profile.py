@@ -8,11 +8,13 @@ dark and whose lumen is lighter): only on the outline's geometry.
   0.5 px across), and divided by the background's light, fitted on both flanks of the tool
   (a cubic along the axis, a slope across it that may change along it): the darkness
   ``d = 1 - I / B``.
-- On each scan line the darkness's centroid lies on the axis, whatever the tool's profile
-  across (any symmetric one) and its blur: a line through the centroids, weighted by the
-  darkness, is the axis; the window is sampled again along it.
 - The two outer edges (the strongest rise and fall of the darkness on each scan line, to
-  sub-pixel by a parabola) give two lines whose angle is the taper's angle in the image.
+  sub-pixel by a parabola) give two lines: their bisector near the tip is the axis, and far
+  behind it, on the lines whose edges are nearly as sharp as the sharpest (the blur grows
+  along a tool held at an angle) and wide against the blur, their angle is the taper's
+  angle in the image. Where the edges are too soft, the axis is the line through each scan
+  line's centroid of darkness (on the axis for any symmetric profile), weighted by the
+  darkness. The window is sampled again along the axis found.
 - The darkness summed across each scan line, ``M(t)``, is the tool's half-width ``h(t)``
   times twice its mean darkness, blurred along the axis, whatever the profile across: a
   ramp from the taper's vertex behind the end, the end's ellipse (``rho`` across, ``k rho``
@@ -21,7 +23,8 @@ dark and whose lumen is lighter): only on the outline's geometry.
   the ramp; blurred by a Gaussian it is a sum of ``sigma psi((t - t_i) / sigma)`` with
   ``psi(z) = z Phi(z) + phi(z)``, in closed form. Its three parameters (the tip point along
   the axis, its distance from the vertex, the blur) are fitted by Levenberg-Marquardt, the
-  level and the darkness by least squares for each.
+  level and the darkness by least squares for each. The strip summed across ends 1.5 blurs
+  beyond the outline and widens along the tool (its blur grows when it is held at an angle).
 
 The tip point is on the fitted axis at the fitted place along it; its covariance is the
 fits': along the axis from the profile's fit, across it from the axis's line.
@@ -299,6 +302,9 @@ def _taper(gray: NDArray[np.float32], origin: FloatArray, u: FloatArray, beta: f
 #: How much wider the strip summed across grows per px behind the tip (the blur of a tool
 #: held at an angle to the focal plane grows along it).
 _GROWTH = 0.15
+#: Where the strip summed across ends beyond the outline, in blurs (a blurred edge's darkness
+#: beyond it is 3 % of a blur's width; the background's texture grows with the strip).
+_TAIL = 1.5
 #: Least width of the tool, in blurs, where its edges give the taper's angle.
 _WIDE = 6.0
 #: How far behind the tip the edges are followed, px.
@@ -333,7 +339,7 @@ def profile_tip(gray: NDArray[np.float32], blob: ToolBlob, target: TipTarget) ->
             strip = hw + margin
         else:  # the fitted outline
             hw = np.maximum((t + D) * math.tan(beta), rho)
-            strip = hw + 2.5 * sigma + 0.5 + _GROWTH * np.maximum(t, 0.0)
+            strip = hw + _TAIL * sigma + 0.5 + _GROWTH * np.maximum(t, 0.0)
         centre = np.zeros_like(t)
         inner = hw + margin
         d = frame.darkness(centre, inner, inner + 8.0)
@@ -347,6 +353,18 @@ def profile_tip(gray: NDArray[np.float32], blob: ToolBlob, target: TipTarget) ->
             return "the tool's axis is not seen (too few scan lines across it)"
         (a0, a1), var_across = line
         centre = a0 + a1 * t
+        # ... or better, where the edges are sharp: the bisector of the outer edges near the
+        # tip (the centroids take in the background's texture beside the tool).
+        xl, xr, strength = _edges(d, frame.x, centre, inner)
+        sharp = behind & ((xr - xl) > max(3.0 * sigma, 2.0)) & (strength > 0)
+        if sharp.sum() >= 8:
+            ones = np.ones(int(sharp.sum()))
+            left, right = _line(t[sharp], xl[sharp], ones), _line(t[sharp], xr[sharp], ones)
+            if left is not None and right is not None:
+                a0 = 0.5 * (left[0][0] + right[0][0])
+                a1 = math.tan(0.5 * (math.atan(right[0][1]) + math.atan(left[0][1])))
+                var_across = 0.25 * (left[1] + right[1])
+                centre = a0 + a1 * t
         m0, _ = _rows(d, frame.x, centre, strip)
         ok = np.isfinite(m0)
         along = _Along(t[ok], m0[ok], beta, target)
