@@ -24,7 +24,8 @@ dark and whose lumen is lighter): only on the outline's geometry.
   ``psi(z) = z Phi(z) + phi(z)``, in closed form. Its three parameters (the tip point along
   the axis, its distance from the vertex, the blur) are fitted by Levenberg-Marquardt, the
   level and the darkness by least squares for each. The strip summed across ends 1.5 blurs
-  beyond the outline and widens along the tool (its blur grows when it is held at an angle).
+  beyond the outline and widens along the tool (its blur grows when it is held at an angle);
+  the darkness of the background just beside it (both sides, five scan lines) is taken out.
 
 The tip point is on the fitted axis at the fitted place along it; its covariance is the
 fits': along the axis from the profile's fit, across it from the axis's line.
@@ -95,6 +96,25 @@ class _Frame:
         light = sum(c * k for c, k in zip(cols, coef, strict=True))
         out: FloatArray = 1.0 - self.values / np.maximum(light, 1e-6)
         return out
+
+
+def _local(d: FloatArray, X: FloatArray, centre: FloatArray, strip: FloatArray,
+           width: float, rows: int) -> FloatArray:  # fmt: skip
+    """``d`` less the darkness of the background beside the strip on each scan line: the
+    mean over bands ``width`` wide on both sides of it, over ``rows`` neighbouring lines."""
+    off = X - centre[:, None]
+    sides = []
+    for sign in (-1.0, 1.0):
+        band = (sign * off > strip[:, None] + 0.5) & (sign * off < strip[:, None] + 0.5 + width)
+        band &= np.isfinite(d)
+        total = np.where(band, d, 0.0).sum(axis=1)
+        count = band.sum(axis=1).astype(float)
+        kernel = np.ones(rows)
+        total = np.convolve(total, kernel, mode="same")
+        count = np.convolve(count, kernel, mode="same")
+        sides.append(np.where(count > 0, total / np.maximum(count, 1.0), 0.0))
+    out: FloatArray = d - (0.5 * (sides[0] + sides[1]))[:, None]
+    return out
 
 
 def _least_squares(A: FloatArray, b: FloatArray) -> FloatArray:
@@ -305,6 +325,10 @@ _GROWTH = 0.15
 #: Where the strip summed across ends beyond the outline, in blurs (a blurred edge's darkness
 #: beyond it is 3 % of a blur's width; the background's texture grows with the strip).
 _TAIL = 1.5
+#: Width of the bands beside the strip where the background's texture is measured, px, and
+#: the scan lines it is averaged over.
+_LOCAL_PX = 3.0
+_LOCAL_LINES = 5
 #: Least width of the tool, in blurs, where its edges give the taper's angle.
 _WIDE = 6.0
 #: How far behind the tip the edges are followed, px.
@@ -345,6 +369,8 @@ def profile_tip(gray: NDArray[np.float32], blob: ToolBlob, target: TipTarget) ->
         d = frame.darkness(centre, inner, inner + 8.0)
         if not np.any(np.isfinite(d)):
             return "the tool's flanks are out of the field"
+        if fit is not None:  # the background's texture beside the tool taken out
+            d = _local(d, frame.X, centre, strip, _LOCAL_PX, _LOCAL_LINES)
         m0, x0 = _rows(d, frame.x, centre, strip)
         # The axis: the centroids behind the end, weighted by the darkness.
         behind = t > 2.0 * sigma + 1.0
@@ -393,7 +419,8 @@ def profile_tip(gray: NDArray[np.float32], blob: ToolBlob, target: TipTarget) ->
     var_along = float(cov[0, 0])
     n = np.array([-u[1], u[0]])
     cov_px = var_along * np.outer(u, u) + var_across * np.outer(n, n)
-    if not np.all(np.isfinite(tip)):
+    moved = float(np.linalg.norm(tip - blob.tip_px))
+    if not np.all(np.isfinite(tip)) or moved > 12.0 + 3.0 * sigma:
         return "the tip's profile along the axis did not settle"
     contrast = 0.5 * float(coef[1])
     y0, x0_ = int(np.clip(tip[1], 0, h - 1)), int(np.clip(tip[0], 0, w - 1))
