@@ -74,6 +74,21 @@ def test_a_pipette_shows_two_dark_walls_and_a_lighter_lumen():
     assert profile[-1] == pytest.approx(1.0, abs=0.01)
 
 
+@pytest.mark.parametrize("elevation", [3.0, 15.0])
+def test_a_thin_pipette_end_is_rendered_as_with_many_subsamples(elevation):
+    # The opening's ring, seen nearly edge-on, is thinner than a subsample: the darkness around
+    # the tip (which sets where a detector puts it) must not depend on the subsampling.
+    placed = [_placed("pipette", elevation, 37.0, taper_deg=11.0, tip_um=0.6)]
+    fine, truths = render_tools(CAMERA, placed, FOCUS, roi=(112, 112, 144, 144), supersample=16)
+    coarse, _ = render_tools(CAMERA, placed, FOCUS, roi=(112, 112, 144, 144), supersample=4)
+    tip = truths[0].tip_px - 112
+    yy, xx = np.mgrid[0:32, 0:32]
+    near = np.hypot(xx - tip[0], yy - tip[1]) < 3.0
+    dark_fine = float((1.0 - fine)[near].sum())
+    dark_coarse = float((1.0 - coarse)[near].sum())
+    assert dark_coarse == pytest.approx(dark_fine, rel=0.04)
+
+
 def test_defocus_follows_the_numerical_aperture():
     optics = Optics(0.3)
     pitch = 0.65

@@ -479,8 +479,20 @@ def _shade(
     uy = sil.end_inverse[1, 0] * ex + sil.end_inverse[1, 1] * ey
     rho = np.hypot(ux, uy)
     end = (rho - 1.0) * sil.end_scale
-    signed = np.minimum(taper, end)
-    cover = np.clip(0.5 - signed / width, 0.0, 1.0)
+    end_cover = np.clip(0.5 - end / width, 0.0, 1.0)
+    if tool.kind == "pipette":
+        # The opening's ring, seen nearly edge-on, is thinner than a subsample: its share is
+        # that of a band as thick as the ellipse's chord along its smallest semi-axis (a half
+        # plane at the distance above would thicken it to the subsample's width, and the
+        # distance scaled by the smallest semi-axis reaches far beyond the ring's ends).
+        _, inv_axes, frame = np.linalg.svd(sil.end_inverse)
+        minor = ex * frame[0, 0] + ey * frame[0, 1]
+        major = (ex * frame[1, 0] + ey * frame[1, 1]) * inv_axes[1]
+        chord_half = np.sqrt(np.clip(1.0 - major * major, 0.0, 1.0)) / inv_axes[0]
+        end_cover = (np.minimum(chord_half, minor + 0.5 * width)
+                     - np.maximum(-chord_half, minor - 0.5 * width)) / width  # fmt: skip
+        end_cover = np.clip(end_cover, 0.0, 1.0)
+    cover = np.maximum(np.clip(0.5 - taper / width, 0.0, 1.0), end_cover)
     if tool.kind != "pipette":
         return cover, np.full_like(cover, tool.transmittance)
     along = dx * sil.axis[0] + dy * sil.axis[1]

@@ -220,7 +220,14 @@ def _cover(
     # The distance from the ellipse to first order, (re - 1) / |grad re|: right for a thin one.
     slope = np.sqrt((t / kr**2) ** 2 + (x / rho**2) ** 2) / np.maximum(re, 1e-12)
     end = (re - 1.0) / np.maximum(slope, 1.0 / max(kr, rho))
-    cover = np.maximum(taper_cover, np.clip((h - end) / width, 0.0, 1.0))
+    end_cover = np.clip((h - end) / width, 0.0, 1.0)
+    if k < 1.0 and kr < h:
+        # An end thinner along the axis than the square (a pipette's ring seen nearly
+        # edge-on): the square's share of a band as thick as the ellipse's chord along the
+        # axis (the distance above would thicken it to the square's width).
+        chord = kr * np.sqrt(np.clip(1.0 - (x / rho) ** 2, 0.0, 1.0))
+        end_cover = np.clip((np.minimum(chord, t + h) - np.maximum(-chord, t - h)) / width, 0, 1)
+    cover = np.maximum(taper_cover, end_cover)
     return cover, taper, end, re
 
 
