@@ -111,7 +111,7 @@ def held_out_error(
         Each camera's chosen lens model.
     sizes : dict camera -> (w, h)
     first : str
-        The camera whose frame fixes the gauge of the joint poses.
+        The camera whose frame fixes the gauge of the joint refinement.
     start : dict camera -> (K, dist), optional
         Intrinsics each fold's calibration starts from (the whole calibration's).
 

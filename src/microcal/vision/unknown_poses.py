@@ -7,8 +7,10 @@ Each camera is calibrated alone, its lens model chosen by held-out error
 the same turned is made to agree between the cameras by the stereo geometry
 (:mod:`~microcal.vision.view_consistency`); then all cameras' poses and the target's pose in
 every view are refined together with those intrinsics fixed
-(:mod:`~microcal.vision.joint_poses`), each view seen by any two or more of the cameras.
-{V} is the target's frame in a chosen reference view. Outlier views, observations whose
+(:mod:`~microcal.vision.joint_poses`), each view seen by any two or more of the cameras, and
+from there every camera's intrinsics and lens terms with all the poses
+(:mod:`~microcal.vision.joint_intrinsics`; a view one camera alone saw constrains that
+camera). {V} is the target's frame in a chosen reference view. Outlier views, observations whose
 relative pose disagrees with the other views' and views that stand out in the joint
 refinement are dropped with the reason.
 """
