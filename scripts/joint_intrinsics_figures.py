@@ -5,7 +5,7 @@ Per rig: random board poses seen by both cameras, the corners projected with the
 cameras and Gaussian noise added. Each camera is calibrated alone (``fit_camera`` with the
 stated lens model), the poses refined with those intrinsics fixed (``refine_jointly``), then
 everything together (``refine_intrinsics_jointly``); for comparison the poses are refined
-with the true intrinsics fixed. The table gives, per rig kind, the RMS over 30 rigs of the
+with the true intrinsics fixed. The table gives, per rig kind, the RMS over 12 rigs of the
 baseline's relative error.
 
 Usage: python scripts/joint_intrinsics_figures.py   (prints a Markdown table)
@@ -23,7 +23,7 @@ from microcal.vision.joint_poses import Observation, Pose, initial_poses, refine
 from microcal.vision.lens_models import fit_camera, lens_model
 
 SIZE = (640, 480)
-RIGS = 30
+RIGS = 12
 
 
 @dataclass(frozen=True)
