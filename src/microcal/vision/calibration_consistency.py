@@ -4,9 +4,9 @@ Three checks that need no ground truth, only the views the calibration was made 
 
 - **Held-out views** (:func:`held_out_error`): the views are split in four interleaved folds
   (fewer with fewer than eight views); all but one calibrate the cameras (each camera's
-  chosen lens model, then the joint poses) and the one left out is predicted: a held-out
-  view's board pose is solved with the calibration fixed, and its reprojection error
-  measured. A calibration that fits its views
+  chosen lens model, then the joint refinement of poses and intrinsics) and the one left
+  out is predicted: a held-out view's board pose is solved with the calibration fixed, and
+  its reprojection error measured. A calibration that fits its views
   but not the camera (too rich a model, too few views, a corner bias that differs from view
   to view) predicts held-out views worse than it fits its own: the ratio says by how much.
 - **The target's pitch** (:func:`triangulated_pitch`): the corners of every view two or more
@@ -38,7 +38,8 @@ from ..geometry import CameraModel
 from ..geometry.triangulation import triangulate_views
 from ..json_value import JsonValue
 from .detect import Detection
-from .joint_poses import Observation, Pose, initial_poses, refine_jointly
+from .joint_intrinsics import refine_intrinsics_jointly
+from .joint_poses import Observation, Pose, _compose, _inverse, initial_poses, refine_jointly
 from .lens_models import LensModel, fit_camera
 from .targets import Target
 from .view_consistency import rotation_angle_deg
@@ -110,7 +111,7 @@ def held_out_error(
         Each camera's chosen lens model.
     sizes : dict camera -> (w, h)
     first : str
-        The camera whose frame fixes the gauge of the joint poses.
+        The camera whose frame fixes the gauge of the joint refinement.
     start : dict camera -> (K, dist), optional
         Intrinsics each fold's calibration starts from (the whole calibration's).
 
@@ -164,15 +165,26 @@ def held_out_error(
         try:
             by_camera = {c: {o.view: poses[c][o.view] for o in obs if o.camera == c}
                          for c in intrinsics}  # fmt: skip
-            fit_j = refine_jointly(obs, intrinsics, *initial_poses(by_camera, first),
-                                   first=first)  # fmt: skip
+            start_cams, start_views = initial_poses(by_camera, first)
+            fit_p = refine_jointly(obs, intrinsics, start_cams, start_views, first=first)
+            # then the intrinsics too, as the calibration itself (joint_intrinsics)
+            views_start = dict(fit_p.views)
+            alone = []
+            for v in train:
+                sole = [o for o in observations[v] if o.camera in intrinsics]
+                if len(sole) == 1 and sole[0].camera in fit_p.cameras:
+                    cam = sole[0].camera
+                    views_start[v] = _compose(_inverse(fit_p.cameras[cam]), poses[cam][v])
+                    alone.append(sole[0])
+            fit_j = refine_intrinsics_jointly(obs + alone, intrinsics, models, fit_p.cameras,
+                                              views_start, first)  # fmt: skip
         except DegenerateDataError:
             continue
         joint_train += [fit_j.rms_px**2] * sum(len(o.object_um) for o in obs)
         for v in held:
             seen = [o for o in observations[v] if o.camera in fit_j.cameras]
             if len(seen) >= 2:
-                joint_held += _solve_board(seen, intrinsics, fit_j.cameras).tolist()
+                joint_held += _solve_board(seen, fit_j.intrinsics, fit_j.cameras).tolist()
     out: dict[str, JsonValue] = {}
     cams: dict[str, JsonValue] = {}
     for c in models:

@@ -13,8 +13,9 @@ Two methods, both for any number of cameras seeing the same target:
     (:mod:`~microcal.vision.calibration_diagnostics`); the corner numbering of a board
     that looks the same turned is made to agree between the cameras by the stereo geometry
     (:mod:`~microcal.vision.view_consistency`); then the cameras are related by stereo
-    calibration with those intrinsics fixed. {V} is the target's frame in a chosen reference
-    view.
+    calibration with those intrinsics fixed, and finally intrinsics, lens terms and poses of
+    all cameras are refined together (:mod:`~microcal.vision.joint_intrinsics`). {V} is the
+    target's frame in a chosen reference view.
 
 Views whose reprojection error stands out (above 3x the median view and 0.15 px) are
 rejected and reported with the reason, and the cameras are calibrated again without them;

@@ -7,8 +7,10 @@ Each camera is calibrated alone, its lens model chosen by held-out error
 the same turned is made to agree between the cameras by the stereo geometry
 (:mod:`~microcal.vision.view_consistency`); then all cameras' poses and the target's pose in
 every view are refined together with those intrinsics fixed
-(:mod:`~microcal.vision.joint_poses`), each view seen by any two or more of the cameras.
-{V} is the target's frame in a chosen reference view. Outlier views, observations whose
+(:mod:`~microcal.vision.joint_poses`), each view seen by any two or more of the cameras, and
+from there every camera's intrinsics and lens terms with all the poses
+(:mod:`~microcal.vision.joint_intrinsics`; a view one camera alone saw constrains that
+camera). {V} is the target's frame in a chosen reference view. Outlier views, observations whose
 relative pose disagrees with the other views' and views that stand out in the joint
 refinement are dropped with the reason.
 """
@@ -39,7 +41,8 @@ from .calibration_result import (
     _usable,
 )
 from .detect import Detection
-from .joint_poses import JointPoses, Observation, Pose, initial_poses, refine_jointly
+from .joint_intrinsics import JointCalibration, refine_intrinsics_jointly
+from .joint_poses import Observation, Pose, _compose, _inverse, initial_poses, refine_jointly
 from .lens_models import LENS_MODELS, LensModelChoice, choose_lens_model
 from .lens_models import lens_model as named_lens_model
 from .targets import Target
@@ -289,10 +292,12 @@ def calibrate_unknown_poses(
             f"that two or more see (--reference-view; such views: {sorted(joint)})"
         )
     label = {v: " + ".join(image_names[o.camera][v] for o in obs) for v, obs in joint.items()}
+    alone = {v: o for v, o in seen.items() if len(o) == 1}
     intrinsics = {c: (m.choice.fit.K, m.choice.fit.dist) for c, m in mono.items()}
+    lens = {c: m.choice.fit.model for c, m in mono.items()}
     left_out = len(rejected)
 
-    def refine(views: list[int]) -> tuple[JointPoses, dict[int, float]]:
+    def refine(views: list[int]) -> tuple[JointCalibration, dict[int, float]]:
         observations = [o for v in views for o in joint[v]]
         lost = [c for c in names if c not in {o.camera for o in observations}]
         if lost:
@@ -307,7 +312,16 @@ def calibrate_unknown_poses(
             by_camera[o.camera][o.view] = poses[o.camera][o.view]
         result = refine_jointly(observations, intrinsics, *initial_poses(by_camera, first),
                                 first=first)  # fmt: skip
-        return result, result.per_view_rms_px
+        # Then the intrinsics too, each view's board pose shared by the cameras that saw it;
+        # a view one camera alone saw constrains that camera, with its own board pose.
+        views_start = dict(result.views)
+        for v, (o,) in alone.items():
+            if o.camera in result.cameras:
+                views_start[v] = _compose(_inverse(result.cameras[o.camera]), poses[o.camera][v])
+        extra = [o for v, (o,) in alone.items() if v in views_start]
+        adjusted = refine_intrinsics_jointly(observations + extra, intrinsics, lens, result.cameras,
+                                             views_start, first)  # fmt: skip
+        return adjusted, {v: adjusted.per_view_rms_px[v] for v in views}
 
     fit, kept, bad = _fit_rejecting_outliers(sorted(joint), refine)
     rejected += [{"view": label[i], "reason": "joint refinement " + r} for i, r in bad.items()]
@@ -322,7 +336,7 @@ def calibrate_unknown_poses(
             fit.cameras[c][0] @ fit.views[reference_view][0],
             (fit.cameras[c][0] @ fit.views[reference_view][1] + fit.cameras[c][1]),
         )
-        K, dist = intrinsics[c]
+        K, dist = fit.intrinsics[c]
         rvec, _ = cv2.Rodrigues(R)
         models[c] = _camera_model(K, dist, rvec, t, image_size_px[c], c)
     cams = {name: m.calibration for name, m in mono.items()}
