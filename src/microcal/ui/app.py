@@ -18,7 +18,9 @@ The routes (all under the token when there is one):
 ``POST /api/target``       ``{"clicks": {CAM: [x, y]}, "std_px": {CAM: s}}``: the 3D target
 ``POST /api/go``           ``{"target_um", "mode", "tolerance_um"}``
 ``POST /api/measure``      measure the tip now
-``POST /api/stop``         stop now (any browser)
+``POST /api/stop``         stop now (any browser); a run under way is cancelled too
+``POST /api/run``          ``{"kind", "name", "poses", "resume"}``: start a run
+``POST /api/run/cancel``   cancel the run under way after its current step
 =========================  =================================================================
 """
 
@@ -42,6 +44,7 @@ from starlette.staticfiles import StaticFiles
 
 from ..errors import DeviceError, InputError, LimitError, MicrocalError
 from ..workflows.live import LiveStation
+from ..workflows.live_runs import StationRuns
 from .access import CLIENT_COOKIE, TOKEN_COOKIE, Control, token_matches
 
 __all__ = ["MAX_BODY_BYTES", "create_app"]
@@ -117,6 +120,7 @@ def create_app(
     token: str | None = None,
     hosts: frozenset[str] = frozenset(),
     control: Control | None = None,
+    runs: StationRuns | None = None,
 ) -> Starlette:
     """The station page's application around an opened :class:`LiveStation`.
 
@@ -129,8 +133,13 @@ def create_app(
         The ``Host`` values this server answers to (``127.0.0.1:8765``...); empty: any.
     control : Control, optional
         The controlling browser's lease (a fresh one by default).
+    runs : StationRuns, optional
+        The runs the page starts (by default on ``live``, writing beside its calibration;
+        none when the station was opened without the calibration's path).
     """
     lease = control or Control()
+    if runs is None and live.calibration_path is not None:
+        runs = StationRuns(live)
 
     def client_of(request: Request) -> str | None:
         return request.cookies.get(CLIENT_COOKIE)
@@ -181,7 +190,9 @@ def create_app(
 
     async def state(request: Request) -> Response:
         out = await run_in_threadpool(live.state)
-        return JSONResponse(out | {"role": role(request), "controlled": lease.held()})
+        run_state = runs.state() if runs is not None else None
+        extra = {"role": role(request), "controlled": lease.held(), "run": run_state}
+        return JSONResponse(out | extra | {"health": live.health})
 
     async def overlays(request: Request) -> Response:
         return JSONResponse(await run_in_threadpool(live.overlays))
@@ -250,8 +261,24 @@ def create_app(
         return JSONResponse({"started": True})
 
     async def stop(request: Request) -> Response:
+        if runs is not None:
+            runs.cancel()
         await run_in_threadpool(live.stop)
         return JSONResponse({"stopped": True})
+
+    def the_runs() -> StationRuns:
+        if runs is None:
+            raise InputError("runs: this station was opened without its calibration's path")
+        return runs
+
+    async def run_start(request: Request) -> Response:
+        data = await body(request)
+        kind = data.pop("kind", None)
+        started = await run_in_threadpool(the_runs().start, str(kind), data)
+        return JSONResponse({"started": started.kind})
+
+    async def run_cancel(request: Request) -> Response:
+        return JSONResponse({"cancelling": the_runs().cancel()})
 
     routes = [
         Route("/", guarded(page)),
@@ -267,6 +294,8 @@ def create_app(
         Route("/api/go", guarded(go, controlling=True), methods=["POST"]),
         Route("/api/measure", guarded(measure, controlling=True), methods=["POST"]),
         Route("/api/stop", guarded(stop), methods=["POST"]),
+        Route("/api/run", guarded(run_start, controlling=True), methods=["POST"]),
+        Route("/api/run/cancel", guarded(run_cancel, controlling=True), methods=["POST"]),
         Mount("/static", StaticFiles(directory=str(_STATIC)), name="static"),
     ]
     return Starlette(routes=routes, middleware=[Middleware(_Guard, token=token, hosts=hosts)])

@@ -32,6 +32,7 @@ from .._validation import FloatArray, as_array
 from ..control.visual_servo import ServoStep
 from ..devices.guarded_manipulator import GuardedManipulator
 from ..devices.rig import Rig
+from ..devices.rig_spec import RigSpec
 from ..devices.shared_camera import SharedCamera
 from ..errors import InputError, LimitError, MicrocalError
 from ..formats.calibration_file import load_calibration
@@ -141,6 +142,10 @@ class LiveStation:
         The calibration's health (:func:`calibration_health`), shown as it is.
     report : path, optional
         The latest report.html, served on request (:meth:`report_html`).
+    spec : RigSpec, optional
+        The rig as its file names it (the record of an acquisition started from the page).
+    calibration_path : path, optional
+        calibration.json (the page's checks join its history; :meth:`refresh_health`).
     """
 
     def __init__(
@@ -154,8 +159,12 @@ class LiveStation:
         settle_s: float = 1.0,
         health: Mapping[str, Any] | None = None,
         report: Path | None = None,
+        spec: RigSpec | None = None,
+        calibration_path: Path | None = None,
     ) -> None:
         self.health = dict(health or {})
+        self.spec = spec
+        self.calibration_path = calibration_path
         self.report = report
         self.manipulator = GuardedManipulator(rig.manipulator)
         self.cameras = {n: SharedCamera(c) for n, c in rig.cameras.items()}
@@ -203,6 +212,29 @@ class LiveStation:
             "click_to_target": "rays" if len(self.models) >= 2 else "focal plane",
             "health": self.health | {"report": self.report is not None},
         }
+
+    def check_history(self) -> list[dict[str, Any]]:
+        """The checks of this calibration's device, oldest first (empty without the path).
+
+        Raises
+        ------
+        FormatError
+            The history cannot be read.
+        """
+        if self.calibration_path is None:
+            return []
+        single = len(load_calibration(self.calibration_path).manipulators) == 1
+        name = self.station.calibration.name
+        return of_device(read_history(self.calibration_path), name, single)
+
+    def refresh_health(self) -> None:
+        """Read the calibration's health again (after a check joined its history)."""
+        if self.calibration_path is None:
+            return
+        single = len(load_calibration(self.calibration_path).manipulators) == 1
+        cal = self.station.calibration
+        self.health = calibration_health(self.calibration_path, cal.name, single,
+                                         cal.validation or {})  # fmt: skip
 
     def report_html(self) -> bytes:
         """The latest report.html beside the calibration (a regular file, never a link).
@@ -623,7 +655,8 @@ def open_live_station(
         report = Path(calibration).with_name("report.html")
         return LiveStation(c.device, c.entry, c.models, description, frames=frames,
                            settle_s=1.0 if settle_s is None else settle_s, health=health,
-                           report=report if report.is_file() else None)  # fmt: skip
+                           report=report if report.is_file() else None, spec=c.spec,
+                           calibration_path=Path(calibration))  # fmt: skip
     except BaseException:
         c.opened.close()
         raise

@@ -151,8 +151,13 @@ function showRole(role) {
   const badge = $("role");
   badge.className = `badge ${role}`;
   badge.textContent = role === "control" ? "this browser controls" : "watching: another browser controls";
-  for (const id of ["go", "measure", "clear"]) if (role !== "control") $(id).disabled = true;
-  if (role === "control") { $("measure").disabled = false; $("clear").disabled = false; updateGo(); }
+  for (const id of ["go", "measure", "clear", "run-start", "run-cancel", "run-resume"]) {
+    if (role !== "control") $(id).disabled = true;
+  }
+  if (role === "control") {
+    for (const id of ["measure", "clear", "run-start", "run-resume"]) $(id).disabled = false;
+    updateGo();
+  }
 }
 
 function updateGo() {
@@ -231,6 +236,11 @@ function showState(s) {
     $("arrival").textContent = text;
     $("arrival").className = "";
   }
+  showRun(s.run);
+  if (s.health && (s.health.checks || []).length !== ((station.layout.health || {}).checks || []).length) {
+    station.layout.health = { ...s.health, report: station.layout.health.report };
+    showHealth(station.layout.health);
+  }
   if (s.role !== station.role) showRole(s.role);
   if (s.role === "watch" && !s.controlled) {  // the controller went away: take over
     api("/api/claim", {}).then((c) => showRole(c.role)).catch(() => {});
@@ -257,6 +267,32 @@ function fpsLoop() {
       v.node.querySelector(".fps").textContent = `${v.fps} frames/s`;
     }
   }, 1000);
+}
+
+// A run of the page (camera calibration, acquisition, check): its bar, stage and end in words.
+function showRun(r) {
+  station.run = r;
+  const running = !!r && r.status === "running";
+  $("run-cancel").disabled = !running || station.role !== "control";
+  $("run-start").disabled = running || station.role !== "control" ||
+    (station.state && station.state.activity !== "idle");
+  if (!r) return;
+  const bar = $("run-bar");
+  bar.max = Math.max(r.total, 1); bar.value = r.done;
+  const what = { acquire: "acquisition", check: "check", cameras: "cameras' calibration" }[r.kind];
+  $("run-status").textContent = `${what}: ${r.status}, ${r.stage} ${r.total ? `${r.done} / ${r.total}` : ""}` +
+    ` (${r.took_s.toFixed(0)} s)`;
+  $("run-message").textContent = r.message || "";
+  $("run-message").className = r.status === "failed" || r.status === "stopped" ? "failed" :
+    r.status === "done" ? "done" : "";
+  const resumable = r.kind === "acquire" && !running && !!r.resume;
+  $("run-resume").hidden = !resumable;
+  $("run-resume").disabled = !resumable || station.role !== "control";
+}
+
+async function startRun(body) {
+  say("");
+  try { await api("/api/run", body); } catch (err) { $("run-message").textContent = err.message; $("run-message").className = "failed"; }
 }
 
 // The calibration's health: when it was made, its checks as a plot of the offset (µm).
@@ -302,6 +338,21 @@ async function main() {
   $("measure").addEventListener("click", async () => {
     try { await api("/api/measure", {}); } catch (err) { say(err.message); }
   });
+  $("run-start").addEventListener("click", () => {
+    const kind = $("run-kind").value, name = $("run-name").value.trim();
+    const body = { kind };
+    if (name) body.name = name;
+    if (kind === "acquire") body.poses = parseInt($("run-poses").value, 10);
+    startRun(body);
+  });
+  $("run-cancel").addEventListener("click", async () => {
+    try { await api("/api/run/cancel", {}); } catch (err) { say(err.message); }
+  });
+  $("run-resume").addEventListener("click", () => {
+    const r = station.run;
+    if (r && r.out) startRun({ kind: "acquire", name: r.out.split("/").pop(), resume: true });
+  });
+  $("run-kind").addEventListener("change", () => { $("run-poses").disabled = $("run-kind").value !== "acquire"; });
   $("clear").addEventListener("click", () => {
     station.clicks = {}; station.std = {}; station.first = null; station.curves = {}; station.target = null;
     $("target-text").textContent = "no target: click in a view"; $("refusal").textContent = "";
