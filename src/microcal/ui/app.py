@@ -15,7 +15,11 @@ The routes (all under the token when there is one):
 ``GET /report``            the latest report.html beside the calibration (sandboxed)
 ``POST /api/claim``        take control if nobody has it
 ``POST /api/epipolar``     ``{"camera", "x_px", "y_px"}``: the click's curves in the others
-``POST /api/target``       ``{"clicks": {CAM: [x, y]}, "std_px": {CAM: s}}``: the 3D target
+``POST /api/target``       ``{"clicks": {CAM: [x, y]}, "std_px": {CAM: s}, "first", "offset_um"}``:
+                           the 3D target; the clicks after the ``first`` camera's are taken
+                           onto its epipolar line (or the target found along it); one
+                           camera: one click, the focal plane + the offset
+``POST /api/focal-plane``  one camera: the focal plane through the tip now
 ``POST /api/go``           ``{"target_um", "mode", "tolerance_um"}``
 ``POST /api/measure``      measure the tip now
 ``POST /api/stop``         stop now (any browser); a run under way is cancelled too
@@ -244,8 +248,15 @@ def create_app(
         stds = {str(k): _number(v, f"std_px of {k}") for k, v in std.items()}
         if any(not s > 0 for s in stds.values()):
             raise InputError("std_px: expected numbers of px > 0")
-        result = live.target_from_clicks(points, stds)
+        offset = _number(data.get("offset_um", 0.0), "offset_um")
+        first = data.get("first")
+        if first is not None and not isinstance(first, str):
+            raise InputError(f"first: expected a camera's name, got {first!r}"[:200])
+        result = await run_in_threadpool(live.target_from_clicks, points, stds, offset, first)
         return JSONResponse(result.as_dict())
+
+    async def focal_plane(request: Request) -> Response:
+        return JSONResponse(await run_in_threadpool(live.set_focal_plane))
 
     async def go(request: Request) -> Response:
         data = await body(request)
@@ -292,6 +303,7 @@ def create_app(
         Route("/api/epipolar", guarded(epipolar), methods=["POST"]),
         Route("/api/target", guarded(target, controlling=True), methods=["POST"]),
         Route("/api/go", guarded(go, controlling=True), methods=["POST"]),
+        Route("/api/focal-plane", guarded(focal_plane, controlling=True), methods=["POST"]),
         Route("/api/measure", guarded(measure, controlling=True), methods=["POST"]),
         Route("/api/stop", guarded(stop), methods=["POST"]),
         Route("/api/run", guarded(run_start, controlling=True), methods=["POST"]),
