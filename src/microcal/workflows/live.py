@@ -644,6 +644,14 @@ class LiveStation:
             self._measured = (p, cov)
             self._message = "measured"
 
+    def show_joints(self, d_um: ArrayLike) -> None:
+        """The joints (3,) µm as a run under way read them (the device is not asked while a
+        run moves it): the page's tip and predictions follow."""
+        d = np.asarray(d_um, dtype=np.float64)
+        if d.shape == (3,) and np.all(np.isfinite(d)):
+            with self._lock:
+                self._joints = d
+
     def stop(self) -> None:
         """Stop now: the device is told to stop and no further move is sent."""
         self.manipulator.halt()

@@ -264,7 +264,7 @@ class StationRuns:
             writer, pose_ids, d = _open_run(out, spec, rig, plan, req)
             todo = writer.remaining(pose_ids)
             before = len(pose_ids) - len(todo)
-            stage = f"poses stored of {len(pose_ids)}"
+            stage = "poses stored"
             with self._lock:
                 run.stage, run.done, run.total = stage, before, len(pose_ids)
 
@@ -273,6 +273,8 @@ class StationRuns:
                     run.done = before + done
                     if record.status != "ok":
                         run.message = f"pose {record.pose} failed: {record.reason or ''}"
+                joints = record.reported_um or record.commanded_um
+                self.live.show_joints(joints)  # the page's tip follows the run
 
             try:
                 run_acquisition(m, rig.cameras, rig.clock, d, todo, rig.board, writer.store,

@@ -98,8 +98,9 @@ function draw(v) {
     ctx.strokeStyle = color; ctx.lineWidth = 2;
     ctx.beginPath(); ctx.moveTo(x, y - 7); ctx.lineTo(x + 7, y); ctx.lineTo(x, y + 7); ctx.lineTo(x - 7, y);
     ctx.closePath(); ctx.stroke();
-    ctx.fillStyle = color; ctx.font = "12px sans-serif";
-    ctx.fillText(snap.how === "feature" ? "target found" : "on the line", x + 10, y + 18);
+    ctx.fillStyle = color; ctx.font = "12px sans-serif"; ctx.textAlign = "right";
+    ctx.fillText(snap.how === "feature" ? "target found" : "on the line", x - 10, y + 18);
+    ctx.textAlign = "left";
   }
 }
 
@@ -314,10 +315,12 @@ function showRun(r) {
     (station.state && station.state.activity !== "idle");
   if (!r) return;
   const bar = $("run-bar");
+  bar.hidden = false;
   bar.max = Math.max(r.total, 1); bar.value = r.done;
   const what = { acquire: "acquisition", check: "check", cameras: "cameras' calibration" }[r.kind];
-  $("run-status").textContent = `${what}: ${r.status}, ${r.stage} ${r.total ? `${r.done} / ${r.total}` : ""}` +
-    ` (${r.took_s.toFixed(0)} s)`;
+  const count = r.total ? ` ${r.done} / ${r.total}` : "";
+  $("run-status").textContent = (running ? `${what}: running, ${r.stage}${count}` :
+    `${what}: ${r.status}${count ? ` at${count}` : ""}`) + ` (${r.took_s.toFixed(0)} s)`;
   $("run-message").textContent = r.message || "";
   $("run-message").className = r.status === "failed" || r.status === "stopped" ? "failed" :
     r.status === "done" ? "done" : "";
