@@ -42,7 +42,8 @@ class SnappedClick:
     moved_px : float
         From the click to the pixel used, px.
     line_px : float
-        From the pixel used to the epipolar curve, px (0 for ``line``).
+        From the pixel used to the epipolar curve, px (0 for ``line``; NaN for ``click``, the
+        curve not in this view: None in :meth:`as_dict`).
     """
 
     q_px: FloatArray
@@ -53,8 +54,9 @@ class SnappedClick:
 
     def as_dict(self) -> dict[str, Any]:
         """Plain dict for JSON."""
+        line = self.line_px if np.isfinite(self.line_px) else None
         return {"q_px": self.q_px.tolist(), "std_px": self.std_px, "how": self.how,
-                "moved_px": self.moved_px, "line_px": self.line_px}  # fmt: skip
+                "moved_px": self.moved_px, "line_px": line}  # fmt: skip
 
 
 def nearest_on_curve(curve_px: ArrayLike, q_px: ArrayLike) -> tuple[FloatArray, float]:
