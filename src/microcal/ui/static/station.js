@@ -404,7 +404,9 @@ async function main() {
     const r = station.run;
     if (r && r.out) startRun({ kind: "acquire", name: r.out.split("/").pop(), resume: true });
   });
-  $("run-kind").addEventListener("change", () => { $("run-poses").disabled = $("run-kind").value !== "acquire"; });
+  const posesFor = () => { $("run-poses").disabled = $("run-kind").value !== "acquire"; };
+  $("run-kind").addEventListener("change", posesFor);
+  posesFor();
   $("clear").addEventListener("click", () => {
     station.clicks = {}; station.std = {}; station.first = null; station.curves = {}; station.target = null;
     $("target-text").textContent = "no target: click in a view"; $("refusal").textContent = "";
