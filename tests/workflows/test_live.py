@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -182,6 +183,14 @@ def test_one_camera_is_the_same_station_with_other_data(calibration):
             assert np.all(np.linalg.eigvalsh(t.cov_um2) > 0)
         with pytest.raises(InputError, match=r"offset: expected a number of µm"):
             live.target_from_clicks({"top": [800.0, 600.0]}, {"top": 0.5}, offset_um=float("nan"))
+        from microcal.workflows.live_runs import StationRuns
+
+        live.calibration_path = Path(calibration)
+        runs = StationRuns(live, root=Path(calibration).with_name("runs"))
+        for kind in ("acquire", "check"):
+            with pytest.raises(InputError, match=f"^{kind}: this station has one camera"):
+                runs.start(kind)
+        assert runs.state() is None
     finally:
         live.close()
         c.opened.close()

@@ -156,6 +156,11 @@ class StationRuns:
         unknown = sorted(set(opts) - {"name", "poses", "resume"})
         if unknown:
             raise InputError(f"run: unknown option(s) {', '.join(unknown)}"[:200])
+        if kind in ("acquire", "check") and len(self.live.models) < 2:
+            raise InputError(
+                f"{kind}: this station has one camera; the tip's depth is measured with two "
+                "or more (the commands take a rig with them)"
+            )
         work: Callable[[RunProgress], None]
         if kind == "acquire":
             work = self._acquisition(self.root / name, opts)
