@@ -106,7 +106,8 @@ def test_the_second_browser_watches_and_cannot_move_anything(live):
     assert second.post("/api/claim", json={}).json() == {"role": "watch"}
     assert second.get("/api/state").json()["role"] == "watch"
     for path, body in (("/api/go", {"target_um": [3000, 2000, 1500]}), ("/api/measure", {}),
-                       ("/api/target", {"clicks": {}})):  # fmt: skip
+                       ("/api/target", {"clicks": {}}), ("/api/run", {"kind": "check"}),
+                       ("/api/run/cancel", {}), ("/api/focal-plane", {})):  # fmt: skip
         r = second.post(path, json=body)
         assert r.status_code == 403
         assert r.json() == {
@@ -128,6 +129,12 @@ def test_the_second_browser_watches_and_cannot_move_anything(live):
     ("/api/epipolar", {"camera": "left", "x_px": 1, "y_px": 3}, 400, "camera 'left': this rig has top, side"),
     ("/api/target", {"clicks": {"top": [1, 2]}}, 400, "target: a click gives a ray, not a point"),
     ("/api/target", {"clicks": {"top": [1, 2], "side": [3, 4]}, "std_px": {"top": 0}}, 400, "std_px: expected numbers of px > 0"),
+    ("/api/target", {"clicks": {"top": [1, 2], "side": [3, 4]}, "first": 3}, 400, "first: expected a camera's name, got 3"),
+    ("/api/target", {"clicks": {"top": [1, 2], "side": [3, 4]}, "offset_um": "up"}, 400, "offset_um: expected a finite number"),
+    ("/api/focal-plane", {}, 400, "focal plane: for a one-camera rig"),
+    ("/api/run", {"kind": "dance"}, 400, "run: expected one of cameras, acquire, check, got 'dance'"),
+    ("/api/run", {"kind": "acquire", "name": "/etc"}, 400, "name: expected a plain word"),
+    ("/api/run", {"kind": "acquire", "poses": 5}, 400, "poses: expected 12 to"),
 ])  # fmt: skip
 def test_every_bad_request_is_one_line_and_nothing_moves(live, path, body, status, message):
     app = create_app(live, hosts=HOSTS)

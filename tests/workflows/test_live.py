@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -168,10 +169,28 @@ def test_one_camera_is_the_same_station_with_other_data(calibration):
         assert [cam["name"] for cam in live.layout()["cameras"]] == ["top"]
         assert live.layout()["click_to_target"] == "focal plane"
         assert live.epipolar("top", [800.0, 600.0]) == {}
-        with pytest.raises(
-            InputError, match=r"one-camera rig takes the depth from the focal plane"
-        ):
-            live.target_from_clicks({"top": [800.0, 600.0]}, {})
+        # one click: on the focal plane (through the tip when the station opened) + offset
+        top = live.models["top"]
+        tip, _ = live.predicted_um()
+        assert live.layout()["focal_plane"]["source"] == "the tip when the station opened"
+        assert live.focal_plane.depth_um == pytest.approx(top.depth_um(tip[None, :])[0])
+        on = live.target_from_clicks({"top": [800.0, 600.0]}, {"top": 0.5})
+        deeper = live.target_from_clicks({"top": [800.0, 600.0]}, {"top": 0.5}, offset_um=50.0)
+        for t, depth in ((on, live.focal_plane.depth_um), (deeper, live.focal_plane.depth_um + 50)):
+            np.testing.assert_allclose(top.project(t.target_um[None, :])[0], [800, 600], atol=1e-6)
+            assert top.depth_um(t.target_um[None, :])[0] == pytest.approx(depth, abs=1e-3)
+            assert t.residual_px["top"] < 1e-6
+            assert np.all(np.linalg.eigvalsh(t.cov_um2) > 0)
+        with pytest.raises(InputError, match=r"offset: expected a number of µm"):
+            live.target_from_clicks({"top": [800.0, 600.0]}, {"top": 0.5}, offset_um=float("nan"))
+        from microcal.workflows.live_runs import StationRuns
+
+        live.calibration_path = Path(calibration)
+        runs = StationRuns(live, root=Path(calibration).with_name("runs"))
+        for kind in ("acquire", "check"):
+            with pytest.raises(InputError, match=f"^{kind}: this station has one camera"):
+                runs.start(kind)
+        assert runs.state() is None
     finally:
         live.close()
         c.opened.close()

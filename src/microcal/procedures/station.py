@@ -17,7 +17,7 @@ import dataclasses
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from types import TracebackType
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -114,6 +114,10 @@ class Station:
         The closed loop's settings.
     on_correction : callable (ServoStep) -> None, optional
         Called with each measurement of the closed loop as it is made (progress).
+    probe : object, optional
+        What measures the tip: ``measure_with_covariance(d_um, frames)`` (the cameras'
+        :class:`VisionProbe` by default; one camera needs another, see
+        ``microcal.workflows.one_camera``).
 
     Raises
     ------
@@ -131,6 +135,7 @@ class Station:
         settle_s: float = 1.0,
         servo: ServoConfig | None = None,
         on_correction: Callable[[ServoStep], None] | None = None,
+        probe: Any = None,
     ) -> None:
         missing = sorted(set(rig.cameras) - set(cameras))
         if missing:
@@ -147,7 +152,7 @@ class Station:
         model = calibration.model
         extra = extra_inputs_reader(model, rig.sensors)
         models = {n: cameras[n] for n in rig.cameras}
-        self.probe = VisionProbe(rig.cameras, models, rig.board, self.frames)
+        self.probe = probe or VisionProbe(rig.cameras, models, rig.board, self.frames)
         method: Literal["optimal", "matrix"] = "optimal" if model.kind == "polynomial" else "matrix"
         self._open = FeedForward(rig.manipulator, model, method, extra, rig.clock)
         measure = self.probe.measure_with_covariance

@@ -15,10 +15,16 @@ The routes (all under the token when there is one):
 ``GET /report``            the latest report.html beside the calibration (sandboxed)
 ``POST /api/claim``        take control if nobody has it
 ``POST /api/epipolar``     ``{"camera", "x_px", "y_px"}``: the click's curves in the others
-``POST /api/target``       ``{"clicks": {CAM: [x, y]}, "std_px": {CAM: s}}``: the 3D target
+``POST /api/target``       ``{"clicks": {CAM: [x, y]}, "std_px": {CAM: s}, "first", "offset_um"}``:
+                           the 3D target; the clicks after the ``first`` camera's are taken
+                           onto its epipolar line (or the target found along it); one
+                           camera: one click, the focal plane + the offset
+``POST /api/focal-plane``  one camera: the focal plane through the tip now
 ``POST /api/go``           ``{"target_um", "mode", "tolerance_um"}``
 ``POST /api/measure``      measure the tip now
-``POST /api/stop``         stop now (any browser)
+``POST /api/stop``         stop now (any browser); a run under way is cancelled too
+``POST /api/run``          ``{"kind", "name", "poses", "resume"}``: start a run
+``POST /api/run/cancel``   cancel the run under way after its current step
 =========================  =================================================================
 """
 
@@ -42,6 +48,7 @@ from starlette.staticfiles import StaticFiles
 
 from ..errors import DeviceError, InputError, LimitError, MicrocalError
 from ..workflows.live import LiveStation
+from ..workflows.live_runs import StationRuns
 from .access import CLIENT_COOKIE, TOKEN_COOKIE, Control, token_matches
 
 __all__ = ["MAX_BODY_BYTES", "create_app"]
@@ -117,6 +124,7 @@ def create_app(
     token: str | None = None,
     hosts: frozenset[str] = frozenset(),
     control: Control | None = None,
+    runs: StationRuns | None = None,
 ) -> Starlette:
     """The station page's application around an opened :class:`LiveStation`.
 
@@ -129,8 +137,13 @@ def create_app(
         The ``Host`` values this server answers to (``127.0.0.1:8765``...); empty: any.
     control : Control, optional
         The controlling browser's lease (a fresh one by default).
+    runs : StationRuns, optional
+        The runs the page starts (by default on ``live``, writing beside its calibration;
+        none when the station was opened without the calibration's path).
     """
     lease = control or Control()
+    if runs is None and live.calibration_path is not None:
+        runs = StationRuns(live)
 
     def client_of(request: Request) -> str | None:
         return request.cookies.get(CLIENT_COOKIE)
@@ -181,7 +194,9 @@ def create_app(
 
     async def state(request: Request) -> Response:
         out = await run_in_threadpool(live.state)
-        return JSONResponse(out | {"role": role(request), "controlled": lease.held()})
+        run_state = runs.state() if runs is not None else None
+        extra = {"role": role(request), "controlled": lease.held(), "run": run_state}
+        return JSONResponse(out | extra | {"health": live.health})
 
     async def overlays(request: Request) -> Response:
         return JSONResponse(await run_in_threadpool(live.overlays))
@@ -233,8 +248,15 @@ def create_app(
         stds = {str(k): _number(v, f"std_px of {k}") for k, v in std.items()}
         if any(not s > 0 for s in stds.values()):
             raise InputError("std_px: expected numbers of px > 0")
-        result = live.target_from_clicks(points, stds)
+        offset = _number(data.get("offset_um", 0.0), "offset_um")
+        first = data.get("first")
+        if first is not None and not isinstance(first, str):
+            raise InputError(f"first: expected a camera's name, got {first!r}"[:200])
+        result = await run_in_threadpool(live.target_from_clicks, points, stds, offset, first)
         return JSONResponse(result.as_dict())
+
+    async def focal_plane(request: Request) -> Response:
+        return JSONResponse(await run_in_threadpool(live.set_focal_plane))
 
     async def go(request: Request) -> Response:
         data = await body(request)
@@ -250,8 +272,24 @@ def create_app(
         return JSONResponse({"started": True})
 
     async def stop(request: Request) -> Response:
+        if runs is not None:
+            runs.cancel()
         await run_in_threadpool(live.stop)
         return JSONResponse({"stopped": True})
+
+    def the_runs() -> StationRuns:
+        if runs is None:
+            raise InputError("runs: this station was opened without its calibration's path")
+        return runs
+
+    async def run_start(request: Request) -> Response:
+        data = await body(request)
+        kind = data.pop("kind", None)
+        started = await run_in_threadpool(the_runs().start, str(kind), data)
+        return JSONResponse({"started": started.kind})
+
+    async def run_cancel(request: Request) -> Response:
+        return JSONResponse({"cancelling": the_runs().cancel()})
 
     routes = [
         Route("/", guarded(page)),
@@ -265,8 +303,11 @@ def create_app(
         Route("/api/epipolar", guarded(epipolar), methods=["POST"]),
         Route("/api/target", guarded(target, controlling=True), methods=["POST"]),
         Route("/api/go", guarded(go, controlling=True), methods=["POST"]),
+        Route("/api/focal-plane", guarded(focal_plane, controlling=True), methods=["POST"]),
         Route("/api/measure", guarded(measure, controlling=True), methods=["POST"]),
         Route("/api/stop", guarded(stop), methods=["POST"]),
+        Route("/api/run", guarded(run_start, controlling=True), methods=["POST"]),
+        Route("/api/run/cancel", guarded(run_cancel, controlling=True), methods=["POST"]),
         Mount("/static", StaticFiles(directory=str(_STATIC)), name="static"),
     ]
     return Starlette(routes=routes, middleware=[Middleware(_Guard, token=token, hosts=hosts)])

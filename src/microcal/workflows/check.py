@@ -57,7 +57,9 @@ __all__ = [
     "CheckUpdate",
     "PeriodicCheck",
     "check_calibration",
+    "check_reference",
     "parse_every",
+    "record_check",
 ]
 
 
@@ -138,21 +140,42 @@ def check_calibration(
         measure = station.probe.measure_with_covariance
         result = run_check(rig_.manipulator, rig_.clock, measure, m, config=cfg,
                            reference=reference, progress=progress)  # fmt: skip
-        flag = _far_from_history(result, history, history_sigma)
         done = None
         if update is not None:
             done = _update(cal, m.name, result, calibration, update, rig_, measure, cfg)
+    flag = record_check(calibration, out_path, name, result, history, history_sigma, done)
+    return CheckOutcome(result, flag, done, Path(out_path))
+
+
+def check_reference(history: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray] | None:
+    """The residuals and covariances of the history's first valid check against the
+    calibration, the reference of the later checks (None before there is one)."""
+    return _reference(history)
+
+
+def record_check(
+    calibration: str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    name: str,
+    result: CheckResult,
+    history: list[dict[str, Any]],
+    history_sigma: float = 3.0,
+    update: CheckUpdate | None = None,
+) -> str:
+    """Write check.json and add the check to the calibration's history; returns its flag
+    (why its offset stands out from the history's, empty when it does not)."""
+    flag = _far_from_history(result, history, history_sigma)
     data: dict[str, JsonValue] = {"format": CHECK_FORMAT, **result.as_dict(), "flag": flag}
     data["provenance"] = provenance({"calibration": calibration}, command="check")
-    if done is not None:
-        data["update"] = done.to_json()
-    write_text_atomic(out_path, json.dumps(data, indent=1, allow_nan=False) + "\n")
+    if update is not None:
+        data["update"] = update.to_json()
+    write_text_atomic(out, json.dumps(data, indent=1, allow_nan=False) + "\n")
     entry = {k: v for k, v in data.items() if k not in ("format", "provenance", "update")}
     entry |= {"manipulator": name, "calibration_sha256": sha256_file(calibration, link_ok=True),
               "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
               "software": f"microcal {__version__}"}  # fmt: skip
     append_history(history_path(calibration), entry)
-    return CheckOutcome(result, flag, done, Path(out_path))
+    return flag
 
 
 def _check_outputs(

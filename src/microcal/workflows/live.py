@@ -32,6 +32,7 @@ from .._validation import FloatArray, as_array
 from ..control.visual_servo import ServoStep
 from ..devices.guarded_manipulator import GuardedManipulator
 from ..devices.rig import Rig
+from ..devices.rig_spec import RigSpec
 from ..devices.shared_camera import SharedCamera
 from ..errors import InputError, LimitError, MicrocalError
 from ..formats.calibration_file import load_calibration
@@ -42,6 +43,9 @@ from ..geometry.epipolar import epipolar_curve_px
 from ..kinematics.extra_inputs import default_extra_inputs
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..procedures.station import Arrival, Station
+from ..vision.measurement import _vp_of_frames
+from .click_snap import SnappedClick, snap_click
+from .one_camera import FocalPlane, OneCameraProbe
 from .station import open_calibrated_rig
 
 __all__ = [
@@ -84,12 +88,16 @@ class ClickTarget:
         Per clicked camera, how far the target projects from the click (full-resolution px).
     refusal : str, optional
         Why the target cannot be gone to (outside the soft limits), one line; None if it can.
+    snapped : dict of str -> SnappedClick
+        Per camera clicked after the first, where its click was taken to be (the target
+        found near the epipolar line, or the click projected onto the line).
     """
 
     target_um: FloatArray
     cov_um2: FloatArray
     residual_px: dict[str, float]
     refusal: str | None
+    snapped: dict[str, SnappedClick] = dataclasses.field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
         """Plain dict for JSON."""
@@ -99,6 +107,7 @@ class ClickTarget:
             "std_um": np.sqrt(np.diagonal(self.cov_um2)).tolist(),
             "residual_px": self.residual_px,
             "refusal": self.refusal,
+            "snapped": {n: s.as_dict() for n, s in self.snapped.items()},
         }
 
 
@@ -117,6 +126,19 @@ def _to_8bit(frame: NDArray[Any], bit_depth: int) -> NDArray[np.uint8]:
     shift = max(bit_depth - 8, 0)
     out: NDArray[np.uint8] = np.clip(frame >> shift, 0, 255).astype(np.uint8)
     return out
+
+
+def _predicted(cal: ManipulatorCalibration, d: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The calibration's tip (3,) µm for joints ``d`` (3,) and its covariance (3, 3) µm²."""
+    p = cal.predict_um(d[None, :])[0]
+    model = cal.model
+    u = d
+    if model.extra_inputs:
+        u = np.concatenate([d, np.ravel(default_extra_inputs(model.extra_inputs))])
+    std = model.prediction_std_um(u[None, :])[0]
+    scatter = cal.validation.get("std_um", 0.0) if cal.validation else 0.0
+    spread = float(scatter) if isinstance(scatter, int | float) else 0.0
+    return p, np.diag(std**2 + spread**2)
 
 
 class LiveStation:
@@ -141,6 +163,10 @@ class LiveStation:
         The calibration's health (:func:`calibration_health`), shown as it is.
     report : path, optional
         The latest report.html, served on request (:meth:`report_html`).
+    spec : RigSpec, optional
+        The rig as its file names it (the record of an acquisition started from the page).
+    calibration_path : path, optional
+        calibration.json (the page's checks join its history; :meth:`refresh_health`).
     """
 
     def __init__(
@@ -154,8 +180,12 @@ class LiveStation:
         settle_s: float = 1.0,
         health: Mapping[str, Any] | None = None,
         report: Path | None = None,
+        spec: RigSpec | None = None,
+        calibration_path: Path | None = None,
     ) -> None:
         self.health = dict(health or {})
+        self.spec = spec
+        self.calibration_path = calibration_path
         self.report = report
         self.manipulator = GuardedManipulator(rig.manipulator)
         self.cameras = {n: SharedCamera(c) for n, c in rig.cameras.items()}
@@ -165,12 +195,17 @@ class LiveStation:
             cameras=dict(self.cameras),
             manipulators={**rig.manipulators, rig.selected: self.manipulator},
         )
-        self.station = Station(
-            device, calibration, models, frames=frames, settle_s=settle_s, on_correction=self._step
-        )
+        self.models: dict[str, AnyCamera] = {n: models[n] for n in rig.cameras}
+        probe = None
+        self.focal_plane: FocalPlane | None = None
+        if len(self.models) == 1:  # one camera: across its axis measured, along it the model's
+            ((name, model),) = self.models.items()
+            probe = OneCameraProbe(self.cameras[name], model, rig.board,
+                                   lambda d: _predicted(calibration, d), frames)  # fmt: skip
+        self.station = Station(device, calibration, models, frames=frames, settle_s=settle_s,
+                               on_correction=self._step, probe=probe)  # fmt: skip
         self.description = description
         self.truth = rig.truth
-        self.models: dict[str, AnyCamera] = {n: models[n] for n in rig.cameras}
         self._lock = threading.Lock()  # guards the fields below
         self._worker: threading.Thread | None = None
         self._activity = "idle"
@@ -183,6 +218,8 @@ class LiveStation:
         self._sharpness: dict[str, float] = {}
         self._camera_errors: dict[str, str] = {}
         self.moves_started = 0
+        if probe is not None:
+            self.set_focal_plane("the tip when the station opened")
 
     # --- what the page shows -------------------------------------------------------------
 
@@ -201,8 +238,32 @@ class LiveStation:
             "rig": self.description,
             "simulated": self.truth is not None,
             "click_to_target": "rays" if len(self.models) >= 2 else "focal plane",
+            "focal_plane": None if self.focal_plane is None else self.focal_plane.as_dict(),
             "health": self.health | {"report": self.report is not None},
         }
+
+    def check_history(self) -> list[dict[str, Any]]:
+        """The checks of this calibration's device, oldest first (empty without the path).
+
+        Raises
+        ------
+        FormatError
+            The history cannot be read.
+        """
+        if self.calibration_path is None:
+            return []
+        single = len(load_calibration(self.calibration_path).manipulators) == 1
+        name = self.station.calibration.name
+        return of_device(read_history(self.calibration_path), name, single)
+
+    def refresh_health(self) -> None:
+        """Read the calibration's health again (after a check joined its history)."""
+        if self.calibration_path is None:
+            return
+        single = len(load_calibration(self.calibration_path).manipulators) == 1
+        cal = self.station.calibration
+        self.health = calibration_health(self.calibration_path, cal.name, single,
+                                         cal.validation or {})  # fmt: skip
 
     def report_html(self) -> bytes:
         """The latest report.html beside the calibration (a regular file, never a link).
@@ -292,17 +353,7 @@ class LiveStation:
         position (3,) µm and covariance (3, 3) µm² (the coefficients' uncertainty and the
         validation's scatter per axis)."""
         d = self._joints if d_um is None else as_array(d_um, "d_um", (3,))
-        cal = self.station.calibration
-        p = cal.predict_um(d[None, :])[0]
-        model = cal.model
-        u = d
-        if model.extra_inputs:
-            u = np.concatenate([d, np.ravel(default_extra_inputs(model.extra_inputs))])
-        std = model.prediction_std_um(u[None, :])[0]
-        scatter = cal.validation.get("std_um", 0.0) if cal.validation else 0.0
-        spread = float(scatter) if isinstance(scatter, int | float) else 0.0
-        cov = np.diag(std**2 + spread**2)
-        return p, cov
+        return _predicted(self.station.calibration, d)
 
     def limit_edges_um(self, samples: int = 9) -> list[FloatArray]:
         """The soft limits' box of joints as 12 edges in {G} (each (samples, 3) µm), through
@@ -357,9 +408,14 @@ class LiveStation:
         }
 
     def target_from_clicks(
-        self, clicks_px: Mapping[str, ArrayLike], click_std_px: Mapping[str, float]
+        self,
+        clicks_px: Mapping[str, ArrayLike],
+        click_std_px: Mapping[str, float],
+        offset_um: float = 0.0,
+        first: str | None = None,
     ) -> ClickTarget:
-        """The 3D target of clicks in two or more cameras, with its covariance.
+        """The 3D target of clicks in two or more cameras, or of one click on a one-camera
+        rig (its focal plane moved ``offset_um`` along the camera's axis), with its covariance.
 
         Parameters
         ----------
@@ -367,25 +423,57 @@ class LiveStation:
             Full-resolution pixels (distortion included).
         click_std_px : mapping of camera -> float
             Each click's standard deviation, full-resolution px.
+        offset_um : float
+            One camera: the target's distance from the focal plane along the camera's axis
+            (positive: away from the camera), µm.
+        first : str, optional
+            The camera clicked first: every other click is taken onto its epipolar curve,
+            onto the rig's target where that is found near the curve (:mod:`.click_snap`).
 
         Raises
         ------
         InputError
-            Fewer than two clicks (one camera: the focal plane gives the depth, which this
-            rig's page does not offer yet), an unknown camera, clicks whose rays do not meet.
+            Fewer than two clicks on a rig of two or more cameras, an unknown camera, clicks
+            whose rays do not meet, a click whose ray does not reach the focal plane.
         """
-        if len(clicks_px) < 2:
-            how = (
-                "click in a second view, on the epipolar line"
-                if len(self.models) >= 2
-                else "a one-camera rig takes the depth from the focal plane, not offered yet"
+        if not math.isfinite(offset_um):
+            raise InputError(f"offset: expected a number of µm, got {offset_um!r}")
+        if len(clicks_px) == 1 and self.focal_plane is not None:
+            ((name, click),) = clicks_px.items()
+            self._camera(name)
+            click_px = as_array(click, f"click in {name}", (2,))
+            p, cov = self.focal_plane.target(
+                click_px, float(click_std_px.get(name, 1.0)), offset_um
             )
-            raise InputError(f"target: a click gives a ray, not a point; {how}")
+            if not np.all(np.isfinite(p)):
+                raise InputError("target: the click's ray does not reach the focal plane")
+            residual = {
+                name: float(np.linalg.norm(self.models[name].project(p[None, :])[0] - click_px))
+            }
+            target = ClickTarget(p, cov, residual, self.refusal(p))
+            with self._lock:
+                self._target = target
+            return target
+        if len(clicks_px) < 2:
+            raise InputError(
+                "target: a click gives a ray, not a point; click in a second view, on the "
+                "epipolar line"
+            )
         names = [self._camera(n).name for n in clicks_px]
         cams = [self.models[n] for n in names]
         raw = [as_array(clicks_px[n], f"click in {n}", (2,)) for n in names]
-        q = [m.undistort_px(r[None, :]) for m, r in zip(cams, raw, strict=True)]
         std = [float(click_std_px.get(n, 1.0)) for n in names]
+        snapped: dict[str, SnappedClick] = {}
+        if first is not None and first in names:
+            curves = self.epipolar(first, raw[names.index(first)])
+            for i, n in enumerate(names):
+                if n == first:
+                    continue
+                feature = self.feature_px(n)
+                fq, fs = (None, 1.0) if feature is None else feature
+                snapped[n] = snap_click(curves[n], raw[i], std[i], fq, fs)
+                raw[i], std[i] = snapped[n].q_px, snapped[n].std_px
+        q = [m.undistort_px(r[None, :]) for m, r in zip(cams, raw, strict=True)]
         p, cov, _ = triangulate_views(cams, q, [s**2 * np.eye(2) for s in std])
         if not np.all(np.isfinite(p)):
             raise InputError("target: the clicks' rays do not meet; click on the epipolar line")
@@ -393,10 +481,49 @@ class LiveStation:
             n: float(np.linalg.norm(m.project(p)[0] - r))
             for n, m, r in zip(names, cams, raw, strict=True)
         }
-        target = ClickTarget(p[0], cov[0], residual, self.refusal(p[0]))
+        target = ClickTarget(p[0], cov[0], residual, self.refusal(p[0]), snapped)
         with self._lock:
             self._target = target
         return target
+
+    def feature_px(self, camera: str) -> tuple[FloatArray, float] | None:
+        """The rig's target (its virtual point, or a tool's tip) found in a frame of
+        ``camera`` now: pixel (2,) and its standard deviation, px; None when it is not found
+        or the camera fails."""
+        cam = self._camera(camera)
+        frame = cam.latest(MOVING_FRESH_S if self.moving else FRESH_S)
+        try:
+            frame = cam.grab() if frame is None else frame
+        except MicrocalError:
+            return None
+        got = _vp_of_frames([frame], self.station.rig.board, self.models[camera], None)
+        if isinstance(got, str):
+            return None
+        vps, cov, _ = got
+        sigma = float(getattr(self.models[camera], "projection_sigma_px", 0.0))
+        std = math.sqrt(max(float(np.linalg.eigvalsh(cov)[-1]), 0.0) + sigma**2)
+        return vps.mean(axis=0), max(std, 0.01)
+
+    def set_focal_plane(self, source: str | None = None) -> dict[str, object]:
+        """One camera: take the focal plane through the tip where the calibration puts it
+        now (the tip in focus); what it is now.
+
+        Raises
+        ------
+        InputError
+            The rig has two cameras or more (a second click gives the depth).
+        """
+        if len(self.models) != 1:
+            raise InputError(
+                "focal plane: for a one-camera rig; here a second view gives the depth"
+            )
+        (model,) = self.models.values()
+        p, cov = self.predicted_um()
+        when = source or f"the tip at {time.strftime('%H:%M:%S')}"
+        plane = FocalPlane.through(model, p, cov, when)
+        with self._lock:
+            self.focal_plane = plane
+        return plane.as_dict()
 
     def refusal(self, p_um: FloatArray) -> str | None:
         """Why the tip cannot be sent to ``p_um`` (3,) in {G}, one line; None if it can."""
@@ -517,6 +644,14 @@ class LiveStation:
             self._measured = (p, cov)
             self._message = "measured"
 
+    def show_joints(self, d_um: ArrayLike) -> None:
+        """The joints (3,) µm as a run under way read them (the device is not asked while a
+        run moves it): the page's tip and predictions follow."""
+        d = np.asarray(d_um, dtype=np.float64)
+        if d.shape == (3,) and np.all(np.isfinite(d)):
+            with self._lock:
+                self._joints = d
+
     def stop(self) -> None:
         """Stop now: the device is told to stop and no further move is sent."""
         self.manipulator.halt()
@@ -555,6 +690,7 @@ class LiveStation:
                 "camera_errors": dict(self._camera_errors),
                 "sharpness": dict(self._sharpness),
                 "halted": self.manipulator.halted,
+                "focal_plane": None if self.focal_plane is None else self.focal_plane.as_dict(),
             }
 
     def close(self) -> None:
@@ -618,12 +754,21 @@ def open_live_station(
     c = open_calibrated_rig(rig, calibration, manipulator=manipulator, seed=seed)
     try:
         description = "; ".join(f"{k}: {v}" for k, v in c.opened.description.items())
+        device = c.device
+        left_out = [n for n in device.cameras if n not in c.models]
+        if left_out and len(left_out) < len(device.cameras):  # the cameras calibrated
+            cameras = {n: cam for n, cam in device.cameras.items() if n in c.models}
+            unused = [device.cameras[n].close for n in left_out]  # closed with the rig
+            device = dataclasses.replace(device, cameras=cameras,
+                                         resources=[*device.resources, *unused])  # fmt: skip
+            description += f"; camera(s) {', '.join(left_out)} not calibrated, left out"
         single = len(load_calibration(calibration).manipulators) == 1
         health = calibration_health(calibration, c.entry.name, single, c.entry.validation)
         report = Path(calibration).with_name("report.html")
-        return LiveStation(c.device, c.entry, c.models, description, frames=frames,
+        return LiveStation(device, c.entry, c.models, description, frames=frames,
                            settle_s=1.0 if settle_s is None else settle_s, health=health,
-                           report=report if report.is_file() else None)  # fmt: skip
+                           report=report if report.is_file() else None, spec=c.spec,
+                           calibration_path=Path(calibration))  # fmt: skip
     except BaseException:
         c.opened.close()
         raise

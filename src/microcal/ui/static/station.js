@@ -7,7 +7,8 @@ const VIEW_WIDTH_PX = 640;
 const ZOOM_PX = 160;
 const MAX_FPS = 20;  // per camera: the views need no more, the camera's time goes to measuring
 const COLORS = { predicted: "#4cc3ff", measured: "#5fd38d", target: "#ff5fd2",
-  limits: "rgba(230, 200, 76, 0.55)", epipolar: "#ff9f43", click: "#ffffff" };
+  limits: "rgba(230, 200, 76, 0.55)", epipolar: "#ff9f43", click: "#ffffff",
+  feature: "#5fd38d", online: "#ff9f43" };
 
 const station = {
   layout: null, role: "watch", views: {}, overlays: {}, state: null,
@@ -90,6 +91,17 @@ function draw(v) {
     ctx.strokeStyle = COLORS.click; ctx.lineWidth = 1.5;
     ctx.beginPath(); ctx.arc(x, y, 5, 0, 2 * Math.PI); ctx.stroke();
   }
+  const snap = station.target && (station.target.snapped || {})[v.cam.name];
+  if (snap && snap.how !== "click") {  // where the click was taken to be: a diamond
+    const [x, y] = toCanvas(v, snap.q_px);
+    const color = snap.how === "feature" ? COLORS.feature : COLORS.online;
+    ctx.strokeStyle = color; ctx.lineWidth = 2;
+    ctx.beginPath(); ctx.moveTo(x, y - 7); ctx.lineTo(x + 7, y); ctx.lineTo(x, y + 7); ctx.lineTo(x - 7, y);
+    ctx.closePath(); ctx.stroke();
+    ctx.fillStyle = color; ctx.font = "12px sans-serif"; ctx.textAlign = "right";
+    ctx.fillText(snap.how === "feature" ? "target found" : "on the line", x - 10, y + 18);
+    ctx.textAlign = "left";
+  }
 }
 
 // Two requests in flight per camera: the server prepares the next frame while the browser
@@ -151,8 +163,13 @@ function showRole(role) {
   const badge = $("role");
   badge.className = `badge ${role}`;
   badge.textContent = role === "control" ? "this browser controls" : "watching: another browser controls";
-  for (const id of ["go", "measure", "clear"]) if (role !== "control") $(id).disabled = true;
-  if (role === "control") { $("measure").disabled = false; $("clear").disabled = false; updateGo(); }
+  for (const id of ["go", "measure", "clear", "run-start", "run-cancel", "run-resume", "focal-set"]) {
+    if (role !== "control") $(id).disabled = true;
+  }
+  if (role === "control") {
+    for (const id of ["measure", "clear", "run-start", "run-resume", "focal-set"]) $(id).disabled = false;
+    updateGo();
+  }
 }
 
 function updateGo() {
@@ -174,23 +191,47 @@ async function clickAt(v, q, std, refine) {
       station.first = name; station.clicks = { [name]: q }; station.std = { [name]: std };
       station.target = null;
       $("target-text").textContent = `clicked in ${name}; now click on the epipolar line in another view`;
-      $("refusal").textContent = "";
+      $("refusal").textContent = ""; $("snap-text").textContent = "";
     } else {
       station.clicks[name] = q; station.std[name] = std;
     }
-    if (station.first === name) {
-      station.curves = (await api("/api/epipolar", { camera: name, x_px: station.clicks[name][0],
-        y_px: station.clicks[name][1] })).curves;
-    }
-    if (Object.keys(station.clicks).length >= 2) {
-      const t = await api("/api/target", { clicks: station.clicks, std_px: station.std });
-      station.target = t;
-      $("target-text").textContent = `x, y, z = ${fmt(t.target_um, 1)} µm (± ${fmt(t.std_um, 1)})`;
-      $("refusal").textContent = t.refusal ? `refused: ${t.refusal}` : "";
+    if (oneCamera()) {
+      await askTarget();
+    } else {
+      if (station.first === name) {
+        station.curves = (await api("/api/epipolar", { camera: name, x_px: station.clicks[name][0],
+          y_px: station.clicks[name][1] })).curves;
+      }
+      if (Object.keys(station.clicks).length >= 2) await askTarget();
     }
   } catch (err) { say(err.message); }
   updateGo();
   for (const w of Object.values(station.views)) draw(w);
+}
+
+const oneCamera = () => station.layout && station.layout.click_to_target === "focal plane";
+
+// The target of the clicks: the server takes a second view's click onto the first's epipolar
+// line (or onto the target found along it) and says which; one camera: the focal plane.
+async function askTarget() {
+  const body = { clicks: station.clicks, std_px: station.std, first: station.first };
+  if (oneCamera()) body.offset_um = parseFloat($("offset").value) || 0;
+  const t = await api("/api/target", body);
+  station.target = t;
+  $("target-text").textContent = `x, y, z = ${fmt(t.target_um, 1)} µm (± ${fmt(t.std_um, 1)})`;
+  $("refusal").textContent = t.refusal ? `refused: ${t.refusal}` : "";
+  const words = Object.entries(t.snapped || {}).map(([n, s]) => (s.how === "feature" ?
+    `${n}: on the target found ${s.line_px.toFixed(1)} px from the line (the click moved ${s.moved_px.toFixed(1)} px)` :
+    s.how === "line" ? `${n}: the click projected onto the line (moved ${s.moved_px.toFixed(1)} px; no target found near it)` :
+    `${n}: the click as it is (the line does not cross this view)`));
+  if (oneCamera()) words.push(`on the focal plane ${(parseFloat($("offset").value) || 0).toFixed(1)} µm along the axis`);
+  $("snap-text").textContent = words.join("; ");
+}
+
+function showFocal(f) {
+  if (!f) return;
+  $("focal-text").textContent = `focal plane: ${f.depth_um.toFixed(1)} µm from the camera ` +
+    `(± ${f.depth_std_um.toFixed(2)}), through ${f.source}`;
 }
 
 function onClick(v, e) {
@@ -231,6 +272,12 @@ function showState(s) {
     $("arrival").textContent = text;
     $("arrival").className = "";
   }
+  showRun(s.run);
+  if (s.focal_plane) showFocal(s.focal_plane);
+  if (s.health && (s.health.checks || []).length !== ((station.layout.health || {}).checks || []).length) {
+    station.layout.health = { ...s.health, report: station.layout.health.report };
+    showHealth(station.layout.health);
+  }
   if (s.role !== station.role) showRole(s.role);
   if (s.role === "watch" && !s.controlled) {  // the controller went away: take over
     api("/api/claim", {}).then((c) => showRole(c.role)).catch(() => {});
@@ -257,6 +304,34 @@ function fpsLoop() {
       v.node.querySelector(".fps").textContent = `${v.fps} frames/s`;
     }
   }, 1000);
+}
+
+// A run of the page (camera calibration, acquisition, check): its bar, stage and end in words.
+function showRun(r) {
+  station.run = r;
+  const running = !!r && r.status === "running";
+  $("run-cancel").disabled = !running || station.role !== "control";
+  $("run-start").disabled = running || station.role !== "control" ||
+    (station.state && station.state.activity !== "idle");
+  if (!r) return;
+  const bar = $("run-bar");
+  bar.hidden = false;
+  bar.max = Math.max(r.total, 1); bar.value = r.done;
+  const what = { acquire: "acquisition", check: "check", cameras: "cameras' calibration" }[r.kind];
+  const count = r.total ? ` ${r.done} / ${r.total}` : "";
+  $("run-status").textContent = (running ? `${what}: running, ${r.stage}${count}` :
+    `${what}: ${r.status}${count ? ` at${count}` : ""}`) + ` (${r.took_s.toFixed(0)} s)`;
+  $("run-message").textContent = r.message || "";
+  $("run-message").className = r.status === "failed" || r.status === "stopped" ? "failed" :
+    r.status === "done" ? "done" : "";
+  const resumable = r.kind === "acquire" && !running && !!r.resume;
+  $("run-resume").hidden = !resumable;
+  $("run-resume").disabled = !resumable || station.role !== "control";
+}
+
+async function startRun(body) {
+  say("");
+  try { await api("/api/run", body); } catch (err) { $("run-message").textContent = err.message; $("run-message").className = "failed"; }
 }
 
 // The calibration's health: when it was made, its checks as a plot of the offset (µm).
@@ -286,6 +361,19 @@ function showHealth(h) {
 }
 
 async function main() {
+  $("offset").addEventListener("change", async () => {
+    if (station.role === "control" && Object.keys(station.clicks).length === 1 && oneCamera()) {
+      try { await askTarget(); } catch (err) { say(err.message); }
+      updateGo();
+    }
+  });
+  $("focal-set").addEventListener("click", async () => {
+    try {
+      showFocal(await api("/api/focal-plane", {}));
+      if (Object.keys(station.clicks).length === 1) await askTarget();
+    } catch (err) { say(err.message); }
+    updateGo();
+  });
   $("stop").addEventListener("click", async () => {
     try { await api("/api/stop", {}); $("message").textContent = "stop sent"; } catch (err) { say(err.message); }
   });
@@ -302,9 +390,27 @@ async function main() {
   $("measure").addEventListener("click", async () => {
     try { await api("/api/measure", {}); } catch (err) { say(err.message); }
   });
+  $("run-start").addEventListener("click", () => {
+    const kind = $("run-kind").value, name = $("run-name").value.trim();
+    const body = { kind };
+    if (name) body.name = name;
+    if (kind === "acquire") body.poses = parseInt($("run-poses").value, 10);
+    startRun(body);
+  });
+  $("run-cancel").addEventListener("click", async () => {
+    try { await api("/api/run/cancel", {}); } catch (err) { say(err.message); }
+  });
+  $("run-resume").addEventListener("click", () => {
+    const r = station.run;
+    if (r && r.out) startRun({ kind: "acquire", name: r.out.split("/").pop(), resume: true });
+  });
+  const posesFor = () => { $("run-poses").disabled = $("run-kind").value !== "acquire"; };
+  $("run-kind").addEventListener("change", posesFor);
+  posesFor();
   $("clear").addEventListener("click", () => {
     station.clicks = {}; station.std = {}; station.first = null; station.curves = {}; station.target = null;
     $("target-text").textContent = "no target: click in a view"; $("refusal").textContent = "";
+    $("snap-text").textContent = "";
     updateGo();
   });
   try {
@@ -312,8 +418,11 @@ async function main() {
   } catch (err) { say(err.message); return; }
   $("rig").textContent = `${station.layout.rig}; ${station.layout.manipulator}, target ` +
     `${station.layout.target.spec}`;
-  if (station.layout.click_to_target !== "rays") {
-    $("hint").textContent = "One camera: a click and the focal plane give the target (not offered yet).";
+  if (oneCamera()) {
+    $("hint").textContent = "One camera: click where the tip should go; the target lies on the " +
+      "camera's focal plane, moved by the offset along its axis.";
+    $("focal").hidden = false;
+    showFocal(station.layout.focal_plane);
   }
   buildViews();
   showHealth(station.layout.health);

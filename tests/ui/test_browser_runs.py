@@ -1,0 +1,107 @@
+"""Runs from the station page in real headless Chromium: an acquisition with its progress bar,
+cancelled and resumed from the page, a check that joins the health panel's plot, a run that
+fails said in words, and a watching browser that cannot start or cancel anything."""
+
+from __future__ import annotations
+
+import pytest
+
+from support.browser import ARGS, chromium_path, unavailable_reason
+from support.station_files import write_truth_calibration
+
+pytestmark = pytest.mark.skipif(unavailable_reason() is not None, reason=str(unavailable_reason()))
+
+
+@pytest.fixture
+def served(netns, tmp_path):
+    pytest.importorskip("starlette", reason="needs Starlette (pip install 'microcal[ui]')")
+    from playwright.sync_api import sync_playwright
+
+    from microcal.ui.serve import start_server
+    from microcal.workflows.live import open_live_station
+
+    calibration = str(write_truth_calibration(tmp_path / "calibration.json"))
+    server = start_server(open_live_station("sim", calibration, seed=0, frames=2), "127.0.0.1", 0)
+    try:
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=chromium_path(), args=ARGS)
+            try:
+                yield server, browser
+            finally:
+                browser.close()
+    finally:
+        server.stop()
+
+
+def _open(browser, url: str):
+    page = browser.new_context(viewport={"width": 1700, "height": 1100}).new_page()
+    page.goto(url)
+    page.wait_for_function("window.microcal.frames.top > 2 && window.microcal.frames.side > 2")
+    return page
+
+
+def _run(page) -> dict:
+    return page.evaluate("window.microcal.run")
+
+
+@pytest.mark.slow
+def test_an_acquisition_cancelled_and_resumed_from_the_page_then_a_check(served):
+    from microcal.formats.run_directory import RunDirectory
+
+    server, browser = served
+    live = server.live
+    page = _open(browser, server.url)
+    page.wait_for_function("window.microcal.role === 'control'")
+    watcher = _open(browser, server.url)
+    watcher.wait_for_function("window.microcal.role === 'watch'")
+    assert watcher.locator("#run-start").is_disabled()
+    page.select_option("#run-kind", "acquire")
+    page.fill("#run-poses", "12")
+    page.fill("#run-name", "from-page")
+    page.click("#run-start")
+    page.wait_for_function("window.microcal.run && window.microcal.run.done >= 2", timeout=120_000)
+    assert page.locator("#run-start").is_disabled()
+    assert float(page.get_attribute("#run-bar", "max")) == 12.0
+    # the watching browser sees the progress but cannot cancel
+    watcher.wait_for_function("window.microcal.run && window.microcal.run.status === 'running'")
+    assert watcher.locator("#run-cancel").is_disabled()
+    answer = watcher.evaluate(
+        """fetch('/api/run/cancel', {method: 'POST', headers: {'Content-Type': 'application/json'},
+                                     body: '{}'}).then((r) => r.status)"""
+    )
+    assert answer == 403
+    page.click("#run-cancel")
+    page.wait_for_function("window.microcal.run.status === 'cancelled'", timeout=120_000)
+    out = live.calibration_path.with_name("station-runs") / "from-page"
+    stored = len(RunDirectory(out).journal())
+    assert 2 <= stored < 12
+    assert page.locator("#run-resume").is_visible()
+    assert f"{stored} of 12 poses stored" in page.inner_text("#run-message")
+    assert f"microcal acquire --out {out} --resume" in page.inner_text("#run-message")
+    page.click("#run-resume")
+    page.wait_for_function(
+        f"window.microcal.run.status === 'running' && window.microcal.run.done > {stored}",
+        timeout=120_000,
+    )
+    page.click("#run-cancel")
+    page.wait_for_function("window.microcal.run.status === 'cancelled'", timeout=120_000)
+    assert len(RunDirectory(out).journal()) > stored
+    # a check: its verdict joins the health panel
+    page.select_option("#run-kind", "check")
+    page.fill("#run-name", "")
+    page.click("#run-start")
+    page.wait_for_function("window.microcal.run.kind === 'check' && window.microcal.run.status "
+                           "=== 'done'", timeout=240_000)  # fmt: skip
+    page.wait_for_function(
+        "document.querySelector('#health-check').textContent.includes('1 check')"
+    )
+    assert "verdict" in page.inner_text("#run-message")
+    # a name that is not a plain word: refused in words, nothing starts
+    page.select_option("#run-kind", "acquire")
+    page.fill("#run-name", "../elsewhere")
+    page.click("#run-start")
+    page.wait_for_function(
+        "document.querySelector('#run-message').textContent.includes('plain word')"
+    )
+    assert _run(page)["kind"] == "check"
+    assert page.inner_text("#error") == ""
