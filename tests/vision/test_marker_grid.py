@@ -89,10 +89,11 @@ def test_rendered_slides_are_numbered_right_and_centred_within_a_fiftieth_pixel(
         assert len(det.ids) > 300
         errors.append(np.linalg.norm(det.q_px - truth[det.ids], axis=1))
     err = np.concatenate(errors)
-    # Metric: RMS distance of the dot centres found from their true projections, px
-    # (0.7 px blur, noise 1 DN of 230, dots about 11 px across).
-    assert np.sqrt(np.mean(err**2)) < 0.02
-    assert np.percentile(err, 99) < 0.04
+    # Metric: distance of the dot centres found from their true projections, px (0.7 px
+    # blur, noise 1 DN of 230, dots about 11 px across): RMS about 0.005, every dot within
+    # 0.02 (the worst 0.013-0.015 over these poses and noise seeds 3, 11, 12)
+    assert np.sqrt(np.mean(err**2)) < 0.01
+    assert err.max() < 0.02
 
 
 def test_views_without_markers_or_with_too_few_say_why():
