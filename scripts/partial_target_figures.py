@@ -5,8 +5,9 @@ Usage: python scripts/partial_target_figures.py [--spec SPEC] [--points N] [--fr
 
 Each case places the target's centre (the end-effector) at N points in {G}: "whole" where
 both cameras see every feature, "top cut" / "side cut" where that camera's image edge cuts
-off part of the target, "both cut" where both do. Each point is measured from K frames per
-camera as ``microcal measure`` measures a pose; the 3D error is the measured point less the
+off part of the target, "both cut" where both do. The points of a case are measured from K frames
+per camera each as ``microcal measure`` measures a run's poses (the frame-to-frame scatter
+pooled over the case); the 3D error is the measured point less the
 true centre, with its predicted standard deviation from the measurement's covariance.
 """
 
@@ -20,7 +21,7 @@ import numpy as np
 from microcal import sim
 from microcal.sim.platforms import MARKED_END_EFFECTOR
 from microcal.sim.render import Placement
-from microcal.vision.measurement import measure_one
+from microcal.vision.measurement import measure_poses
 from microcal.vision.targets import parse_target
 
 #: The blur (sigma, px) up to which the hollow dots' holes are resolved: points nearer focus.
@@ -43,7 +44,7 @@ def cases(plat, target, n, rng):
     pts = target.points_um() - target.centre_um
     cols = np.array([c for c, _ in target.markers])
     rows = np.array([r for _, r in target.markers])
-    marks = pts[rows * target.cols + cols]
+    marks = pts[rows * target.cols + cols] if target.markers else pts
     out: dict[str, list[np.ndarray]] = {"whole": [], "top cut": [], "side cut": [], "both cut": []}
     grid = np.stack(np.meshgrid(np.arange(-40000, 40001, 250.0), np.arange(-40000, 40001, 250.0),
                                 indexing="ij"), axis=-1).reshape(-1, 2)  # fmt: skip
@@ -93,12 +94,16 @@ def main() -> None:
     rng = np.random.default_rng(args.seed)
     print(f"target {args.spec}, {args.frames} frames per camera and point, seed {args.seed}")
     for case, points in cases(plat, target, args.points, rng).items():
-        errs, sds, seen, t0 = [], [], {n: [] for n in models}, time.time()
-        for p in points:
+        t0 = time.time()
+        frames = {}
+        for k, p in enumerate(points):
             plat.scene.fixed = Placement(target, np.eye(3), p - target.centre_um)
-            cams = plat.cameras.items()
-            frames = {n: [cam.grab() for _ in range(args.frames)] for n, cam in cams}
-            m = measure_one(frames, models, target)
+            for n, cam in plat.cameras.items():
+                frames[(k, n)] = [cam.grab() for _ in range(args.frames)]
+        got = measure_poses(list(range(len(points))), np.array(points),
+                            lambda k, n, f=frames: f[(k, n)], models, target)  # fmt: skip
+        errs, sds, seen = [], [], {n: [] for n in models}
+        for m, p in zip(got, points, strict=True):
             if m.status != "ok":
                 print(f"  {case}: failed: {m.reason}")
                 continue

@@ -96,9 +96,12 @@ def test_rendered_boards_are_numbered_right_and_corners_within_a_fiftieth_pixel(
         assert len(det.ids) > 100
         errors.append(np.linalg.norm(det.q_px - truth[det.ids], axis=1))
     err = np.concatenate(errors)
-    # Metric: RMS distance of the corners found from their true projections, px (0.7 px
-    # blur, noise 1 DN of 230 over 8 averaged frames, squares about 24 px across).
-    assert np.sqrt(np.mean(err**2)) < 0.02
+    # Metric: distance of the corners found from their true projections, px (0.7 px blur,
+    # noise 1 DN of 230 over 8 averaged frames, squares about 24 px across): RMS about
+    # 0.007, every corner within 0.02 (the worst 0.015-0.018 over these poses, noise seeds 3
+    # and 11; 0.025 with the symmetry fit alone)
+    assert np.sqrt(np.mean(err**2)) < 0.01
+    assert err.max() < 0.02
 
 
 def test_views_without_the_circles_say_why():
