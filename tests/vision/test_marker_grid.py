@@ -236,6 +236,13 @@ def test_a_slide_moved_by_known_steps_across_its_plane_calibrates_from_different
     steps.write_text("dx_um,dy_um,dz_um\n" + "".join(f"{x},{y},{z}\n" for x, y, z in
                                                       CROSSING_STEPS_UM))  # fmt: skip
     out = tmp_path / "cameras.json"
+    images = [f"a={tmp_path}/a_*.png", f"b={tmp_path}/b_*.png"]
+    wrong = "dotgrid:60x45:500:300:markers=28,23/34,23/28,19"  # 6 and 4 steps, not 5 and 3
+    with pytest.raises(InputError) as refused:  # a spec the slide contradicts: nothing written
+        stereo_calibrate_images(wrong, images, out, known_displacements=steps)
+    assert "\n" not in str(refused.value)
+    assert "markers=28,23/33,23/28,20 would fit" in str(refused.value)
+    assert not out.exists()
     cal = stereo_calibrate_images(OVERFILLING_SLIDE, [f"a={tmp_path}/a_*.png",
                                   f"b={tmp_path}/b_*.png"], out, known_displacements=steps,
                                   camera_model="pinhole")  # fmt: skip

@@ -123,6 +123,15 @@ def test_a_marked_end_effector_partly_out_of_the_field_is_measured_as_the_whole_
     # the target partly out of the side camera's field is measured as well as the whole one
     assert np.sqrt(np.mean(cut**2)) < 1.0
     assert np.sqrt(np.mean(cut**2)) < 2.0 * np.sqrt(np.mean(whole**2)) + 0.2
+    # a marker spec the target contradicts: every pose fails, naming the markers that fit
+    wrong = parse_target(MARKED_END_EFFECTOR.replace("10,6/5,3", "11,6/5,2"))
+    refused = measure_poses([0, 3], np.array(points)[[0, 3]], lambda k, n: frames[(k, n)],
+                            plat.camera_models, wrong)  # fmt: skip
+    for m in refused:
+        assert m.status == "failed"
+        assert "do not match the spec's markers" in m.reason
+        assert "markers=5,6/10,6/5,3 would fit" in m.reason
+        assert "\n" not in m.reason
     # the covariance grows where the centre is extrapolated, and stays honest
     sd = np.array([np.sqrt(np.trace(m.cov_um2)) for m in got])
     assert np.all(np.linalg.norm(err, axis=1) < 5 * sd + 0.3)
