@@ -135,3 +135,28 @@ def test_a_marked_end_effector_partly_out_of_the_field_is_measured_as_the_whole_
     # the covariance grows where the centre is extrapolated, and stays honest
     sd = np.array([np.sqrt(np.trace(m.cov_um2)) for m in got])
     assert np.all(np.linalg.norm(err, axis=1) < 5 * sd + 0.3)
+
+
+def test_a_small_target_is_searched_in_its_textured_region_and_a_slide_in_the_whole_image():
+    from microcal.vision.marker_grid import _spectral_pitch_px
+    from microcal.vision.target_region import textured_box
+
+    plat = sim.platform("thesis", seed=1, overrides={"board": MARKED_END_EFFECTOR})
+    cam = plat.cameras["top"]
+    gray = cam.grab().astype(np.float32)
+    box = textured_box(gray, _spectral_pitch_px(gray))
+    assert box is not None
+    q = cam.last_truth.features_px[0]
+    # every dot inside, with room for its window; the box a small part of the frame
+    assert box[0] < q[:, 0].min() - 10
+    assert q[:, 0].max() + 10 < box[2]
+    assert box[1] < q[:, 1].min() - 10
+    assert q[:, 1].max() + 10 < box[3]
+    w, h = cam.model.image_size_px
+    assert (box[2] - box[0]) * (box[3] - box[1]) < 0.1 * w * h
+    # a slide that fills the image (dots everywhere, large or small): the whole image
+    yy, xx = np.mgrid[0:600, 0:800].astype(np.float32)
+    for pitch in (23.0, 160.0):
+        dots = np.hypot((xx % pitch) - pitch / 2, (yy % pitch) - pitch / 2) < 0.3 * pitch
+        slide = cv2.GaussianBlur(np.where(dots, 40.0, 200.0).astype(np.float32), (0, 0), 1.0)
+        assert textured_box(slide, pitch) is None

@@ -429,7 +429,7 @@ def detect_marker_grid(
         refined centres; ``found=False`` with the reason where the markers are not seen,
         are ambiguous or do not match the spec.
     """
-    box = None if whole else textured_box(gray)
+    box = None if whole else textured_box(gray, _spectral_pitch_px(gray))
     if box is not None:  # a target covering a part of a large, mostly empty frame
         x0, y0, x1, y1 = box
         det = detect_marker_grid(gray[y0:y1, x0:x1], target, whole=True)

@@ -8,7 +8,9 @@ large, mostly empty frame, where the background's noise, stretched to the image'
 would make thousands of false dots. The textured region is found on a copy shrunk 4 times
 (the noise averaged down, the pattern kept): the local standard deviation over a few pixels,
 above a level halfway between the image's typical (median) one and its high (99th
-percentile) one, the largest connected patch, and its box grown by a margin.
+percentile) one, joined over a pitch and a half (a slide's large dots are textured only at
+their edges), the largest connected patch, and its box grown by a margin. A patch covering
+more than half of the image is the whole image (a slide that overfills the field).
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ _MAX_SHARE = 0.5
 
 
 def textured_box(
-    gray: NDArray[np.float32], margin_px: float = 40.0
+    gray: NDArray[np.float32], pitch_px: float, margin_px: float = 40.0
 ) -> tuple[int, int, int, int] | None:
     """The box (x0, y0, x1, y1) of the image's largest textured patch, or None when the
     texture covers most of the image (or there is none): search the whole image then.
@@ -34,6 +36,9 @@ def textured_box(
     Parameters
     ----------
     gray : (H, W) float32
+    pitch_px : float
+        The pattern's period, px: the textured edges of neighbouring features (a slide's
+        large dots have flat insides and flat ground between them) are joined over it.
     margin_px : float
         Added on every side (clipped to the image).
     """
@@ -49,7 +54,8 @@ def textured_box(
     if high <= 2.0 * typical:  # texture everywhere, or nowhere
         return None
     mask = (std > 0.5 * (typical + high)).astype(np.uint8)
-    mask = cv2.dilate(mask, np.ones((5, 5), np.uint8))
+    join = 2 * int(np.ceil(0.75 * pitch_px / _SHRINK)) + 1  # a pitch and a half across
+    mask = cv2.dilate(mask, np.ones((max(join, 5), max(join, 5)), np.uint8))
     n, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     if n < 2:
         return None
