@@ -29,7 +29,7 @@ from scipy.special import erf
 
 from .._validation import FloatArray
 
-__all__ = ["MODEL_WINDOW_FRACTION", "fit_corner_model"]
+__all__ = ["MAX_MODEL_SHIFT_PX", "MODEL_WINDOW_FRACTION", "fit_corner_model"]
 
 #: The window's half-width as a fraction of the corner's spacing to its grid neighbours
 #: (a marker circle, half a square across in its square, stays outside it).

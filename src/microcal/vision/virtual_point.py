@@ -32,7 +32,7 @@ from ..geometry.camera_kinds import AnyCamera
 from .detect import Detection
 from .targets import Target
 
-__all__ = ["MIN_ANCHORED_FEATURES", "VirtualPoint", "virtual_point"]
+__all__ = ["MIN_ANCHORED_FEATURES", "VirtualPoint", "anchored_point", "virtual_point"]
 
 #: Features needed for the virtual point of a target numbered from markers (a homography
 #: has 8 parameters; a few more give its residual's scale).
