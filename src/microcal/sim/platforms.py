@@ -160,6 +160,9 @@ CALIBRATION_TARGET = "dotgrid:40x30:250"
 #: middle: an option of the ``thesis`` and ``telecentric`` presets, chosen by overriding
 #: ``calibration_target`` with it.
 OVERFILLING_SLIDE = "dotgrid:60x45:500:300:markers=28,23/33,23/28,20"
+#: An end-effector target numbered from hollow marker dots near its middle, measured from
+#: whatever part of it is in view: an option of every preset, chosen by overriding ``board``.
+MARKED_END_EFFECTOR = "dotgrid:14x10:500:300:markers=5,6/10,6/5,3"
 
 
 @dataclass

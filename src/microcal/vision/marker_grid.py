@@ -34,6 +34,7 @@ from .._validation import FloatArray
 from ..errors import InputError
 from .detection import Detection, homography_rms_px
 from .dot_centres import refine_dot_centres
+from .target_region import textured_box
 from .targets import Target, marker_text
 
 __all__ = ["MarkerMismatch", "check_marker_spec", "detect_marker_grid", "find_lattice_dots"]
@@ -406,7 +407,9 @@ def _steps_text(seen: NDArray[np.intp]) -> str:
     return text + (", ..." if len(d) > 6 else "")
 
 
-def detect_marker_grid(gray: NDArray[np.float32], target: Target) -> Detection:
+def detect_marker_grid(
+    gray: NDArray[np.float32], target: Target, *, whole: bool = False
+) -> Detection:
     """The visible part of a dot grid, numbered from its hollow marker dots.
 
     Parameters
@@ -414,6 +417,10 @@ def detect_marker_grid(gray: NDArray[np.float32], target: Target) -> Detection:
     gray : (H, W) float32
     target : Target
         A dot grid with ``markers``.
+    whole : bool
+        Search the whole image; by default a target covering a small part of a large,
+        mostly empty image is searched in its textured region
+        (:func:`~microcal.vision.target_region.textured_box`).
 
     Returns
     -------
@@ -422,6 +429,13 @@ def detect_marker_grid(gray: NDArray[np.float32], target: Target) -> Detection:
         refined centres; ``found=False`` with the reason where the markers are not seen,
         are ambiguous or do not match the spec.
     """
+    box = None if whole else textured_box(gray, _spectral_pitch_px(gray))
+    if box is not None:  # a target covering a part of a large, mostly empty frame
+        x0, y0, x1, y1 = box
+        det = detect_marker_grid(gray[y0:y1, x0:x1], target, whole=True)
+        if not det.found:
+            return det
+        return Detection(True, det.ids, det.q_px + (x0, y0), det.quality_px, method=det.method)
     dots = find_lattice_dots(gray)
     if dots.reason:
         return Detection.none(dots.reason)

@@ -8,6 +8,12 @@ result. A camera that lost its frames or did not find the board leaves the other
 measure (the pose's reason names it, its covariance counts the cameras that saw it); a pose
 seen by fewer than two cameras is marked failed with each camera's reason.
 
+A target numbered from markers (``dotgrid:...:markers=...``, ``chessboard:...:markers=...``)
+may be seen in part, a different part in each camera and at each pose: each frame's virtual
+point is then the picture of the target's centre through the homography of the features seen
+(:func:`~microcal.vision.virtual_point.virtual_point`), so every camera triangulates the same
+target point, and its covariance grows where the centre is extrapolated.
+
 The pixel covariance of a virtual point comes from the corners' residuals (independent
 corner noise); when poses have several frames, the frame-to-frame scatter pooled over the
 run replaces it, which also counts what moves all corners together (vibration).
@@ -203,7 +209,10 @@ def _camera_track(
     for k, pose in enumerate(poses):
         got: Frames | Seen = _frames_of(load_frames, pose, name, camera.image_size_px)
         if not isinstance(got, str):
-            got = _vp_of_frames(got, target, camera, predictor.predict(commands_um[k]))
+            # a target numbered from markers shows a different part at each pose: the mean
+            # of the features seen does not follow the joints, so the whole image is searched
+            roi = None if getattr(target, "partial", False) else predictor.predict(commands_um[k])
+            got = _vp_of_frames(got, target, camera, roi)
         if not isinstance(got, str):
             predictor.add(commands_um[k], got[2])
         out.append(got)
