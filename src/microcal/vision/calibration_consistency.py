@@ -229,7 +229,9 @@ def triangulated_pitch(
         (the mean's relative error in the worst cell of a 3 x 3 grid over the first camera's
         image) and ``segments``.
     """
-    obj = target.points_um()
+    # neighbours and the pitch from the nominal lattice: a slide whose dots were measured
+    # (its points off the lattice by the print's error) is compared with its stated pitch
+    obj = Target.points_um(target)
     names = list(cameras)
     first = names[0]
     w, h = cameras[first].image_size_px
