@@ -10,6 +10,7 @@ shows a tool entering the field from its edge.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -61,8 +62,10 @@ def find_target(
         tip = detect_tip(frame, target, roi=roi) if roi else detect_tip(frame, target)
         if not tip.found:
             return None
-        return TargetInFrame(tip.apex_px.reshape(1, 2), True,
-                             _along_shank(tip.apex_px, tip.axis, (w, h)))  # fmt: skip
+        spread = math.tan(math.radians(tip.half_angle_deg))
+        region = _along_shank(tip.apex_px, tip.axis, spread if math.isfinite(spread) else 0.5,
+                              (w, h))  # fmt: skip
+        return TargetInFrame(tip.apex_px.reshape(1, 2), True, region)
     det = detect(frame, target, roi=roi) if roi else detect(frame, target)
     if not det.found:
         return None
@@ -75,8 +78,11 @@ def find_target(
     return TargetInFrame(q, complete, box)
 
 
-def _along_shank(apex_px: FloatArray, axis: FloatArray, size: tuple[int, int]) -> Box:
-    """A box around the apex and the shank from it to the image's edge (along ``axis``)."""
+def _along_shank(
+    apex_px: FloatArray, axis: FloatArray, spread: float, size: tuple[int, int]
+) -> Box:
+    """A box around the apex and the shank from it to the image's edge (along ``axis``), the
+    shank as wide as it grows there (``spread``: half its width per pixel along it)."""
     w, h = size
     a = np.asarray(axis, dtype=np.float64)
     reach = []
@@ -85,11 +91,12 @@ def _along_shank(apex_px: FloatArray, axis: FloatArray, size: tuple[int, int]) -
             reach.append((top - c) / d)
         elif d < -1e-9:
             reach.append(-c / d)
-    end = apex_px + a * (min(reach) if reach else 0.0)
-    pts = np.array([apex_px, end])
+    length = min(reach) if reach else 0.0
+    end = apex_px + a * length
     half = TIP_REGION_HALF_PX
-    x0 = max(int(np.floor(pts[:, 0].min())) - half, 0)
-    y0 = max(int(np.floor(pts[:, 1].min())) - half, 0)
-    x1 = min(int(np.ceil(pts[:, 0].max())) + half + 1, w)
-    y1 = min(int(np.ceil(pts[:, 1].max())) + half + 1, h)
+    wide = half + abs(spread) * length  # the shank's half-width at the edge, and a margin
+    lo = np.minimum(apex_px - half, end - wide)
+    hi = np.maximum(apex_px + half, end + wide)
+    x0, y0 = max(int(np.floor(lo[0])), 0), max(int(np.floor(lo[1])), 0)
+    x1, y1 = min(int(np.ceil(hi[0])) + 1, w), min(int(np.ceil(hi[1])) + 1, h)
     return x0, y0, x1, y1
