@@ -149,7 +149,7 @@ SETUPS: dict[tuple[str, int], Setup] = {
     ("docs/hardware.md", 7): Setup(twin_rig="myrig.toml"),
     ("docs/hardware.md", 10): Setup(serve_s=0.2),
     ("docs/identification.md", 0): Setup(synthetic_run="runs/a"),
-    ("docs/simulator.md", 1): Setup(python_prelude="from microcal import sim\n"),
+    ("docs/simulator.md", 2): Setup(python_prelude="from microcal import sim\n"),
 }
 
 #: docs/hardware.md's rig fragments: (lines before, lines after) that make each a whole rig.

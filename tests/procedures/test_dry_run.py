@@ -18,3 +18,15 @@ def test_a_camera_with_the_wrong_frame_size_is_a_device_error():
     plan = plan_run("random", 20, 0, plat.manipulator.limits_um)
     with pytest.raises(DeviceError, match=r"camera top: frame is 1600 x 1198 px but the camera"):
         dry_run(plat.manipulator, plat.cameras, plat.scene.board, plan)
+
+
+def test_a_tool_on_the_manipulator_is_looked_for_as_a_tip():
+    from microcal.procedures.dry_run import dry_run
+    from microcal.procedures.planning import plan_run
+
+    plat = sim.platform("thesis-tip", seed=0, overrides={"board": "tip:needle:20:5"})
+    plan = plan_run("random", 20, 0, plat.manipulator.limits_um)
+    lines = dry_run(plat.manipulator, plat.cameras, plat.scene.board, plan)
+    cameras = [line for line in lines if line.startswith("camera ")]
+    assert len(cameras) == 2
+    assert all(line.endswith("; tip found") for line in cameras), cameras

@@ -33,8 +33,12 @@ TOP = microscope_camera(0.65, name="top")
 SIDE = _tilted(TOP, 40.0, "side")
 
 
-@pytest.mark.parametrize(("kind", "elevation"), [("needle", 10.0), ("jaw", 0.0)])
-def test_the_tip_point_triangulated_from_two_views_is_the_tools_own(kind, elevation):
+@pytest.mark.parametrize(
+    ("kind", "elevation", "spec"),
+    [("needle", 10.0, "tip:needle:12"), ("jaw", 0.0, "tip:jaw:12"),
+     ("needle", 10.0, "tip:needle:12:2")],  # with its size: from the vertex along the axis
+)  # fmt: skip
+def test_the_tip_point_triangulated_from_two_views_is_the_tools_own(kind, elevation, spec):
     rng = np.random.default_rng(4)
     errors = []
     for _ in range(3):
@@ -46,7 +50,7 @@ def test_the_tip_point_triangulated_from_two_views_is_the_tools_own(kind, elevat
             optics = Optics(0.3, focus_depth_um=float(cam.depth_um(tip)[0]))
             scene = ToolScene([placement], optics, Background("plain", seed=1))
             frames[cam.name] = [tool_image(cam, scene, rng)[0] for _ in range(2)]
-        m = measure_one(frames, {"top": TOP, "side": SIDE}, parse_tip(f"tip:{kind}:12"))
+        m = measure_one(frames, {"top": TOP, "side": SIDE}, parse_tip(spec))
         assert m.status == "ok", m.reason
         errors.append(m.p_um - tip)
         assert np.all(np.isfinite(m.cov_um2))

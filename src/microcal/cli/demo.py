@@ -22,7 +22,8 @@ _Preset = Annotated[
     str,
     Option(
         help="Simulated platform: thesis, telecentric, thesis-3cam, population, "
-        "thesis-platform (two manipulators and a positioner), thesis-real (motion noise)."
+        "thesis-platform (two manipulators and a positioner), thesis-real (motion noise), "
+        "thesis-tip (a glass pipette instead of the board)."
     ),
 ]
 _Model = Annotated[str, Option(help="Camera model: pinhole, affine or auto (by held-out error).")]

@@ -18,6 +18,7 @@ from typing import Any
 from .._validation import FloatArray
 from ..errors import DeviceError, InputError
 from ..vision.targets import Target, parse_target
+from ..vision.tip_target import TipTarget
 from .base import Camera, Clock, Device, Manipulator, RealClock
 from .held_axes import with_three_joints
 from .rig_spec import (
@@ -48,7 +49,7 @@ class Rig:
     cameras : dict of str to Camera
         By the names the run uses, in order.
     clock : Clock
-    board : Target
+    board : Target or TipTarget
         The end-effector's target.
     temperature : callable () -> float, optional
         Ambient temperature now, °C (the simulator's; None when the rig has no sensor).
@@ -86,7 +87,7 @@ class Rig:
     manipulator: Manipulator
     cameras: dict[str, Camera]
     clock: Clock
-    board: Target
+    board: Target | TipTarget
     temperature: Callable[[], float] | None = None
     truth: Callable[[], FloatArray] | None = None
     description: dict[str, str] = field(default_factory=dict)

@@ -30,9 +30,11 @@ from ..devices.base import Camera, Clock, Manipulator
 from ..errors import DeviceError, DeviceTimeoutError, FrameError, InputError, MicrocalError
 from ..journal_record import CreepFigures, JournalRecord, PoseStatus
 from ..kinematics.extra_inputs import APPROACH_INPUTS, extra_input
-from ..vision.detect import detect
 from ..vision.roi import RoiPredictor, box_around
+from ..vision.target_points import find_target
 from ..vision.targets import Target
+from ..vision.tip_measurement import TIP_BOX_HALF_PX
+from ..vision.tip_target import TipTarget
 
 __all__ = ["AcquisitionConfig", "RunStoppedError", "acquire", "grab_retrying"]
 
@@ -160,13 +162,14 @@ def grab_retrying(camera: Camera, retries: int) -> Frame:
 
 
 def _board_corners(
-    frame: Frame, target: Target, roi: tuple[int, int, int, int] | None
+    frame: Frame, target: Target | TipTarget, roi: tuple[int, int, int, int] | None
 ) -> FloatArray | None:
-    """The board's corners; with a region, only there (a hidden board has not jumped away)."""
-    det = detect(frame, target, roi=roi) if roi else detect(frame, target)
-    if not det.found or len(det.ids) != target.pattern_size[0] * target.pattern_size[1]:
+    """The board's corners (a tool's apex); with a region, only there (a hidden board has not
+    jumped away)."""
+    found = find_target(frame, target, roi)
+    if found is None or not found.complete:
         return None
-    return det.q_px
+    return found.points_px
 
 
 class CreepEstimator:
@@ -239,7 +242,7 @@ class CreepEstimator:
 
 def _settle_vision(
     cameras: Mapping[str, Camera],
-    target: Target,
+    target: Target | TipTarget,
     clock: Clock,
     config: AcquisitionConfig,
     roi: tuple[int, int, int, int] | None,
@@ -264,7 +267,8 @@ def _settle_vision(
         if corners is not None:
             vps.append(corners.mean(axis=0))
             times.append(clock.now_s() - start)
-            roi = box_around(corners)  # the board barely moves while it settles
+            # the board barely moves while it settles (a tool's box holds enough of its shank)
+            roi = box_around(corners, 30.0 if isinstance(target, Target) else TIP_BOX_HALF_PX)
         elapsed = clock.now_s() - start
         if creep.learning:
             if elapsed >= creep.window_s:
@@ -298,7 +302,7 @@ def acquire(
     clock: Clock,
     commands_um: FloatArray,
     poses: Sequence[int],
-    target: Target,
+    target: Target | TipTarget,
     store: Store,
     *,
     config: AcquisitionConfig | None = None,
@@ -388,12 +392,13 @@ def acquire(
             status, reason = "failed", str(exc)
         rois: dict[str, tuple[int, int, int, int]] = {}
         for name, cam_frames in frames.items():
-            det = detect(cam_frames[-1], target, roi=predictors[name].predict(d))
-            if not det.found:
+            seen = find_target(cam_frames[-1], target, predictors[name].predict(d),
+                               margin_squares=cfg.roi_margin_squares)  # fmt: skip
+            if seen is None:
                 continue
-            predictors[name].add(d, det.q_px)  # where the board is, for the next pose
+            predictors[name].add(d, seen.points_px)  # where the board is, for the next pose
             if name == first:
-                vp = det.q_px.mean(axis=0)
+                vp = seen.points_px.mean(axis=0)
                 if last is not None:
                     creep.add_scale(
                         float(np.linalg.norm(d - last[0])), float(np.linalg.norm(vp - last[1]))
@@ -401,11 +406,7 @@ def acquire(
                 last = (d, vp)
             if cfg.store_roi:
                 h, w = cam_frames[0].shape[:2]
-                square = float(np.median(np.linalg.norm(np.diff(det.q_px, axis=0), axis=1)))
-                lo = np.floor(det.q_px.min(axis=0) - cfg.roi_margin_squares * square).astype(int)
-                hi = np.ceil(det.q_px.max(axis=0) + cfg.roi_margin_squares * square).astype(int)
-                x0, y0 = max(int(lo[0]), 0), max(int(lo[1]), 0)
-                x1, y1 = min(int(hi[0]), w), min(int(hi[1]), h)
+                x0, y0, x1, y1 = seen.region_px
                 frames[name] = [f[y0:y1, x0:x1] for f in cam_frames]
                 rois[name] = (x0, y0, w, h)
         # the model's extra inputs, by registry

@@ -8,6 +8,8 @@ from ..devices.base import Camera, Manipulator
 from ..errors import DeviceError
 from ..vision.detect import detect
 from ..vision.targets import Target
+from ..vision.tip import detect_tip
+from ..vision.tip_target import TipTarget
 from .acquisition import grab_retrying
 from .planning import RunPlan
 
@@ -17,7 +19,7 @@ __all__ = ["dry_run"]
 def dry_run(
     manipulator: Manipulator,
     cameras: Mapping[str, Camera],
-    board: Target,
+    board: Target | TipTarget,
     plan: RunPlan,
     description: Mapping[str, str] | None = None,
 ) -> list[str]:
@@ -47,8 +49,12 @@ def dry_run(
                 f"camera {name}: frame is {w} x {h} px but the camera reports "
                 f"{cam.sensor_size_px[0]} x {cam.sensor_size_px[1]}"
             )
-        found = detect(frame, board)
-        seen = "board found" if found.found else f"board not found ({found.reason})"
+        if isinstance(board, TipTarget):  # a tool's tip instead of a board
+            tip = detect_tip(frame, board)
+            seen = "tip found" if tip.found else f"tip not found ({tip.reason})"
+        else:
+            found = detect(frame, board)
+            seen = "board found" if found.found else f"board not found ({found.reason})"
         lines.append(f"camera {name}: {w} x {h} px, {frame.dtype}, "
                      f"mean {float(frame.mean()):.1f}; {seen}")  # fmt: skip
     lines.append(f"design {plan.kind}: {plan.poses} poses, all within the soft limits")

@@ -33,6 +33,7 @@ from ..metrics import decoupling_metrics, multi_directional_variation, pose_stat
 from ..thesis.experiment import DECOUPLING_PATH_UM, TABLE_5_2_POSES_UM
 from ..vision.probe import VisionProbe
 from ..vision.targets import Target
+from ..vision.tip_target import TipTarget
 from . import trials
 from .evaluation_figures import (
     BySource,
@@ -329,7 +330,7 @@ def run_evaluation(
     clock: Clock,
     cameras: Mapping[str, Camera],
     models: dict[str, AnyCamera],
-    board: Target,
+    board: Target | TipTarget,
     calibration: ManipulatorCalibration,
     *,
     tests: str = "all",

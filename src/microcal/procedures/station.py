@@ -31,6 +31,7 @@ from ..errors import DetectionError, InputError
 from ..geometry import AnyCamera
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..vision.probe import VisionProbe
+from ..vision.targets import Target
 
 __all__ = ["Arrival", "Station", "check_frames"]
 
@@ -237,7 +238,8 @@ class Station:
             Naming both devices, their targets and the fix.
         """
         a, b = self.rig.board, other.rig.board
-        if self.rig.show is None and not a.told_apart_from(b):
+        apart = isinstance(a, Target) and isinstance(b, Target) and a.told_apart_from(b)
+        if self.rig.show is None and not apart:
             raise InputError(
                 f"{self.rig.selected} and {other.rig.selected} carry targets the cameras cannot "
                 f"tell apart in one image ({a.spec} and {b.spec}); give each device a ChArUco "

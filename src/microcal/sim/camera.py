@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import cv2
 import numpy as np
@@ -31,6 +32,8 @@ from ..errors import DeviceTimeoutError, FrameError, InputError
 from ..geometry.camera_kinds import AnyCamera
 from .render import Placement, Reflectance, render_region, roi_of
 from .slide_render import render_slide
+from .tool_render import render_tool_region, tool_roi
+from .tools import ToolPlacement
 
 __all__ = ["CameraFaults", "ImageFormation", "SimCamera"]
 
@@ -116,7 +119,7 @@ class FrameTruth:
     t_s: float
     offset_px: FloatArray
     features_px: list[FloatArray] = field(default_factory=list)  # per placement, (N, 2)
-    placements: list[Placement] = field(default_factory=list)
+    placements: list[Placement | ToolPlacement] = field(default_factory=list)
     spoiled: str = ""  # "occlusion" or "glare" when a fault spoiled the frame
 
 
@@ -127,8 +130,8 @@ class SimCamera(Camera):
     ----------
     model : CameraModel or AffineCamera
         The true camera (intrinsics, distortion, pose).
-    scene : callable t_s -> list of Placement
-        The targets in view at a given time.
+    scene : callable t_s -> list of Placement or ToolPlacement
+        The targets (boards, slides, tools) in view at a given time.
     clock : Clock
     rng : numpy.random.Generator
     pixel_size_um : float
@@ -141,7 +144,7 @@ class SimCamera(Camera):
     def __init__(
         self,
         model: AnyCamera,
-        scene: Callable[[float], list[Placement]],
+        scene: Callable[[float], list[Placement | ToolPlacement]],
         clock: Clock,
         rng: np.random.Generator,
         *,
@@ -173,9 +176,12 @@ class SimCamera(Camera):
         # noise^2): the same for every frame at one exposure.
         self._background: dict[tuple[float, ...], tuple[FloatArray32, FloatArray32]] = {}
 
-    def _blur_sigma(self, placement: Placement) -> float:
+    def _blur_sigma(self, placement: Placement | ToolPlacement) -> float:
         f = self.formation
-        centre = placement.R @ placement.target.centre_um + placement.t_um
+        if isinstance(placement, ToolPlacement):  # a tool: blurred as deep as its tip
+            centre = placement.tip_um
+        else:
+            centre = placement.R @ placement.target.centre_um + placement.t_um
         depth = float(self.model.depth_um(centre)[0])
         defocus = f.defocus_px_per_mm * abs(depth - f.focus_depth_um) / 1000.0
         return float(np.hypot(f.blur_sigma_px, defocus))
@@ -203,15 +209,27 @@ class SimCamera(Camera):
         """
         placements = self.scene(t_s)
         # A dot grid's glass plate (25 mm in the thesis) fills the view: glass is the background.
-        plate = any(p.target.kind == "dotgrid" for p in placements)
+        plate = any(isinstance(p, Placement) and p.target.kind == "dotgrid" for p in placements)
         level = self.reflectance.glass if plate else self.reflectance.background
         truth = FrameTruth(t_s, offset_px)
         self._rois = []
-        rendered = []
+        rendered: list[tuple[Box, float, NDArray[np.floating[Any]], NDArray[np.floating[Any]]]] = []
         for placement in placements:
             sigma = self._blur_sigma(placement)
-            roi = roi_of(self.model, placement, 4.0 * sigma + 3.0, offset_px)
             truth.placements.append(placement)
+            if isinstance(placement, ToolPlacement):  # a tool on the end-effector: its tip
+                roi = tool_roi(self.model, placement, 4.0 * sigma + 3.0, offset_px)
+                truth.features_px.append(self.model.project(placement.tip_um[None]) + offset_px)
+                if roi is None:
+                    continue
+                shade = render_tool_region(
+                    self.model, placement, roi, supersample=self.formation.supersample,
+                    offset_px=offset_px,
+                )  # fmt: skip
+                self._rois.append(roi)
+                rendered.append((roi, sigma, *shade))
+                continue
+            roi = roi_of(self.model, placement, 4.0 * sigma + 3.0, offset_px)
             truth.features_px.append(self.model.project(placement.points_world_um()) + offset_px)
             if roi is None:
                 continue

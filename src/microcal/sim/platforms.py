@@ -24,6 +24,13 @@ The other presets (:data:`PRESETS`) change the cameras only, but for ``populatio
 - ``thesis-real``: the ``thesis`` platform with motion noise and reversal error with memory
   (:data:`THESIS_PLAY`, :data:`THESIS_MOTION`, :mod:`~microcal.sim.motion`); everything
   else, frames included, as ``thesis``.
+- ``thesis-tip``: the ``thesis`` platform with a glass pipette on the manipulator instead of
+  the board (:data:`THESIS_TIP`, markerless): its tip point at the end-effector, its shank
+  along {G}'s +x rising :data:`TOOL_ELEVATION_DEG` towards +z, seen against a bright field
+  (:mod:`~microcal.sim.tools`, :mod:`~microcal.sim.tool_render`).
+
+Any preset takes a tool's tip instead of the board when its ``board`` is a tip spec
+(``tip:needle``, :mod:`~microcal.vision.tip_target`).
 
 A rig file turns these effects on or off on any preset with ``manipulator.real_motion``.
 """
@@ -44,14 +51,16 @@ from ..geometry.affine_camera import AffineCamera
 from ..geometry.camera_kinds import CAMERA_KINDS, AnyCamera
 from ..geometry.camera_model import DIST_LENGTHS, CameraModel
 from ..thesis.cameras import thesis_cameras
-from ..vision.targets import Target, parse_target
+from ..vision.targets import Target, parse_spec, parse_target
+from ..vision.tip_target import TipTarget
 from .camera import CameraFaults, ImageFormation, SimCamera
 from .clock import SimClock
 from .manipulator import ManipulatorFaults, SimManipulator
 from .motion import MotionNoise, PlayHysteresis, play_radii_um
 from .population import PopulationDraw, draw_population
-from .render import Placement
+from .render import Placement, Reflectance
 from .stage import SimStage
+from .tools import Tool, ToolPlacement, tool_axis
 
 __all__ = ["PlatformConfig", "Scene", "SimPlatform", "check_overrides", "platform"]
 
@@ -170,6 +179,11 @@ class PlatformConfig:
     """Every parameter of a simulated platform."""
 
     board: str = "chessboard:4x3:400"
+    """The end-effector's target: a board's spec, or a tool's tip (``tip:pipette:10:1``)."""
+    tool_elevation_deg: float = 20.0
+    """A tool's shank (``board`` a tip spec): its angle above {G}'s x-y plane, degrees."""
+    tool_azimuth_deg: float = 0.0
+    """A tool's shank: its direction in {G}'s x-y plane from +x towards +y, degrees."""
     calibration_target: str = CALIBRATION_TARGET
     """The target on the target stage (method (a) of the stereo calibration)."""
     top: CameraConfig = field(
@@ -196,7 +210,17 @@ class PlatformConfig:
 
 
 #: The simulator's presets (see the module docstring).
-PRESETS = ("thesis", "telecentric", "thesis-3cam", "population", "thesis-platform", "thesis-real")
+PRESETS = (
+    "thesis", "telecentric", "thesis-3cam", "population", "thesis-platform", "thesis-real",
+    "thesis-tip",
+)  # fmt: skip
+
+#: The ``thesis-tip`` preset's tool: a patch pipette of 10 degrees with a 1 µm opening.
+THESIS_TIP = "tip:pipette:10:1"
+#: The ``thesis-tip`` shank's elevation above {G}'s x-y plane, degrees.
+TOOL_ELEVATION_DEG = 20.0
+#: What lies behind a tool (bright field: the light through the sample), as a reflectance.
+BRIGHT_FIELD = 0.85
 
 #: The ``thesis-real`` reversal error with memory: per joint five play operators of radii
 #: 0.25-4 µm, equal weights: the reversal builds up over the first 8 µm after a turn.
@@ -247,6 +271,9 @@ def preset_config(preset: str) -> PlatformConfig:
         config = dataclasses.replace(
             config, manipulator=dataclasses.replace(config.manipulator, real_motion=True)
         )
+    elif preset == "thesis-tip":
+        config = dataclasses.replace(config, board=THESIS_TIP,
+                                     tool_elevation_deg=TOOL_ELEVATION_DEG)  # fmt: skip
     elif preset == "thesis-platform":
         config = dataclasses.replace(
             config,
@@ -303,14 +330,20 @@ def check_overrides(overrides: Mapping[str, object], preset: str = "thesis") -> 
     for key, value in overrides.items():
         config = _set_dotted(config, key, value)
     try:
-        parse_target(config.board)
+        parse_spec(config.board)
     except InputError as exc:
         raise InputError(f"override 'board': {exc}") from None
+    check_number("tool_elevation_deg", config.tool_elevation_deg, low=-89, high=89)
+    check_number("tool_azimuth_deg", config.tool_azimuth_deg, low=-360, high=360)
     return config
 
 
 class Scene:
-    """What the cameras see: the board on an end-effector and an optional fixed target.
+    """What the cameras see: the board (or a tool) on an end-effector and an optional fixed
+    target.
+
+    With a tool (``tool``, for a tip target in ``board``) the tool is seen instead of the
+    board: its tip point at the end-effector's true position, its shank along ``tool_axis``.
 
     With several devices (preset ``thesis-platform``), one board is seen at a time: that of
     the device moved last, or of the device :meth:`show` named after that. With a target
@@ -321,11 +354,12 @@ class Scene:
     def __init__(
         self,
         manipulator: SimManipulator,
-        board: Target,
+        board: Target | TipTarget,
         board_R: FloatArray,
         stage: SimStage | None = None,
         calibration_target: Target | None = None,
         others: dict[str, SimManipulator] | None = None,
+        tool: ToolPlacement | None = None,
     ) -> None:
         self.manipulator = manipulator
         self.devices = {manipulator.name: manipulator, **(others or {})}
@@ -336,6 +370,7 @@ class Scene:
         self.stage = stage
         self.calibration_target = calibration_target
         self._shown: tuple[str, float] | None = None
+        self.tool = tool  # its tip point is moved to the end-effector
 
     def show(self, name: str, t_s: float) -> None:
         """From ``t_s`` on, the board of device ``name`` is seen (until a device moves)."""
@@ -348,19 +383,23 @@ class Scene:
             return self.devices[self._shown[0]]
         return last
 
-    def board_placement(self, t_s: float) -> Placement:
-        """The board, its inner-corner centroid at the seen end-effector's true position."""
+    def board_placement(self, t_s: float) -> Placement | ToolPlacement:
+        """The board, its inner-corner centroid at the seen end-effector's true position (a
+        tool: its tip point there)."""
         p = self.visible().true_position_um(t_s)
+        if self.tool is not None:
+            return dataclasses.replace(self.tool, tip_um=p)
+        assert isinstance(self.board, Target)  # a tip target comes with its tool
         return Placement(self.board, self.board_R, p - self.board_R @ self.board.centre_um)
 
-    def __call__(self, t_s: float) -> list[Placement]:
+    def __call__(self, t_s: float) -> list[Placement | ToolPlacement]:
         stage, target = self.stage, self.calibration_target
         moved_last = stage is not None and stage.last_move_s > max(
             m.last_move_s for m in self.devices.values()
         )
         if moved_last and stage is not None and target is not None:
             return [Placement(target, np.eye(3), stage.joints_um(t_s))]
-        out = [] if self.fixed is None else [self.fixed]
+        out: list[Placement | ToolPlacement] = [] if self.fixed is None else [self.fixed]
         if self.show_board:
             out.append(self.board_placement(t_s))
         return out
@@ -444,12 +483,15 @@ def platform(
         manipulator.temperature_swing_c = draw.temperature_swing_c
         manipulator.temperature_period_h = draw.temperature_period_h
         manipulator.temperature_phase = draw.temperature_phase
-    board = parse_target(config.board)
+    board = parse_spec(config.board)
     stage = SimStage(clock, np.random.default_rng(root.spawn(1)[0]))
     others = _further_devices(config, manipulator, clock, root)
+    tool = None if isinstance(board, Target) else _tool_of(board, config)
     scene = Scene(
-        manipulator, board, np.eye(3), stage, parse_target(config.calibration_target), others
-    )
+        manipulator, board, np.eye(3), stage, parse_target(config.calibration_target), others,
+        tool,
+    )  # fmt: skip
+    reflectance = None if tool is None else Reflectance(background=BRIGHT_FIELD)
     top, side = thesis_cameras()
     views: list[tuple[CameraModel, CameraConfig, np.random.SeedSequence]] = [
         (top, config.top, s_top), (side, config.side, s_side)
@@ -469,8 +511,21 @@ def platform(
         cameras[camera.name] = SimCamera(
             camera, scene, clock, np.random.default_rng(seq), pixel_size_um=cfg.pixel_size_um,
             bit_depth=cfg.bit_depth, formation=formation, faults=cfg.faults,
+            reflectance=reflectance,
         )  # fmt: skip
     return SimPlatform(config, clock, manipulator, cameras, scene, seed, stage, draw)
+
+
+def _tool_of(target: TipTarget, config: PlatformConfig) -> ToolPlacement:
+    """The simulated tool of a tip target (a pipette for ``any``; a taper of 10 degrees and a
+    1 µm end where the spec gives none), its tip at the origin until placed."""
+    tool = Tool(
+        "pipette" if target.kind == "any" else target.kind,
+        taper_deg=target.taper_deg or 10.0,
+        tip_um=target.tip_um or 1.0,
+    )
+    axis = tool_axis(config.tool_elevation_deg, config.tool_azimuth_deg)
+    return ToolPlacement(tool, np.zeros(3), axis)
 
 
 def _further_devices(

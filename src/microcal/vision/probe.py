@@ -15,6 +15,7 @@ from ..geometry import AnyCamera
 from .measurement import measure_one
 from .roi import RoiPredictor
 from .targets import Target
+from .tip_target import TipTarget
 
 __all__ = ["FrameSource", "VisionProbe"]
 
@@ -40,7 +41,7 @@ class VisionProbe:
 
     cameras: Mapping[str, FrameSource]
     models: dict[str, AnyCamera]
-    target: Target
+    target: Target | TipTarget
     frames: int = 5
     frame_cov_px2: dict[str, FloatArray] | None = None
     _predictors: dict[str, RoiPredictor] = field(default_factory=dict)

@@ -5,10 +5,21 @@ frame, in a box around it, since the tool stands still during a pose), its apex 
 into the camera's ideal pixels, as the board's virtual point is: the cameras' apexes are then
 triangulated like virtual points. The apex is the image of the tip point on the tool's axis
 (``docs/conventions.md``), so every camera sees the same 3D point.
+
+When the spec gives the tool's size (``tip:needle:20:5``, ``tip:pipette:10:1``), the tip
+point's image is taken from where the taper's edges meet (the vertex, which the outline fixes
+far better than the end when the end is a fraction of a pixel) moved along the axis by the
+end's radius ``rho`` in pixels over ``sin(beta)``, ``beta`` half the angle between the edges
+in the image: a cone of half-angle ``alpha`` seen at ``phi`` from its axis shows
+``sin(beta) = sin(alpha) / sin(phi)``, and its tip point lies ``r / sin(alpha)`` (a sphere's
+centre) or ``r / tan(alpha)`` (a ring's) from the vertex, so its image lies ``rho / sin(beta)``
+(times ``cos(alpha)`` for the ring) from the vertex's. The pixel's size is the camera's at
+{G}'s origin (the calibration target's; within a few percent across a manipulator's travel).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -16,7 +27,7 @@ from numpy.typing import NDArray
 
 from .._validation import FloatArray
 from ..geometry import AnyCamera
-from .tip import detect_tip
+from .tip import TipDetection, detect_tip
 from .tip_target import TipTarget
 
 __all__ = ["TIP_BOX_HALF_PX", "tip_of_frames"]
@@ -44,9 +55,25 @@ def tip_of_frames(
             det = detect_tip(image, target)
         if not det.found:
             return det.reason
-        apexes.append(model.undistort_px(det.apex_px)[0])
+        apexes.append(model.undistort_px(tip_point_px(det, target, model))[0])
         covs.append(det.cov_px)
         if first is None:
             first = det.apex_px.reshape(1, 2)
     assert first is not None
     return np.array(apexes), np.mean(covs, axis=0), first
+
+
+def tip_point_px(det: TipDetection, target: TipTarget, model: AnyCamera) -> FloatArray:
+    """The tip point's image (2,): the detection's apex, or for a needle or a pipette whose
+    spec gives its taper and size, the vertex moved along the axis by the end's radius (see
+    the module docstring)."""
+    beta = math.radians(det.half_angle_deg)
+    known = target.kind in ("needle", "pipette") and target.taper_deg > 0 and target.tip_um > 0
+    if not known or not np.all(np.isfinite(det.vertex_px)) or not 0 < beta < math.pi / 2:
+        return det.apex_px
+    J = np.asarray(model.project_jacobian(np.zeros(3), distort=False), dtype=np.float64)
+    s = np.linalg.svd(J.reshape(2, 3), compute_uv=False)
+    rho_px = 0.5 * target.tip_um * math.sqrt(s[0] * s[1])
+    ring = math.cos(target.half_angle_rad) if target.kind == "pipette" else 1.0
+    out: FloatArray = det.vertex_px + det.axis * (rho_px * ring / math.sin(beta))
+    return out
