@@ -231,3 +231,17 @@ def test_the_calibrations_health_its_checks_and_the_report_beside_it(tmp_path):
         assert "line 1 is not JSON" in health["history_error"]
     finally:
         live.close()
+
+
+def test_one_camera_with_a_bare_tip_is_refused_in_words(calibration):
+    from microcal.vision.targets import parse_spec
+    from microcal.workflows.station import open_calibrated_rig
+
+    c = open_calibrated_rig("sim", calibration, seed=0)
+    try:
+        rig = dataclasses.replace(c.device, cameras={"top": c.device.cameras["top"]},
+                                  board=parse_spec("tip:pipette:10:1"))  # fmt: skip
+        with pytest.raises(InputError, match=r"one-camera station measures a board"):
+            LiveStation(rig, c.entry, {"top": c.models["top"]}, "one camera")
+    finally:
+        c.opened.close()

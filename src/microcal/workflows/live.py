@@ -44,6 +44,7 @@ from ..kinematics.extra_inputs import default_extra_inputs
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..procedures.station import Arrival, Station
 from ..vision.measurement import _vp_of_frames
+from ..vision.tip_target import TipTarget
 from .click_snap import SnappedClick, snap_click
 from .one_camera import FocalPlane, OneCameraProbe
 from .station import open_calibrated_rig
@@ -200,6 +201,11 @@ class LiveStation:
         self.focal_plane: FocalPlane | None = None
         if len(self.models) == 1:  # one camera: across its axis measured, along it the model's
             ((name, model),) = self.models.items()
+            if isinstance(rig.board, TipTarget):  # the opener closes the rig
+                raise InputError(
+                    "a one-camera station measures a board on the tool, not a bare tip yet: "
+                    "give the rig a board target, or calibrate two cameras"
+                )
             probe = OneCameraProbe(self.cameras[name], model, rig.board,
                                    lambda d: _predicted(calibration, d), frames)  # fmt: skip
         self.station = Station(device, calibration, models, frames=frames, settle_s=settle_s,
