@@ -19,6 +19,7 @@ import functools
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Literal, get_args
 
@@ -30,7 +31,7 @@ from ..devices.base import Camera, Clock, Manipulator
 from ..errors import DeviceError, DeviceTimeoutError, FrameError, InputError, MicrocalError
 from ..journal_record import CreepFigures, JournalRecord, PoseStatus
 from ..kinematics.extra_inputs import APPROACH_INPUTS, extra_input
-from ..vision.detect import detect
+from ..vision.lazy_frame import RegionFrame, detect_in, grab_frame, pixels_of
 from ..vision.roi import RoiPredictor, box_around
 from ..vision.targets import Target
 
@@ -159,11 +160,18 @@ def grab_retrying(camera: Camera, retries: int) -> Frame:
     return frame
 
 
+def _grab_region_frame(camera: Camera, retries: int) -> RegionFrame:
+    """One frame as a region frame (read where it is looked at), grabbed again after a
+    dropped frame or a timeout as :func:`grab_retrying` does."""
+    frame: RegionFrame = _retry(functools.partial(grab_frame, camera), retries)
+    return frame
+
+
 def _board_corners(
-    frame: Frame, target: Target, roi: tuple[int, int, int, int] | None
+    frame: RegionFrame, target: Target, roi: tuple[int, int, int, int] | None
 ) -> FloatArray | None:
     """The board's corners; with a region, only there (a hidden board has not jumped away)."""
-    det = detect(frame, target, roi=roi) if roi else detect(frame, target)
+    det = detect_in(frame, target, roi if roi else None)
     if not det.found or len(det.ids) != target.pattern_size[0] * target.pattern_size[1]:
         return None
     return det.q_px
@@ -237,6 +245,21 @@ class CreepEstimator:
         return float(self.tau_s * np.log(start_px / target_px))
 
 
+class _FrameSearch:
+    """The board's corners in a pose's frames, one after the other: each frame is searched
+    in the region around the corners found last (the board barely moves while it settles)."""
+
+    def __init__(self, target: Target, roi: tuple[int, int, int, int] | None) -> None:
+        self.target = target
+        self.roi = roi
+
+    def corners(self, frame: RegionFrame) -> FloatArray | None:
+        found = _board_corners(frame, self.target, self.roi)
+        if found is not None:
+            self.roi = box_around(found)
+        return found
+
+
 def _settle_vision(
     cameras: Mapping[str, Camera],
     target: Target,
@@ -245,7 +268,7 @@ def _settle_vision(
     roi: tuple[int, int, int, int] | None,
     creep: CreepEstimator,
     step_um: float,
-) -> tuple[float, float, dict[str, list[Frame]]]:
+) -> tuple[float, float, dict[str, list[RegionFrame]]]:
     """Wait until the board has settled; returns (time, last block change px, frames)."""
     first = next(iter(cameras))
     start = clock.now_s()
@@ -255,39 +278,56 @@ def _settle_vision(
         clock.sleep(max(0.0, creep.wait_s(step_um) - check_s))
     times: list[float] = []
     vps: list[FloatArray] = []
-    frames: list[Frame] = []
+    frames: list[RegionFrame] = []
     change = float("nan")
-    while True:
-        frame = grab_retrying(cameras[first], config.retries)
-        frames.append(frame)
-        corners = _board_corners(frame, target, roi)
-        if corners is not None:
-            vps.append(corners.mean(axis=0))
-            times.append(clock.now_s() - start)
-            roi = box_around(corners)  # the board barely moves while it settles
-        elapsed = clock.now_s() - start
-        if creep.learning:
-            if elapsed >= creep.window_s:
-                creep.add_track(np.array(times), np.array(vps).reshape(-1, 2), step_um)
-                break
-        else:
-            b = config.block
-            if len(vps) >= 2 * b:
-                change = float(
-                    np.linalg.norm(np.mean(vps[-b:], axis=0) - np.mean(vps[-2 * b : -b], axis=0))
-                )
-                if change < config.threshold_px:
+    b = config.block
+    # Each frame is searched on a second thread while the next is grabbed (rendered): the
+    # grabs do not depend on what is found until the block check may end the wait, and the
+    # frames are searched in order, each in the region the one before found the board in.
+    # What the loop decides, and when, is what searching each frame at once decides.
+    search = _FrameSearch(target, roi)
+    pending: list[tuple[Future[FloatArray | None], float]] = []
+
+    def collect() -> None:
+        for found, t_s in pending:
+            corners = found.result()
+            if corners is not None:
+                vps.append(corners.mean(axis=0))
+                times.append(t_s)
+        pending.clear()
+
+    with ThreadPoolExecutor(max_workers=1) as searcher:
+        while True:
+            frame = _grab_region_frame(cameras[first], config.retries)
+            frames.append(frame)
+            elapsed = clock.now_s() - start
+            pending.append((searcher.submit(search.corners, frame), elapsed))
+            if creep.learning:
+                if elapsed >= creep.window_s:
+                    collect()
+                    creep.add_track(np.array(times), np.array(vps).reshape(-1, 2), step_um)
                     break
-        if elapsed > config.settle_timeout_s:
-            break
+            elif len(vps) + len(pending) >= 2 * b:  # the block check may decide now
+                collect()
+                if len(vps) >= 2 * b:
+                    change = float(
+                        np.linalg.norm(
+                            np.mean(vps[-b:], axis=0) - np.mean(vps[-2 * b : -b], axis=0)
+                        )
+                    )
+                    if change < config.threshold_px:
+                        break
+            if elapsed > config.settle_timeout_s:
+                collect()
+                break
     n = config.frames_per_pose
     got = {first: frames[-n:]}
     for name, cam in cameras.items():
         if name != first:
-            got[name] = [grab_retrying(cam, config.retries) for _ in range(n)]
+            got[name] = [_grab_region_frame(cam, config.retries) for _ in range(n)]
     if len(got[first]) < n:
         got[first] += [
-            grab_retrying(cameras[first], config.retries) for _ in range(n - len(got[first]))
+            _grab_region_frame(cameras[first], config.retries) for _ in range(n - len(got[first]))
         ]
     return clock.now_s() - start, change, got
 
@@ -373,7 +413,7 @@ def acquire(
                 clock.sleep(cfg.fixed_s)
                 settle_s, change = cfg.fixed_s, float("nan")
                 frames = {
-                    n: [grab_retrying(cam, cfg.retries) for _ in range(cfg.frames_per_pose)]
+                    n: [_grab_region_frame(cam, cfg.retries) for _ in range(cfg.frames_per_pose)]
                     for n, cam in cameras.items()
                 }
             else:
@@ -387,9 +427,11 @@ def acquire(
             settle_s, change = clock.now_s() - t0 - moved_s, float("nan")
             status, reason = "failed", str(exc)
         rois: dict[str, tuple[int, int, int, int]] = {}
+        stored: dict[str, list[Frame]] = {}
         for name, cam_frames in frames.items():
-            det = detect(cam_frames[-1], target, roi=predictors[name].predict(d))
+            det = detect_in(cam_frames[-1], target, predictors[name].predict(d))
             if not det.found:
+                stored[name] = [pixels_of(f) for f in cam_frames]
                 continue
             predictors[name].add(d, det.q_px)  # where the board is, for the next pose
             if name == first:
@@ -400,14 +442,16 @@ def acquire(
                     )
                 last = (d, vp)
             if cfg.store_roi:
-                h, w = cam_frames[0].shape[:2]
+                h, w = cam_frames[0].shape
                 square = float(np.median(np.linalg.norm(np.diff(det.q_px, axis=0), axis=1)))
                 lo = np.floor(det.q_px.min(axis=0) - cfg.roi_margin_squares * square).astype(int)
                 hi = np.ceil(det.q_px.max(axis=0) + cfg.roi_margin_squares * square).astype(int)
                 x0, y0 = max(int(lo[0]), 0), max(int(lo[1]), 0)
                 x1, y1 = min(int(hi[0]), w), min(int(hi[1]), h)
-                frames[name] = [f[y0:y1, x0:x1] for f in cam_frames]
+                stored[name] = [f.region(x0, y0, x1, y1) for f in cam_frames]
                 rois[name] = (x0, y0, w, h)
+            else:
+                stored[name] = [pixels_of(f) for f in cam_frames]
         # the model's extra inputs, by registry
         readings = {
             extra_input(name).column: float(read()) for name, read in (sensors or {}).items()
@@ -431,7 +475,7 @@ def acquire(
             readings=readings,
             creep_model=creep_model,
         )
-        store(pose, frames, record)
+        store(pose, stored, record)
         previous_d = d
         done += 1
         try:
