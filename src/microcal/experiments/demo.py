@@ -48,9 +48,9 @@ from ..sim.platforms import CALIBRATION_TARGET
 from ..sim.render import Placement
 from ..thesis.experiment import TABLE_5_2_POSES_UM, WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
 from ..vision.detect import Detection, detect
+from ..vision.lazy_frame import PastedFrame, pasted_frames
 from ..vision.measurement import PoseMeasurement, measure_poses
 from ..vision.probe import VisionProbe
-from ..vision.roi import frames_from_region
 from ..vision.stereo_calibration import StereoCalibration, calibrate_known_displacements
 from ..vision.targets import Target, parse_target
 from .stage_clock import StageClock
@@ -352,7 +352,7 @@ def run_demo(
         for n, c in cal.cameras.items()
     }
 
-    def load(pose: int, name: str) -> list[NDArray[np.generic]]:
+    def load(pose: int, name: str) -> list[NDArray[np.generic]] | list[PastedFrame]:
         frames, record = kept[pose]
         if record.status != "ok":
             raise FormatError(f"acquisition failed: {record.reason or ''}")
@@ -361,7 +361,7 @@ def run_demo(
         roi = record.roi_px.get(name)
         if roi is None:
             return frames[name]
-        return frames_from_region(frames[name], roi[:2], roi[2:])
+        return pasted_frames(frames[name], roi[:2], roi[2:])  # made where they are read
 
     with clock.stage("measurement"):
         measurements = measure_poses(

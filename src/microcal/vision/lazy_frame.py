@@ -10,10 +10,12 @@ pixels the whole frame has there) and the whole frame only when asked for it.
 - :func:`detect_in` finds a target in a region of a frame (or the whole of it), as
   :func:`~microcal.vision.detect.detect` does with ``roi``.
 - :func:`pixels_of` is the whole frame of a region frame or an array.
+- :func:`pasted_frames` gives frames stored as a region back as region frames of full size.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -22,7 +24,15 @@ from numpy.typing import NDArray
 from .detect import Detection, detect
 from .targets import Target
 
-__all__ = ["ArrayFrame", "RegionFrame", "detect_in", "grab_frame", "pixels_of"]
+__all__ = [
+    "ArrayFrame",
+    "PastedFrame",
+    "RegionFrame",
+    "detect_in",
+    "grab_frame",
+    "pasted_frames",
+    "pixels_of",
+]
 
 Box = tuple[int, int, int, int]
 
@@ -111,3 +121,63 @@ def detect_in(
     if not det.found and det.reason.startswith("the image has"):  # detect's words for a box
         return detect(frame.full(), target, roi=roi)
     return det
+
+
+class PastedFrame:
+    """A region stored from a frame, on a frame of full size filled with the region's median
+    grey level (what :func:`~microcal.vision.roi.frames_from_region` gives), made only where
+    it is read.
+
+    Parameters
+    ----------
+    stored : (h, w) array
+        The stored region.
+    offset_px : (2,) int
+        x0, y0 of the region in the full frame.
+    full_size_px : (2,) int
+        Width and height of the full frame.
+    """
+
+    def __init__(
+        self, stored: NDArray[np.generic], offset_px: Sequence[int], full_size_px: Sequence[int]
+    ) -> None:
+        self._stored = stored
+        self._x0, self._y0 = int(offset_px[0]), int(offset_px[1])
+        self._w, self._h = int(full_size_px[0]), int(full_size_px[1])
+        self._fill: float | None = None
+        self._full: NDArray[np.generic] | None = None
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self._h, self._w
+
+    def region(self, x0: int, y0: int, x1: int, y1: int) -> NDArray[np.generic]:
+        if self._full is not None:
+            return self._full[y0:y1, x0:x1].copy()
+        f = self._stored
+        sx0, sy0 = self._x0, self._y0
+        sx1, sy1 = sx0 + f.shape[1], sy0 + f.shape[0]
+        if sx0 <= x0 and sy0 <= y0 and x1 <= sx1 and y1 <= sy1:  # inside the stored region
+            return f[y0 - sy0 : y1 - sy0, x0 - sx0 : x1 - sx0].copy()
+        if self._fill is None:
+            self._fill = float(np.median(np.asarray(f, dtype=np.float64)))
+        out = np.full((y1 - y0, x1 - x0), self._fill, dtype=f.dtype)
+        ox0, oy0 = max(x0, sx0), max(y0, sy0)
+        ox1, oy1 = min(x1, sx1, self._w), min(y1, sy1, self._h)
+        if ox0 < ox1 and oy0 < oy1:
+            out[oy0 - y0 : oy1 - y0, ox0 - x0 : ox1 - x0] = f[
+                oy0 - sy0 : oy1 - sy0, ox0 - sx0 : ox1 - sx0
+            ]
+        return out
+
+    def full(self) -> NDArray[np.generic]:
+        if self._full is None:
+            self._full = self.region(0, 0, self._w, self._h)
+        return self._full
+
+
+def pasted_frames(
+    frames: Sequence[NDArray[np.generic]], offset_px: Sequence[int], full_size_px: Sequence[int]
+) -> list[PastedFrame]:
+    """:func:`~microcal.vision.roi.frames_from_region` made only where the frames are read."""
+    return [PastedFrame(f, offset_px, full_size_px) for f in frames]

@@ -91,8 +91,8 @@ def _vp_of_frames(
 
 
 def _frames_of(
-    load_frames: Callable[[int, str], Frames], pose: int, name: str, size: tuple[int, int]
-) -> Frames | str:
+    load_frames: Callable[[int, str], AnyFrames], pose: int, name: str, size: tuple[int, int]
+) -> AnyFrames | str:
     """The frames of one camera at one pose, or why there are none usable."""
     from ..errors import FormatError
 
@@ -121,7 +121,7 @@ def _check_cameras(cameras: Mapping[str, object]) -> list[str]:
 def measure_poses(
     poses: Sequence[int],
     commands_um: FloatArray,
-    load_frames: Callable[[int, str], Frames],
+    load_frames: Callable[[int, str], AnyFrames],
     cameras: Mapping[str, AnyCamera],
     target: Target | TipTarget,
     *,
@@ -141,7 +141,8 @@ def measure_poses(
     commands_um : (N, k) float
         The joint commands of those poses (for predicting where the board is).
     load_frames : callable (pose, camera) -> list of images
-        The frames of one pose from one camera; raise ``FormatError`` for a broken file.
+        The frames of one pose from one camera (arrays, or region frames of
+        :mod:`~microcal.vision.lazy_frame`); raise ``FormatError`` for a broken file.
     cameras : dict name -> camera model
         Two or more cameras in {G}, of any kind.
     target : Target or TipTarget
@@ -192,7 +193,7 @@ Seen = tuple[FloatArray, FloatArray, FloatArray] | str
 def _camera_track(
     poses: Sequence[int],
     commands_um: FloatArray,
-    load_frames: Callable[[int, str], Frames],
+    load_frames: Callable[[int, str], AnyFrames],
     camera: AnyCamera,
     name: str,
     target: Target | TipTarget,
@@ -203,7 +204,7 @@ def _camera_track(
     predictor = RoiPredictor()
     out: list[Seen] = []
     for k, pose in enumerate(poses):
-        got: Frames | Seen = _frames_of(load_frames, pose, name, camera.image_size_px)
+        got: AnyFrames | Seen = _frames_of(load_frames, pose, name, camera.image_size_px)
         if not isinstance(got, str):
             got = _vp_of_frames(got, target, camera, predictor.predict(commands_um[k]))
         if not isinstance(got, str):
