@@ -11,8 +11,10 @@ would; occlusion and glare spoil the image.
 
 Only the box the targets cover is rendered and converted pixel by pixel; the background's
 signal and noise level are the same in every frame and kept per camera, so a frame outside
-the box costs one multiplication (noise level times the pool) and one rounding addition.
-The frames are the same, bit for bit, as converting the whole image each time gives.
+the box costs one multiplication (noise level times the pool) and one rounding addition,
+and only where it is read: :meth:`SimCamera.grab_lazy` gives an :class:`ExposedFrame` whose
+background is exposed by region when asked for (``grab`` exposes all of it). The frames are
+the same, bit for bit, as converting the whole image each time gives.
 """
 
 from __future__ import annotations
