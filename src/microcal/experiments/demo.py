@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -48,9 +49,9 @@ from ..sim.platforms import CALIBRATION_TARGET
 from ..sim.render import Placement
 from ..thesis.experiment import TABLE_5_2_POSES_UM, WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
 from ..vision.detect import Detection, detect
+from ..vision.lazy_frame import PastedFrame, pasted_frames
 from ..vision.measurement import PoseMeasurement, measure_poses
 from ..vision.probe import VisionProbe
-from ..vision.roi import frames_from_region
 from ..vision.stereo_calibration import StereoCalibration, calibrate_known_displacements
 from ..vision.targets import Target, parse_target
 from .stage_clock import StageClock
@@ -173,24 +174,43 @@ def target_views(
     plat.scene.show_board = False
     views = TargetViews({n: [] for n in plat.cameras}, {n: [] for n in plat.cameras},
                         {n: [] for n in plat.cameras})  # fmt: skip
-    for k, step in enumerate(steps_um):
-        plat.scene.fixed = Placement(target, np.eye(3), step)
-        for n, cam in plat.cameras.items():
-            images, truth = [], []
-            for _ in range(frames_per_view):
-                images.append(cam.grab().astype(np.float32))
-                assert cam.last_truth is not None
-                truth.append(cam.last_truth.features_px[0])
-            det = detect(np.mean(images, axis=0), target)
-            views.detections[n].append(det)
-            views.names[n].append(f"{n}_{k + 1:02d}")
-            if det.found:
-                views.truth_error_px[n].append(det.q_px - np.mean(truth, axis=0)[det.ids])
-        if progress:
-            progress(k + 1, len(steps_um))
+    # each view is detected on a second thread while the next is grabbed (rendered)
+    pending: dict[str, list[Future[tuple[Detection, FloatArray | None]]]] = {
+        n: [] for n in plat.cameras
+    }
+    with ThreadPoolExecutor(max_workers=1) as detector:
+        for k, step in enumerate(steps_um):
+            plat.scene.fixed = Placement(target, np.eye(3), step)
+            for n, cam in plat.cameras.items():
+                images, truth = [], []
+                for _ in range(frames_per_view):
+                    images.append(cam.grab().astype(np.float32))
+                    assert cam.last_truth is not None
+                    truth.append(cam.last_truth.features_px[0])
+                pending[n].append(detector.submit(_detect_view, images, truth, target))
+                views.names[n].append(f"{n}_{k + 1:02d}")
+            if progress:
+                progress(k + 1, len(steps_um))
+        for n, found in pending.items():
+            for view in found:
+                det, error = view.result()
+                views.detections[n].append(det)
+                if error is not None:
+                    views.truth_error_px[n].append(error)
     plat.scene.fixed = None
     plat.scene.show_board = True
     return views
+
+
+def _detect_view(
+    images: list[NDArray[np.float32]], truth: list[FloatArray], target: Target
+) -> tuple[Detection, FloatArray | None]:
+    """A view's frames averaged and detected, and the detection's error against the truth
+    averaged over the frames (None when the target is not found)."""
+    det = detect(np.mean(images, axis=0), target)
+    if not det.found:
+        return det, None
+    return det, det.q_px - np.mean(truth, axis=0)[det.ids]
 
 
 def calibrate_on_platform(
@@ -352,7 +372,7 @@ def run_demo(
         for n, c in cal.cameras.items()
     }
 
-    def load(pose: int, name: str) -> list[NDArray[np.generic]]:
+    def load(pose: int, name: str) -> list[NDArray[np.generic]] | list[PastedFrame]:
         frames, record = kept[pose]
         if record.status != "ok":
             raise FormatError(f"acquisition failed: {record.reason or ''}")
@@ -361,7 +381,7 @@ def run_demo(
         roi = record.roi_px.get(name)
         if roi is None:
             return frames[name]
-        return frames_from_region(frames[name], roi[:2], roi[2:])
+        return pasted_frames(frames[name], roi[:2], roi[2:])  # made where they are read
 
     with clock.stage("measurement"):
         measurements = measure_poses(

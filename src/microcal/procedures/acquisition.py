@@ -19,6 +19,7 @@ import functools
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Literal, get_args
 
@@ -30,6 +31,7 @@ from ..devices.base import Camera, Clock, Manipulator
 from ..errors import DeviceError, DeviceTimeoutError, FrameError, InputError, MicrocalError
 from ..journal_record import CreepFigures, JournalRecord, PoseStatus
 from ..kinematics.extra_inputs import APPROACH_INPUTS, extra_input
+from ..vision.lazy_frame import RegionFrame, grab_frame, pixels_of
 from ..vision.roi import RoiPredictor, box_around
 from ..vision.target_points import find_target
 from ..vision.targets import Target
@@ -161,8 +163,15 @@ def grab_retrying(camera: Camera, retries: int) -> Frame:
     return frame
 
 
+def _grab_region_frame(camera: Camera, retries: int) -> RegionFrame:
+    """One frame as a region frame (read where it is looked at), grabbed again after a
+    dropped frame or a timeout as :func:`grab_retrying` does."""
+    frame: RegionFrame = _retry(functools.partial(grab_frame, camera), retries)
+    return frame
+
+
 def _board_corners(
-    frame: Frame, target: Target | TipTarget, roi: tuple[int, int, int, int] | None
+    frame: RegionFrame, target: Target | TipTarget, roi: tuple[int, int, int, int] | None
 ) -> FloatArray | None:
     """The board's corners (a tool's apex); with a region, only there (a hidden board has not
     jumped away)."""
@@ -240,6 +249,23 @@ class CreepEstimator:
         return float(self.tau_s * np.log(start_px / target_px))
 
 
+class _FrameSearch:
+    """The board's corners in a pose's frames, one after the other: each frame is searched
+    in the region around the corners found last (the board barely moves while it settles)."""
+
+    def __init__(self, target: Target | TipTarget, roi: tuple[int, int, int, int] | None) -> None:
+        self.target = target
+        self.roi = roi
+        # a tool's box holds enough of its shank
+        self.margin_px = 30.0 if isinstance(target, Target) else float(TIP_BOX_HALF_PX)
+
+    def corners(self, frame: RegionFrame) -> FloatArray | None:
+        found = _board_corners(frame, self.target, self.roi)
+        if found is not None:
+            self.roi = box_around(found, self.margin_px)
+        return found
+
+
 def _settle_vision(
     cameras: Mapping[str, Camera],
     target: Target | TipTarget,
@@ -248,7 +274,7 @@ def _settle_vision(
     roi: tuple[int, int, int, int] | None,
     creep: CreepEstimator,
     step_um: float,
-) -> tuple[float, float, dict[str, list[Frame]]]:
+) -> tuple[float, float, dict[str, list[RegionFrame]]]:
     """Wait until the board has settled; returns (time, last block change px, frames)."""
     first = next(iter(cameras))
     start = clock.now_s()
@@ -258,40 +284,56 @@ def _settle_vision(
         clock.sleep(max(0.0, creep.wait_s(step_um) - check_s))
     times: list[float] = []
     vps: list[FloatArray] = []
-    frames: list[Frame] = []
+    frames: list[RegionFrame] = []
     change = float("nan")
-    while True:
-        frame = grab_retrying(cameras[first], config.retries)
-        frames.append(frame)
-        corners = _board_corners(frame, target, roi)
-        if corners is not None:
-            vps.append(corners.mean(axis=0))
-            times.append(clock.now_s() - start)
-            # the board barely moves while it settles (a tool's box holds enough of its shank)
-            roi = box_around(corners, 30.0 if isinstance(target, Target) else TIP_BOX_HALF_PX)
-        elapsed = clock.now_s() - start
-        if creep.learning:
-            if elapsed >= creep.window_s:
-                creep.add_track(np.array(times), np.array(vps).reshape(-1, 2), step_um)
-                break
-        else:
-            b = config.block
-            if len(vps) >= 2 * b:
-                change = float(
-                    np.linalg.norm(np.mean(vps[-b:], axis=0) - np.mean(vps[-2 * b : -b], axis=0))
-                )
-                if change < config.threshold_px:
+    b = config.block
+    # Each frame is searched on a second thread while the next is grabbed (rendered): the
+    # grabs do not depend on what is found until the block check may end the wait, and the
+    # frames are searched in order, each in the region the one before found the board in.
+    # What the loop decides, and when, is what searching each frame at once decides.
+    search = _FrameSearch(target, roi)
+    pending: list[tuple[Future[FloatArray | None], float]] = []
+
+    def collect() -> None:
+        for found, t_s in pending:
+            corners = found.result()
+            if corners is not None:
+                vps.append(corners.mean(axis=0))
+                times.append(t_s)
+        pending.clear()
+
+    with ThreadPoolExecutor(max_workers=1) as searcher:
+        while True:
+            frame = _grab_region_frame(cameras[first], config.retries)
+            frames.append(frame)
+            elapsed = clock.now_s() - start
+            pending.append((searcher.submit(search.corners, frame), elapsed))
+            if creep.learning:
+                if elapsed >= creep.window_s:
+                    collect()
+                    creep.add_track(np.array(times), np.array(vps).reshape(-1, 2), step_um)
                     break
-        if elapsed > config.settle_timeout_s:
-            break
+            elif len(vps) + len(pending) >= 2 * b:  # the block check may decide now
+                collect()
+                if len(vps) >= 2 * b:
+                    change = float(
+                        np.linalg.norm(
+                            np.mean(vps[-b:], axis=0) - np.mean(vps[-2 * b : -b], axis=0)
+                        )
+                    )
+                    if change < config.threshold_px:
+                        break
+            if elapsed > config.settle_timeout_s:
+                collect()
+                break
     n = config.frames_per_pose
     got = {first: frames[-n:]}
     for name, cam in cameras.items():
         if name != first:
-            got[name] = [grab_retrying(cam, config.retries) for _ in range(n)]
+            got[name] = [_grab_region_frame(cam, config.retries) for _ in range(n)]
     if len(got[first]) < n:
         got[first] += [
-            grab_retrying(cameras[first], config.retries) for _ in range(n - len(got[first]))
+            _grab_region_frame(cameras[first], config.retries) for _ in range(n - len(got[first]))
         ]
     return clock.now_s() - start, change, got
 
@@ -377,7 +419,7 @@ def acquire(
                 clock.sleep(cfg.fixed_s)
                 settle_s, change = cfg.fixed_s, float("nan")
                 frames = {
-                    n: [grab_retrying(cam, cfg.retries) for _ in range(cfg.frames_per_pose)]
+                    n: [_grab_region_frame(cam, cfg.retries) for _ in range(cfg.frames_per_pose)]
                     for n, cam in cameras.items()
                 }
             else:
@@ -391,10 +433,12 @@ def acquire(
             settle_s, change = clock.now_s() - t0 - moved_s, float("nan")
             status, reason = "failed", str(exc)
         rois: dict[str, tuple[int, int, int, int]] = {}
+        stored: dict[str, list[Frame]] = {}
         for name, cam_frames in frames.items():
             seen = find_target(cam_frames[-1], target, predictors[name].predict(d),
                                margin_squares=cfg.roi_margin_squares)  # fmt: skip
             if seen is None:
+                stored[name] = [pixels_of(f) for f in cam_frames]
                 continue
             predictors[name].add(d, seen.points_px)  # where the board is, for the next pose
             if name == first:
@@ -407,8 +451,10 @@ def acquire(
             if cfg.store_roi:
                 h, w = cam_frames[0].shape[:2]
                 x0, y0, x1, y1 = seen.region_px
-                frames[name] = [f[y0:y1, x0:x1] for f in cam_frames]
+                stored[name] = [f.region(x0, y0, x1, y1) for f in cam_frames]
                 rois[name] = (x0, y0, w, h)
+            else:
+                stored[name] = [pixels_of(f) for f in cam_frames]
         # the model's extra inputs, by registry
         readings = {
             extra_input(name).column: float(read()) for name, read in (sensors or {}).items()
@@ -432,7 +478,7 @@ def acquire(
             readings=readings,
             creep_model=creep_model,
         )
-        store(pose, frames, record)
+        store(pose, stored, record)
         previous_d = d
         done += 1
         try:

@@ -11,8 +11,10 @@ would; occlusion and glare spoil the image.
 
 Only the box the targets cover is rendered and converted pixel by pixel; the background's
 signal and noise level are the same in every frame and kept per camera, so a frame outside
-the box costs one multiplication (noise level times the pool) and one rounding addition.
-The frames are the same, bit for bit, as converting the whole image each time gives.
+the box costs one multiplication (noise level times the pool) and one rounding addition,
+and only where it is read: :meth:`SimCamera.grab_lazy` gives an :class:`ExposedFrame` whose
+background is exposed by region when asked for (``grab`` exposes all of it). The frames are
+the same, bit for bit, as converting the whole image each time gives.
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ from .slide_render import render_slide
 from .tool_render import render_tool_region, tool_roi
 from .tools import ToolPlacement
 
-__all__ = ["CameraFaults", "ImageFormation", "SimCamera"]
+__all__ = ["CameraFaults", "ExposedFrame", "ImageFormation", "SimCamera"]
 
 
 @dataclass(frozen=True)
@@ -279,6 +281,19 @@ class SimCamera(Camera):
         pass  # nothing to release: closing only marks the device closed
 
     def _grab(self) -> NDArray[np.unsignedinteger]:
+        return self._grab_frame().full()
+
+    def grab_lazy(self) -> ExposedFrame:
+        """One frame as :meth:`grab` gives it, exposed only where it is read.
+
+        The same random draws and the same pixels as :meth:`grab`: the box the targets cover
+        is exposed now, any other region of the frame when it is asked for
+        (:meth:`ExposedFrame.region`, or the whole frame by :meth:`ExposedFrame.full`).
+        """
+        self._check_open("grab")
+        return self._grab_frame()
+
+    def _grab_frame(self) -> ExposedFrame:
         f = self.faults
         if f.timeout_rate and self.rng.random() < f.timeout_rate:
             self.clock.sleep(1.0)
@@ -331,33 +346,91 @@ class SimCamera(Camera):
         k: np.float32,
         read2: np.float32,
         top: int,
-    ) -> NDArray[np.unsignedinteger]:
+    ) -> ExposedFrame:
         """The frame: vignetting, electrons, shot and read noise, quantisation.
 
         ``patch`` is the reflectance over ``box`` (the whole image when ``background`` is
         None); elsewhere the image is the background, whose mean DN and noise level are
         ``background``. Mean DN, then noise of std ``sqrt(DN * k + (read_noise * k)^2)`` DN:
-        the pool's at a random offset, fresh over every rendered region.
+        the pool's at a random offset, fresh over every rendered region. The box is
+        exposed now; the background where the frame is read (:class:`ExposedFrame`).
         """
         h, w = self._vignette.shape
         start = int(self.rng.integers(0, h * w))
         pool = self._pool[start : start + h * w].reshape(h, w)
-        if background is not None:
-            dn0, spread0 = background
-            frame = _quantise(dn0, cv2.multiply(spread0, pool), top, self.dtype)
+        inner = None
+        if box is not None and patch is not None:
+            x0, y0, x1, y1 = box
+            dn, spread = _dn_and_spread(patch, self._vignette[y0:y1, x0:x1], gain, k, read2)
+            noisy = spread * pool[y0:y1, x0:x1]
+            for rx0, ry0, rx1, ry1 in self._rois:
+                fresh = self.rng.standard_normal((ry1 - ry0, rx1 - rx0), dtype=np.float32)
+                region = (slice(ry0 - y0, ry1 - y0), slice(rx0 - x0, rx1 - x0))
+                noisy[region] = spread[region] * fresh
+            inner = _quantise(dn, noisy, top, self.dtype)
+        return ExposedFrame((h, w), self.dtype, top, pool, background, box, inner)
+
+
+class ExposedFrame:
+    """A simulated frame whose background is exposed where it is read.
+
+    The box the targets cover is exposed when the frame is grabbed (``inner``); the rest is
+    the background's mean DN plus its noise level times the frame's slice of the noise pool,
+    quantised when a region of it is asked for: pixel for pixel what exposing the whole frame
+    at once gives (every operation is per pixel); a
+    :class:`~microcal.vision.lazy_frame.RegionFrame`.
+    """
+
+    def __init__(
+        self,
+        shape: tuple[int, int],
+        dtype: type[np.unsignedinteger],
+        top: int,
+        pool: FloatArray32,
+        background: tuple[FloatArray32, FloatArray32] | None,
+        box: Box | None,
+        inner: NDArray[np.unsignedinteger] | None,
+    ) -> None:
+        self._shape = shape
+        self._dtype = dtype
+        self._top = top
+        self._pool = pool
+        self._background = background
+        self._box = box
+        self._inner = inner
+        self._full: NDArray[np.unsignedinteger] | None = None
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(height, width) of the whole frame, px."""
+        return self._shape
+
+    def region(self, x0: int, y0: int, x1: int, y1: int) -> NDArray[np.unsignedinteger]:
+        """The frame's pixels over [x0, x1) x [y0, y1) (inside the frame), a new array."""
+        if self._full is not None:
+            return self._full[y0:y1, x0:x1].copy()
+        if self._background is not None:
+            dn0, spread0 = self._background
+            part = (slice(y0, y1), slice(x0, x1))
+            out = _quantise(dn0[part], cv2.multiply(spread0[part], self._pool[part]),
+                            self._top, self._dtype)  # fmt: skip
         else:
-            frame = np.empty((h, w), dtype=self.dtype)
-        if box is None or patch is None:
-            return frame
-        x0, y0, x1, y1 = box
-        dn, spread = _dn_and_spread(patch, self._vignette[y0:y1, x0:x1], gain, k, read2)
-        noisy = spread * pool[y0:y1, x0:x1]
-        for rx0, ry0, rx1, ry1 in self._rois:
-            fresh = self.rng.standard_normal((ry1 - ry0, rx1 - rx0), dtype=np.float32)
-            region = (slice(ry0 - y0, ry1 - y0), slice(rx0 - x0, rx1 - x0))
-            noisy[region] = spread[region] * fresh
-        frame[y0:y1, x0:x1] = _quantise(dn, noisy, top, self.dtype)
-        return frame
+            out = np.empty((y1 - y0, x1 - x0), dtype=self._dtype)
+        if self._box is not None and self._inner is not None:
+            bx0, by0, bx1, by1 = self._box
+            ox0, oy0, ox1, oy1 = max(x0, bx0), max(y0, by0), min(x1, bx1), min(y1, by1)
+            if ox0 < ox1 and oy0 < oy1:
+                out[oy0 - y0 : oy1 - y0, ox0 - x0 : ox1 - x0] = self._inner[
+                    oy0 - by0 : oy1 - by0, ox0 - bx0 : ox1 - bx0
+                ]
+        return out
+
+    def full(self) -> NDArray[np.unsignedinteger]:
+        """The whole frame, (h, w), exposed on the first call (later calls: the same array)."""
+        if self._full is None:
+            h, w = self._shape
+            self._full = self.region(0, 0, w, h)
+        return self._full
 
 
 FloatArray32 = NDArray[np.float32]

@@ -31,16 +31,18 @@ from .._parallel import fork_map
 from .._validation import FloatArray
 from ..errors import DetectionError
 from ..geometry import AnyCamera, CameraModelProtocol, triangulate_views
-from .detect import detect
+from .lazy_frame import RegionFrame, detect_in, pixels_of
 from .roi import RoiPredictor, box_around
 from .targets import Target
 from .tip_measurement import tip_of_frames
 from .tip_target import TipTarget
 from .virtual_point import virtual_point
 
-__all__ = ["PoseMeasurement", "measure_one", "measure_poses"]
+__all__ = ["PoseMeasurement", "Seen", "camera_view", "measure_one", "measure_poses", "measure_seen"]
 
 Frames = Sequence[NDArray[np.generic]]
+#: Frames of one camera, as arrays or as region frames (read where they are searched).
+AnyFrames = Sequence[NDArray[np.generic] | RegionFrame]
 
 
 @dataclass
@@ -64,7 +66,7 @@ class PoseMeasurement:
 
 
 def _vp_of_frames(
-    frames: Frames,
+    frames: AnyFrames,
     target: Target | TipTarget,
     model: AnyCamera,
     roi: tuple[int, int, int, int] | None,
@@ -72,14 +74,14 @@ def _vp_of_frames(
     """Virtual points (k, 2), their mean residual covariance (2, 2), and corners of frame 0
     (a tool's tip: its apexes, their covariance and the first apex)."""
     if isinstance(target, TipTarget):
-        return tip_of_frames(frames, target, model, roi)
+        return tip_of_frames([pixels_of(f) for f in frames], target, model, roi)
     vps, covs, corners0 = [], [], None
     for image in frames:
         if corners0 is not None:  # the board stays put during a pose: search around frame 0
             roi = box_around(corners0)
-        det = detect(image, target, roi=roi) if roi is not None else None
+        det = detect_in(image, target, roi) if roi is not None else None
         if det is None or not det.found:
-            det = detect(image, target)
+            det = detect_in(image, target)
         if not det.found:
             return det.reason
         try:
@@ -95,8 +97,8 @@ def _vp_of_frames(
 
 
 def _frames_of(
-    load_frames: Callable[[int, str], Frames], pose: int, name: str, size: tuple[int, int]
-) -> Frames | str:
+    load_frames: Callable[[int, str], AnyFrames], pose: int, name: str, size: tuple[int, int]
+) -> AnyFrames | str:
     """The frames of one camera at one pose, or why there are none usable."""
     from ..errors import FormatError
 
@@ -125,7 +127,7 @@ def _check_cameras(cameras: Mapping[str, object]) -> list[str]:
 def measure_poses(
     poses: Sequence[int],
     commands_um: FloatArray,
-    load_frames: Callable[[int, str], Frames],
+    load_frames: Callable[[int, str], AnyFrames],
     cameras: Mapping[str, AnyCamera],
     target: Target | TipTarget,
     *,
@@ -145,7 +147,8 @@ def measure_poses(
     commands_um : (N, k) float
         The joint commands of those poses (for predicting where the board is).
     load_frames : callable (pose, camera) -> list of images
-        The frames of one pose from one camera; raise ``FormatError`` for a broken file.
+        The frames of one pose from one camera (arrays, or region frames of
+        :mod:`~microcal.vision.lazy_frame`); raise ``FormatError`` for a broken file.
     cameras : dict name -> camera model
         Two or more cameras in {G}, of any kind.
     target : Target or TipTarget
@@ -196,7 +199,7 @@ Seen = tuple[FloatArray, FloatArray, FloatArray] | str
 def _camera_track(
     poses: Sequence[int],
     commands_um: FloatArray,
-    load_frames: Callable[[int, str], Frames],
+    load_frames: Callable[[int, str], AnyFrames],
     camera: AnyCamera,
     name: str,
     target: Target | TipTarget,
@@ -207,7 +210,7 @@ def _camera_track(
     predictor = RoiPredictor()
     out: list[Seen] = []
     for k, pose in enumerate(poses):
-        got: Frames | Seen = _frames_of(load_frames, pose, name, camera.image_size_px)
+        got: AnyFrames | Seen = _frames_of(load_frames, pose, name, camera.image_size_px)
         if not isinstance(got, str):
             # a target numbered from markers shows a different part at each pose: the mean
             # of the features seen does not follow the joints, so the whole image is searched
@@ -283,7 +286,7 @@ def _triangulate(
 
 
 def measure_one(
-    frames: Mapping[str, Frames],
+    frames: Mapping[str, AnyFrames],
     cameras: Mapping[str, AnyCamera],
     target: Target | TipTarget,
     rois: dict[str, tuple[int, int, int, int] | None] | None = None,
@@ -296,13 +299,42 @@ def measure_one(
     when it is known (from a run's pooled scatter); otherwise the corners' residuals are used.
     """
     names = _check_cameras(cameras)
+    seen = {
+        name: camera_view(frames.get(name) or [], target, cameras[name], (rois or {}).get(name))
+        for name in names
+    }
+    return measure_seen(seen, cameras, frame_cov_px2)
+
+
+def camera_view(
+    frames: AnyFrames,
+    target: Target | TipTarget,
+    model: AnyCamera,
+    roi: tuple[int, int, int, int] | None = None,
+) -> Seen:
+    """What one camera makes of one pose's frames: virtual points (k, 2), their covariance
+    (2, 2) and the corners of frame 0, or why it has none (``"no image"`` without frames).
+
+    The board is searched in ``roi`` first (the whole frame when it is not found there),
+    then around frame 0's corners in the other frames.
+    """
+    if not frames:
+        return "no image"
+    return _vp_of_frames(frames, target, model, roi)
+
+
+def measure_seen(
+    seen: Mapping[str, Seen],
+    cameras: Mapping[str, AnyCamera],
+    frame_cov_px2: dict[str, FloatArray] | None = None,
+) -> PoseMeasurement:
+    """One pose triangulated from what each camera made of it (:func:`camera_view`), as
+    :func:`measure_one` does."""
+    names = _check_cameras(cameras)
     m = PoseMeasurement(0, "ok")
     lost = []
     for name in names:
-        if not frames.get(name):
-            lost.append(f"{name}: no image")
-            continue
-        got = _vp_of_frames(frames[name], target, cameras[name], (rois or {}).get(name))
+        got = seen.get(name, "no image")
         if isinstance(got, str):
             lost.append(f"{name}: {got}")
             continue
@@ -310,14 +342,14 @@ def measure_one(
     _judge(m, lost)
     if m.status != "ok":
         return m
-    seen = [n for n in names if n in m.vp_px]
-    q = [m.vp_px[n].mean(axis=0)[None, :] for n in seen]
+    used = [n for n in names if n in m.vp_px]
+    q = [m.vp_px[n].mean(axis=0)[None, :] for n in used]
     cov = [
         (frame_cov_px2[n] if frame_cov_px2 and n in frame_cov_px2 else m.vp_cov_px2[n])
         / len(m.vp_px[n])
         + _calibration_cov(cameras[n])
-        for n in seen
+        for n in used
     ]
-    p, c, _ = triangulate_views([cameras[n] for n in seen], q, cov)
+    p, c, _ = triangulate_views([cameras[n] for n in used], q, cov)
     m.p_um, m.cov_um2 = p[0], c[0]
     return m

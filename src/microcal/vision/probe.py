@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -12,7 +13,8 @@ from numpy.typing import NDArray
 from .._validation import FloatArray
 from ..errors import DeviceTimeoutError, FrameError
 from ..geometry import AnyCamera
-from .measurement import measure_one
+from .lazy_frame import RegionFrame, grab_frame
+from .measurement import camera_view, measure_seen
 from .roi import RoiPredictor
 from .targets import Target
 from .tip_target import TipTarget
@@ -55,11 +57,22 @@ class VisionProbe:
     ) -> tuple[FloatArray, FloatArray]:
         """Position in {G} (3,) µm and its covariance (3, 3) µm² from ``frames`` frames per
         camera; NaN when the board is not found."""
-        grabbed = {n: [_grab(cam) for _ in range(frames)] for n, cam in self.cameras.items()}
         rois = {
             n: self._predictors.setdefault(n, RoiPredictor()).predict(d_um) for n in self.cameras
         }
-        m = measure_one(grabbed, self.models, self.target, rois, self.frame_cov_px2)
+        # each camera's frames are searched on a thread of their own while the next camera's
+        # are grabbed (rendered); what each camera makes of its frames does not depend on
+        # the others'
+        with ThreadPoolExecutor(max_workers=len(self.cameras)) as searchers:
+            views = {}
+            for n, cam in self.cameras.items():
+                grabbed = [_grab(cam) for _ in range(frames)]
+                if n in self.models:
+                    views[n] = searchers.submit(
+                        camera_view, grabbed, self.target, self.models[n], rois[n]
+                    )
+            seen = {n: view.result() for n, view in views.items()}
+        m = measure_seen(seen, self.models, self.frame_cov_px2)
         if m.status != "ok":
             return np.full(3, np.nan), np.full((3, 3), np.nan)
         for n in self.cameras:
@@ -68,12 +81,13 @@ class VisionProbe:
         return m.p_um, m.cov_um2
 
 
-def _grab(camera: FrameSource) -> NDArray[np.generic]:
-    """One frame, grabbed again up to :data:`GRAB_RETRIES` times after a dropped frame or a
-    timeout; the last such error is raised."""
+def _grab(camera: FrameSource) -> RegionFrame:
+    """One frame (read where it is searched, :func:`~microcal.vision.lazy_frame.grab_frame`),
+    grabbed again up to :data:`GRAB_RETRIES` times after a dropped frame or a timeout; the
+    last such error is raised."""
     for attempt in range(GRAB_RETRIES + 1):
         try:
-            return camera.grab()
+            return grab_frame(camera)
         except (FrameError, DeviceTimeoutError):
             if attempt == GRAB_RETRIES:
                 raise

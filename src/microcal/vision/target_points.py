@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._validation import FloatArray
-from .detect import detect
+from .lazy_frame import RegionFrame, detect_in, pixels_of
 from .targets import Target
 from .tip import detect_tip
 from .tip_target import TipTarget
@@ -50,23 +50,25 @@ class TargetInFrame:
 
 
 def find_target(
-    frame: NDArray[np.generic],
+    frame: RegionFrame | NDArray[np.generic],
     target: Target | TipTarget,
     roi: Box | None = None,
     *,
     margin_squares: float = 3.0,
 ) -> TargetInFrame | None:
-    """The target in ``frame`` (searched in ``roi`` when given), or None when not found."""
+    """The target in ``frame`` (an array, or a region frame read only where a board is
+    searched; searched in ``roi`` when given), or None when not found."""
     h, w = frame.shape[:2]
     if isinstance(target, TipTarget):
-        tip = detect_tip(frame, target, roi=roi) if roi else detect_tip(frame, target)
+        image = pixels_of(frame)
+        tip = detect_tip(image, target, roi=roi) if roi else detect_tip(image, target)
         if not tip.found:
             return None
         spread = math.tan(math.radians(tip.half_angle_deg))
         region = _along_shank(tip.apex_px, tip.axis, spread if math.isfinite(spread) else 0.5,
                               (w, h))  # fmt: skip
         return TargetInFrame(tip.apex_px.reshape(1, 2), True, region)
-    det = detect(frame, target, roi=roi) if roi else detect(frame, target)
+    det = detect_in(frame, target, roi if roi else None)
     if not det.found:
         return None
     q = det.q_px
