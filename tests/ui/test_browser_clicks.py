@@ -117,7 +117,9 @@ def test_one_camera_click_on_the_focal_plane_and_go_closed_loop(one_camera):
         position={"x": q[0] - corner[0] + 0.5, "y": q[1] - corner[1] + 0.5}
     )
     page.wait_for_function("window.microcal.std.top === 0.5")
-    page.wait_for_function(f"window.microcal.target.target_um[0] !== {target[0]}")
+    page.wait_for_function(
+        f"window.microcal.target !== null && window.microcal.target.target_um[0] !== {target[0]}"
+    )
     target = np.array(page.evaluate("window.microcal.target.target_um"))
     assert np.linalg.norm(target - goal) < 25.0  # half a camera pixel: ~10 µm
     assert "on the focal plane" in page.inner_text("#snap-text")
