@@ -21,7 +21,7 @@ def served(netns, tmp_path):
     from microcal.workflows.live import open_live_station
 
     calibration = str(write_truth_calibration(tmp_path / "calibration.json"))
-    server = start_server(open_live_station("sim", calibration, seed=0, frames=2), "127.0.0.1", 0)
+    server = start_server(open_live_station("sim", calibration, seed=0, frames=1), "127.0.0.1", 0)
     try:
         with sync_playwright() as pw:
             browser = pw.chromium.launch(executable_path=chromium_path(), args=ARGS)
