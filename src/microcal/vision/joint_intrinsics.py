@@ -32,7 +32,14 @@ from scipy.optimize import least_squares
 
 from .._validation import FloatArray
 from ..errors import DegenerateDataError
-from .joint_poses import Observation, Pose, _matrix, _rvec
+from .joint_poses import (
+    Observation,
+    Pose,
+    _pack_poses,
+    _pose_columns,
+    _unpack_poses,
+    _view_in_camera,
+)
 from .lens_models import LensModel
 
 __all__ = ["DIST_INDEX", "JointCalibration", "refine_intrinsics_jointly", "residuals_px"]
@@ -117,10 +124,7 @@ class _Problem:
             K = np.asarray(intrinsics[c][0], dtype=np.float64)
             x[i : i + 4] = [K[0, 0], K[1, 1], K[0, 2], K[1, 2]]
             x[i + 4 : i + 4 + len(self.free[c])] = self.dist0[c][self.free[c]]
-        for c, i in self.cam_index.items():
-            x[i : i + 6] = np.concatenate([_rvec(cameras[c][0]), cameras[c][1]])
-        for v, i in self.view_index.items():
-            x[i : i + 6] = np.concatenate([_rvec(views[v][0]), views[v][1]])
+        _pack_poses(x, self.cam_index, self.view_index, cameras, views)
         return x
 
     def intrinsics(self, x: FloatArray) -> dict[str, Intrinsics]:
@@ -133,13 +137,7 @@ class _Problem:
         return out
 
     def unpack(self, x: FloatArray) -> tuple[dict[str, Pose], dict[int, Pose]]:
-        cameras: dict[str, Pose] = {self.first: (np.eye(3), np.zeros(3))}
-        for c, i in self.cam_index.items():
-            cameras[c] = (_matrix(x[i : i + 3]), x[i + 3 : i + 6].copy())
-        views = {
-            v: (_matrix(x[i : i + 3]), x[i + 3 : i + 6].copy()) for v, i in self.view_index.items()
-        }
-        return cameras, views
+        return _unpack_poses(x, self.first, self.cam_index, self.view_index)
 
     def evaluate(self, x: FloatArray, jacobian: bool) -> tuple[FloatArray, FloatArray | None]:
         res = np.zeros(self.rows[-1])
@@ -147,13 +145,8 @@ class _Problem:
         intr = self.intrinsics(x)
         for k, o in enumerate(self.obs):
             iv = self.view_index[o.view]
-            rv, tv = x[iv : iv + 3], x[iv + 3 : iv + 6]
             ic = self.cam_index.get(o.camera)
-            if ic is None:
-                r3, t3 = rv, tv
-                d = None
-            else:
-                r3, t3, *d = cv2.composeRT(rv, tv, x[ic : ic + 3], x[ic + 3 : ic + 6])
+            r3, t3, d = _view_in_camera(x, iv, ic)
             K, dist = intr[o.camera]
             q, J = cv2.projectPoints(o.object_um.astype(np.float64), r3, t3, K, dist)
             lo, hi = self.rows[k], self.rows[k + 1]
@@ -164,15 +157,7 @@ class _Problem:
             jac[lo:hi, ii : ii + 2] = J[:, 6:8]  # fx, fy
             jac[lo:hi, ii + 2 : ii + 4] = J[:, 8:10]  # cx, cy
             jac[lo:hi, ii + 4 : ii + 4 + len(free)] = J[:, 10:][:, free]
-            Jr, Jt = J[:, 0:3], J[:, 3:6]
-            if d is None or ic is None:
-                jac[lo:hi, iv : iv + 3], jac[lo:hi, iv + 3 : iv + 6] = Jr, Jt
-                continue
-            dr3dr1, dr3dt1, dr3dr2, dr3dt2, dt3dr1, dt3dt1, dt3dr2, dt3dt2 = d
-            jac[lo:hi, iv : iv + 3] = Jr @ dr3dr1 + Jt @ dt3dr1
-            jac[lo:hi, iv + 3 : iv + 6] = Jr @ dr3dt1 + Jt @ dt3dt1
-            jac[lo:hi, ic : ic + 3] = Jr @ dr3dr2 + Jt @ dt3dr2
-            jac[lo:hi, ic + 3 : ic + 6] = Jr @ dr3dt2 + Jt @ dt3dt2
+            _pose_columns(jac, lo, hi, J, iv, ic, d)
         return res, jac
 
 

@@ -152,6 +152,64 @@ def initial_poses(
     return placed, views_out
 
 
+PoseDerivatives = list[FloatArray] | None
+
+
+def _pack_poses(
+    x: FloatArray,
+    cam_index: Mapping[str, int],
+    view_index: Mapping[int, int],
+    cameras: Mapping[str, Pose],
+    views: Mapping[int, Pose],
+) -> None:
+    """Write the cameras' and views' poses (rotation vector, translation) into ``x``."""
+    for c, i in cam_index.items():
+        x[i : i + 6] = np.concatenate([_rvec(cameras[c][0]), cameras[c][1]])
+    for v, i in view_index.items():
+        x[i : i + 6] = np.concatenate([_rvec(views[v][0]), views[v][1]])
+
+
+def _unpack_poses(
+    x: FloatArray, first: str, cam_index: Mapping[str, int], view_index: Mapping[int, int]
+) -> tuple[dict[str, Pose], dict[int, Pose]]:
+    """The cameras' poses (``first`` at the origin) and the views' poses held in ``x``."""
+    cameras: dict[str, Pose] = {first: (np.eye(3), np.zeros(3))}
+    for c, i in cam_index.items():
+        cameras[c] = (_matrix(x[i : i + 3]), x[i + 3 : i + 6].copy())
+    views = {v: (_matrix(x[i : i + 3]), x[i + 3 : i + 6].copy()) for v, i in view_index.items()}
+    return cameras, views
+
+
+def _view_in_camera(
+    x: FloatArray, iv: int, ic: int | None
+) -> tuple[FloatArray, FloatArray, PoseDerivatives]:
+    """The board's pose in a camera (rvec, tvec) from the view's pose at ``iv`` and, unless
+    the camera is the first (``ic`` None), the camera's pose at ``ic``; with the composition's
+    derivatives (``cv2.composeRT``'s), None for the first camera."""
+    rv, tv = x[iv : iv + 3], x[iv + 3 : iv + 6]
+    if ic is None:
+        return rv, tv, None
+    r3, t3, *d = cv2.composeRT(rv, tv, x[ic : ic + 3], x[ic + 3 : ic + 6])
+    return r3, t3, d
+
+
+def _pose_columns(
+    jac: FloatArray, lo: int, hi: int, J: FloatArray, iv: int, ic: int | None,
+    d: PoseDerivatives,
+) -> None:  # fmt: skip
+    """Fill the view's and camera's columns of rows ``lo:hi`` of ``jac`` from
+    ``cv2.projectPoints``' Jacobian ``J`` through the composition's derivatives ``d``."""
+    Jr, Jt = J[:, 0:3], J[:, 3:6]
+    if d is None or ic is None:
+        jac[lo:hi, iv : iv + 3], jac[lo:hi, iv + 3 : iv + 6] = Jr, Jt
+        return
+    dr3dr1, dr3dt1, dr3dr2, dr3dt2, dt3dr1, dt3dt1, dt3dr2, dt3dt2 = d
+    jac[lo:hi, iv : iv + 3] = Jr @ dr3dr1 + Jt @ dt3dr1
+    jac[lo:hi, iv + 3 : iv + 6] = Jr @ dr3dt1 + Jt @ dt3dt1
+    jac[lo:hi, ic : ic + 3] = Jr @ dr3dr2 + Jt @ dt3dr2
+    jac[lo:hi, ic + 3 : ic + 6] = Jr @ dr3dt2 + Jt @ dt3dt2
+
+
 class _Problem:
     """The parameter vector and the residuals with their Jacobian."""
 
@@ -174,48 +232,25 @@ class _Problem:
 
     def pack(self, cameras: Mapping[str, Pose], views: Mapping[int, Pose]) -> FloatArray:
         x = np.zeros(self.n_params)
-        for c, i in self.cam_index.items():
-            x[i : i + 6] = np.concatenate([_rvec(cameras[c][0]), cameras[c][1]])
-        for v, i in self.view_index.items():
-            x[i : i + 6] = np.concatenate([_rvec(views[v][0]), views[v][1]])
+        _pack_poses(x, self.cam_index, self.view_index, cameras, views)
         return x
 
     def unpack(self, x: FloatArray) -> tuple[dict[str, Pose], dict[int, Pose]]:
-        cameras: dict[str, Pose] = {self.first: (np.eye(3), np.zeros(3))}
-        for c, i in self.cam_index.items():
-            cameras[c] = (_matrix(x[i : i + 3]), x[i + 3 : i + 6].copy())
-        views = {
-            v: (_matrix(x[i : i + 3]), x[i + 3 : i + 6].copy()) for v, i in self.view_index.items()
-        }
-        return cameras, views
+        return _unpack_poses(x, self.first, self.cam_index, self.view_index)
 
     def evaluate(self, x: FloatArray, jacobian: bool) -> tuple[FloatArray, FloatArray | None]:
         res = np.zeros(self.rows[-1])
         jac = np.zeros((self.rows[-1], self.n_params)) if jacobian else None
         for k, o in enumerate(self.obs):
             iv = self.view_index[o.view]
-            rv, tv = x[iv : iv + 3], x[iv + 3 : iv + 6]
             ic = self.cam_index.get(o.camera)
-            if ic is None:
-                r3, t3 = rv, tv
-                d = None
-            else:
-                r3, t3, *d = cv2.composeRT(rv, tv, x[ic : ic + 3], x[ic + 3 : ic + 6])
+            r3, t3, d = _view_in_camera(x, iv, ic)
             K, dist = self.intrinsics[o.camera]
             q, J = cv2.projectPoints(o.object_um.astype(np.float64), r3, t3, K, dist)
             lo, hi = self.rows[k], self.rows[k + 1]
             res[lo:hi] = (q.reshape(-1, 2) - o.image_px).ravel()
-            if jac is None:
-                continue
-            Jr, Jt = J[:, 0:3], J[:, 3:6]
-            if d is None or ic is None:
-                jac[lo:hi, iv : iv + 3], jac[lo:hi, iv + 3 : iv + 6] = Jr, Jt
-                continue
-            dr3dr1, dr3dt1, dr3dr2, dr3dt2, dt3dr1, dt3dt1, dt3dr2, dt3dt2 = d
-            jac[lo:hi, iv : iv + 3] = Jr @ dr3dr1 + Jt @ dt3dr1
-            jac[lo:hi, iv + 3 : iv + 6] = Jr @ dr3dt1 + Jt @ dt3dt1
-            jac[lo:hi, ic : ic + 3] = Jr @ dr3dr2 + Jt @ dt3dr2
-            jac[lo:hi, ic + 3 : ic + 6] = Jr @ dr3dt2 + Jt @ dt3dt2
+            if jac is not None:
+                _pose_columns(jac, lo, hi, J, iv, ic, d)
         return res, jac
 
 
