@@ -28,3 +28,34 @@ def unavailable_reason() -> str | None:
     if chromium_path() is None:
         return "needs Debian's chromium (apt-get install chromium; .ci/run installs it)"
     return None
+
+
+def serve_station(calibration: str, frames: int = 2):
+    """Yield (server, browser): the simulated thesis station with ``calibration`` served on
+    127.0.0.1 and a headless Chromium; both stopped afterwards. Use inside a fixture that
+    made the test's own network namespace."""
+    from playwright.sync_api import sync_playwright
+
+    from microcal.ui.serve import start_server
+    from microcal.workflows.live import open_live_station
+
+    live = open_live_station("sim", calibration, seed=0, frames=frames)
+    server = start_server(live, "127.0.0.1", 0)
+    try:
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=chromium_path(), args=ARGS)
+            try:
+                yield server, browser
+            finally:
+                browser.close()
+    finally:
+        server.stop()
+
+
+def open_page(browser, url: str, cameras=("top", "side"), height_px: int = 1000):
+    """A page of a browser context of its own (its own cookies: another browser), once every
+    camera in ``cameras`` has shown a few frames."""
+    page = browser.new_context(viewport={"width": 1700, "height": height_px}).new_page()
+    page.goto(url)
+    page.wait_for_function(" && ".join(f"window.microcal.frames.{c} > 2" for c in cameras))
+    return page

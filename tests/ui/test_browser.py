@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from support.browser import ARGS, chromium_path, unavailable_reason
+from support.browser import open_page, serve_station, unavailable_reason
 from support.station_files import write_truth_calibration
 
 pytestmark = pytest.mark.skipif(unavailable_reason() is not None, reason=str(unavailable_reason()))
@@ -22,29 +22,7 @@ def calibration(tmp_path_factory) -> str:
 def served(netns, calibration):
     """(server, browser): the thesis preset's page on 127.0.0.1 and a headless Chromium."""
     pytest.importorskip("starlette", reason="needs Starlette (pip install 'microcal[ui]')")
-    from playwright.sync_api import sync_playwright
-
-    from microcal.ui.serve import start_server
-    from microcal.workflows.live import open_live_station
-
-    server = start_server(open_live_station("sim", calibration, seed=0, frames=2), "127.0.0.1", 0)
-    try:
-        with sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path=chromium_path(), args=ARGS)
-            try:
-                yield server, browser
-            finally:
-                browser.close()
-    finally:
-        server.stop()
-
-
-def _open(browser, url: str):
-    """A page of a browser context of its own (its own cookies: another browser)."""
-    page = browser.new_context(viewport={"width": 1700, "height": 1000}).new_page()
-    page.goto(url)
-    page.wait_for_function("window.microcal.frames.top > 2 && window.microcal.frames.side > 2")
-    return page
+    yield from serve_station(calibration)
 
 
 def _click_at(page, live, camera: str, p_um) -> None:
@@ -59,7 +37,7 @@ def _click_at(page, live, camera: str, p_um) -> None:
 def test_click_in_two_views_go_closed_loop_and_the_tip_arrives_by_truth(served):
     server, browser = served
     live = server.live
-    page = _open(browser, server.url)
+    page = open_page(browser, server.url)
     assert page.inner_text("#role") == "this browser controls"
     # a point above the workspace: refused on the page, the go button stays off, nothing moves
     _click_at(page, live, "top", [3000.0, 3000.0, 9000.0])
@@ -106,9 +84,9 @@ def test_click_in_two_views_go_closed_loop_and_the_tip_arrives_by_truth(served):
 def test_a_second_browser_watches_and_cannot_move_anything(served):
     server, browser = served
     live = server.live
-    first = _open(browser, server.url)
+    first = open_page(browser, server.url)
     first.wait_for_function("window.microcal.role === 'control'")
-    second = _open(browser, server.url)
+    second = open_page(browser, server.url)
     second.wait_for_function("window.microcal.role === 'watch'")
     assert second.inner_text("#role") == "watching: another browser controls"
     assert second.locator("#go").is_disabled()

@@ -7,48 +7,23 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from support.browser import ARGS, chromium_path, unavailable_reason
+from support.browser import open_page, serve_station, unavailable_reason
 from support.station_files import write_truth_calibration
 
 pytestmark = pytest.mark.skipif(unavailable_reason() is not None, reason=str(unavailable_reason()))
 
 
-def _serve(calibration: str):
-    from playwright.sync_api import sync_playwright
-
-    from microcal.ui.serve import start_server
-    from microcal.workflows.live import open_live_station
-
-    server = start_server(open_live_station("sim", calibration, seed=0, frames=2), "127.0.0.1", 0)
-    try:
-        with sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path=chromium_path(), args=ARGS)
-            try:
-                yield server, browser
-            finally:
-                browser.close()
-    finally:
-        server.stop()
-
-
 @pytest.fixture
 def two_cameras(netns, tmp_path):
     pytest.importorskip("starlette", reason="needs Starlette (pip install 'microcal[ui]')")
-    yield from _serve(str(write_truth_calibration(tmp_path / "calibration.json")))
+    yield from serve_station(str(write_truth_calibration(tmp_path / "calibration.json")))
 
 
 @pytest.fixture
 def one_camera(netns, tmp_path):
     pytest.importorskip("starlette", reason="needs Starlette (pip install 'microcal[ui]')")
     path = write_truth_calibration(tmp_path / "calibration.json", cameras=("top",))
-    yield from _serve(str(path))
-
-
-def _open(browser, url: str, cameras=("top", "side")):
-    page = browser.new_context(viewport={"width": 1700, "height": 1000}).new_page()
-    page.goto(url)
-    page.wait_for_function(" && ".join(f"window.microcal.frames.{c} > 2" for c in cameras))
-    return page
+    yield from serve_station(str(path))
 
 
 def _click_px(page, live, camera: str, q_px) -> None:
@@ -65,7 +40,7 @@ def _project(live, camera: str, p_um):
 def test_a_second_click_is_taken_onto_the_target_along_the_line_or_onto_the_line(two_cameras):
     server, browser = two_cameras
     live = server.live
-    page = _open(browser, server.url)
+    page = open_page(browser, server.url)
     tip = live.truth()
     # on the tip in the top view, then a few pixels beside it in the side view: the tip found
     _click_px(page, live, "top", _project(live, "top", tip))
@@ -95,7 +70,7 @@ def test_a_second_click_is_taken_onto_the_target_along_the_line_or_onto_the_line
 def test_one_camera_click_on_the_focal_plane_and_go_closed_loop(one_camera):
     server, browser = one_camera
     live = server.live
-    page = _open(browser, server.url, cameras=("top",))
+    page = open_page(browser, server.url, cameras=("top",))
     assert page.locator("canvas.live").count() == 1
     assert "One camera" in page.inner_text("#hint")
     assert "focal plane:" in page.inner_text("#focal-text")

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from support.browser import ARGS, chromium_path, unavailable_reason
+from support.browser import open_page, serve_station, unavailable_reason
 from support.station_files import write_truth_calibration
 
 pytestmark = pytest.mark.skipif(unavailable_reason() is not None, reason=str(unavailable_reason()))
@@ -15,29 +15,8 @@ pytestmark = pytest.mark.skipif(unavailable_reason() is not None, reason=str(una
 @pytest.fixture
 def served(netns, tmp_path):
     pytest.importorskip("starlette", reason="needs Starlette (pip install 'microcal[ui]')")
-    from playwright.sync_api import sync_playwright
-
-    from microcal.ui.serve import start_server
-    from microcal.workflows.live import open_live_station
-
     calibration = str(write_truth_calibration(tmp_path / "calibration.json"))
-    server = start_server(open_live_station("sim", calibration, seed=0, frames=1), "127.0.0.1", 0)
-    try:
-        with sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path=chromium_path(), args=ARGS)
-            try:
-                yield server, browser
-            finally:
-                browser.close()
-    finally:
-        server.stop()
-
-
-def _open(browser, url: str):
-    page = browser.new_context(viewport={"width": 1700, "height": 1100}).new_page()
-    page.goto(url)
-    page.wait_for_function("window.microcal.frames.top > 2 && window.microcal.frames.side > 2")
-    return page
+    yield from serve_station(calibration, frames=1)
 
 
 def _run(page) -> dict:
@@ -50,9 +29,9 @@ def test_an_acquisition_cancelled_and_resumed_from_the_page_then_a_check(served)
 
     server, browser = served
     live = server.live
-    page = _open(browser, server.url)
+    page = open_page(browser, server.url, height_px=1100)
     page.wait_for_function("window.microcal.role === 'control'")
-    watcher = _open(browser, server.url)
+    watcher = open_page(browser, server.url, height_px=1100)
     watcher.wait_for_function("window.microcal.role === 'watch'")
     assert watcher.locator("#run-start").is_disabled()
     page.select_option("#run-kind", "acquire")
