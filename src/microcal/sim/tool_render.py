@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from .._validation import FloatArray
 from ..geometry.camera_kinds import AnyCamera
-from .tools import ToolPlacement, _shade, _silhouette, um_per_px
+from .tools import ToolPlacement, _darkness, _silhouette, um_per_px
 
 __all__ = ["SHANK_REACH_UM", "render_tool_region", "tool_roi"]
 
@@ -82,18 +82,5 @@ def render_tool_region(
     sil = _silhouette(camera, placement)
     if sil is None:  # seen end-on: nothing of an outline to draw
         return value, np.zeros((h, w), dtype=np.float32)
-    gx, gy = np.meshgrid(np.arange(x0, x1, dtype=np.float64), np.arange(y0, y1, dtype=np.float64))
-    centres = np.column_stack([gx.ravel(), gy.ravel()])
-    if offset_px is not None:
-        centres = centres - np.asarray(offset_px, dtype=np.float64)
-    ideal = camera.undistort_px(centres) if camera.has_distortion else centres
-    ix, iy = ideal[:, 0].reshape(h, w), ideal[:, 1].reshape(h, w)
-    n = int(supersample)
-    offs = (np.arange(n) + 0.5) / n - 0.5
-    dark = np.zeros((h, w))
-    for oy in offs:
-        for ox in offs:
-            cover, trans = _shade(sil, placement.tool, ix + ox, iy + oy, 1.0 / n)
-            dark += cover * (1.0 - trans)
-    dark /= n * n
+    dark, _, _ = _darkness(camera, placement, sil, roi, supersample, offset_px)
     return value, dark.astype(np.float32)

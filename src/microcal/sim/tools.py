@@ -501,6 +501,37 @@ def _shade(
     return cover, _pipette_transmission(xi, tool.wall)
 
 
+def _darkness(
+    camera: AnyCamera,
+    placement: ToolPlacement,
+    sil: _Silhouette,
+    box: Box,
+    supersample: int,
+    offset_px: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The light the tool takes away over a box (``1 - transmission``, averaged over
+    ``supersample`` x ``supersample`` subsamples per pixel), (h, w), not blurred; with the
+    pixels' undistorted positions ``ix``, ``iy`` (h, w) (the pixels shifted by ``-offset_px``
+    first, when given)."""
+    x0, y0, x1, y1 = box
+    h, w = y1 - y0, x1 - x0
+    gx, gy = np.meshgrid(np.arange(x0, x1, dtype=np.float64), np.arange(y0, y1, dtype=np.float64))
+    centres = np.column_stack([gx.ravel(), gy.ravel()])
+    if offset_px is not None:
+        centres = centres - np.asarray(offset_px, dtype=np.float64)
+    ideal = camera.undistort_px(centres) if camera.has_distortion else centres
+    ix, iy = ideal[:, 0].reshape(h, w), ideal[:, 1].reshape(h, w)
+    n = int(supersample)
+    offs = (np.arange(n) + 0.5) / n - 0.5
+    dark = np.zeros((h, w))
+    for oy in offs:
+        for ox in offs:
+            cover, trans = _shade(sil, placement.tool, ix + ox, iy + oy, 1.0 / n)
+            dark += cover * (1.0 - trans)
+    dark /= n * n
+    return dark, ix, iy
+
+
 def _render_one(
     camera: AnyCamera,
     placement: ToolPlacement,
@@ -510,20 +541,7 @@ def _render_one(
     supersample: int,
 ) -> NDArray[np.float32]:
     """A tool's transmission over a box (blurred by its depth), (h, w) float32, 1 outside it."""
-    x0, y0, x1, y1 = box
-    h, w = y1 - y0, x1 - x0
-    s = supersample
-    offs = (np.arange(s) + 0.5) / s - 0.5
-    gx, gy = np.meshgrid(np.arange(x0, x1, dtype=np.float64), np.arange(y0, y1, dtype=np.float64))
-    centres = np.column_stack([gx.ravel(), gy.ravel()])
-    ideal = camera.undistort_px(centres) if camera.has_distortion else centres
-    ix, iy = ideal[:, 0].reshape(h, w), ideal[:, 1].reshape(h, w)
-    dark = np.zeros((h, w))
-    for oy in offs:
-        for ox in offs:
-            cover, trans = _shade(sil, placement.tool, ix + ox, iy + oy, 1.0 / s)
-            dark += cover * (1.0 - trans)
-    dark /= s * s
+    dark, ix, iy = _darkness(camera, placement, sil, box, supersample)
     # Blur by depth: the depth of the axis point nearest each pixel, levels of sigma between.
     along = np.maximum((ix - sil.vertex[0]) * sil.axis[0] + (iy - sil.vertex[1]) * sil.axis[1], 0)
     pitch = um_per_px(camera, placement.tip_um)
