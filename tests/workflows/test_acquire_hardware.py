@@ -133,13 +133,28 @@ def test_a_camera_that_stops_answering_stops_the_run_cleanly_and_resume_complete
     run = tmp_path / "run"
     args = ["--rig", str(path), "--poses", "12", "--settle", "fixed:0.2", "--frames", "1",
             "--out", str(run)]  # fmt: skip
-    stopper = threading.Timer(1.0, top.send_signal, (signal.SIGSTOP,))
+    done = threading.Event()
+
+    def stop_the_camera_after_the_first_pose() -> None:
+        # the camera stops once a pose is stored, whatever the machine's load (bounded wait)
+        for _ in range(600):
+            if done.is_set():
+                return
+            path = run / "journal.jsonl"
+            lines = path.read_text().splitlines() if path.exists() else []
+            if any(json.loads(line).get("status") == "ok" for line in lines if line.endswith("}")):
+                top.send_signal(signal.SIGSTOP)
+                return
+            time.sleep(0.05)
+
+    stopper = threading.Thread(target=stop_the_camera_after_the_first_pose)
     stopper.start()
     t0 = time.monotonic()
     try:
         result = acquire(*args)
     finally:
-        stopper.cancel()
+        done.set()
+        stopper.join()
     elapsed = time.monotonic() - t0
     top.send_signal(signal.SIGCONT)
     assert result.exit_code == 2, result.output
