@@ -36,6 +36,7 @@ def test_an_acquisition_cancelled_and_resumed_from_the_page_then_a_check(served)
     assert watcher.locator("#run-start").is_disabled()
     page.select_option("#run-kind", "acquire")
     page.fill("#run-poses", "12")
+    page.fill("#run-frames", "1")
     page.fill("#run-name", "from-page")
     page.click("#run-start")
     page.wait_for_function("window.microcal.run && window.microcal.run.done >= 2", timeout=120_000)
@@ -67,6 +68,7 @@ def test_an_acquisition_cancelled_and_resumed_from_the_page_then_a_check(served)
     assert len(RunDirectory(out).journal()) > stored
     # a check: its verdict joins the health panel
     page.select_option("#run-kind", "check")
+    page.fill("#run-frames", "2")  # the check's own default is 20 per pose
     page.fill("#run-name", "")
     page.click("#run-start")
     page.wait_for_function("window.microcal.run.kind === 'check' && window.microcal.run.status "

@@ -4,6 +4,7 @@ calibration, and runs that fail or are refused in words while the station goes o
 
 from __future__ import annotations
 
+import json
 import re
 import time
 
@@ -40,7 +41,7 @@ def _until(runs: StationRuns, test, timeout_s: float = 240.0) -> dict:
 @pytest.mark.slow
 def test_a_cancelled_acquisition_resumes_from_the_page_and_from_the_command_line(station):
     live, runs = station
-    runs.start("acquire", {"name": "a", "poses": 12})
+    runs.start("acquire", {"name": "a", "poses": 12, "frames": 1})
     with pytest.raises(InputError, match=r"^busy: acquiring"):
         runs.start("check")  # one thing at a time
     with pytest.raises(InputError, match=r"^busy: acquiring"):
@@ -75,16 +76,17 @@ def test_a_cancelled_acquisition_resumes_from_the_page_and_from_the_command_line
 def test_a_check_joins_the_history_and_the_health_and_the_cameras_calibrate(station):
     live, runs = station
     assert live.health["checks"] == []
-    runs.start("check", {"name": "first"})
+    runs.start("check", {"name": "first", "frames": 2})  # the command's default: 20
     assert live.wait(240.0)
     state = runs.state()
     assert state["status"] == "done", state
     assert (state["done"], state["total"]) == (10, 10)
     assert (runs.root / "checks" / "first.json").is_file()
+    assert json.loads((runs.root / "checks" / "first.json").read_text())["frames"] == 2
     assert len(read_history(live.calibration_path)) == 1
     verdict = read_history(live.calibration_path)[0]["verdict"]
     assert [c["verdict"] for c in live.health["checks"]] == [verdict]
-    runs.start("cameras", {"name": "cams"})
+    runs.start("cameras", {"name": "cams", "frames": 2})  # the command's default: 8
     assert live.wait(240.0)
     state = runs.state()
     assert state["status"] == "done", state
@@ -115,6 +117,10 @@ def test_a_failing_run_is_said_in_words_and_the_station_goes_on(station, monkeyp
         ("acquire", {"poses": 3}, "poses: expected 12 to"),
         ("acquire", {"name": "nothing", "resume": True}, "no run to resume"),
         ("check", {"speed": 2}, "run: unknown option(s) speed"),
+        ("check", {"frames": 0}, "frames: expected a whole number from 1 to 1000 per pose"),
+        ("check", {"frames": True}, "frames: expected a whole number from 1 to 1000"),
+        ("acquire", {"frames": 101}, "frames: expected a whole number from 1 to 100 per"),
+        ("cameras", {"frames": 200}, "frames: expected a whole number from 1 to 100 per view"),
     ):
         with pytest.raises(InputError, match=re.escape(message)):
             runs.start(kind, options)

@@ -89,6 +89,28 @@ def _stamp() -> str:
     return _dt.datetime.now(_dt.UTC).strftime("%Y%m%dT%H%M%S")
 
 
+def _frames_option(kind: str, opts: Mapping[str, object]) -> int | None:
+    """The ``frames`` option of a run (None: the command's default).
+
+    Raises
+    ------
+    InputError
+        Frames that are not a whole number from 1 to 100 (1000 for a check).
+    """
+    from ..formats.records import MAX_FRAMES_PER_POSE
+
+    frames = opts.get("frames")
+    if frames is None:
+        return None
+    most = 1000 if kind == "check" else MAX_FRAMES_PER_POSE
+    per = "view" if kind == "cameras" else "pose"
+    if isinstance(frames, bool) or not isinstance(frames, int) or not 1 <= frames <= most:
+        raise InputError(
+            f"frames: expected a whole number from 1 to {most} per {per}, got {frames!r}"[:200]
+        )
+    return frames
+
+
 class StationRuns:
     """Runs of the page on a :class:`LiveStation`'s devices (module docstring).
 
@@ -137,7 +159,9 @@ class StationRuns:
         options : mapping
             ``name`` (the run's folder, a plain word; a new one by default), for an
             acquisition ``poses`` (12 to 2000, a new run) or ``resume`` (true: continue the
-            run ``name``).
+            run ``name``), and ``frames`` (per camera and pose of an acquisition or a check,
+            up to 100 and 1000, or per camera and view of the cameras' calibration, up to
+            100; the command's default when left out).
 
         Raises
         ------
@@ -153,9 +177,10 @@ class StationRuns:
             raise InputError(
                 f"name: expected a plain word (letters, digits, . _ -), got {name!r}"[:200]
             )
-        unknown = sorted(set(opts) - {"name", "poses", "resume"})
+        unknown = sorted(set(opts) - {"name", "poses", "resume", "frames"})
         if unknown:
             raise InputError(f"run: unknown option(s) {', '.join(unknown)}"[:200])
+        frames = _frames_option(kind, opts)
         if kind in ("acquire", "check") and len(self.live.models) < 2:
             raise InputError(
                 f"{kind}: this station has one camera; the tip's depth is measured with two "
@@ -163,11 +188,11 @@ class StationRuns:
             )
         work: Callable[[RunProgress], None]
         if kind == "acquire":
-            work = self._acquisition(self.root / name, opts)
+            work = self._acquisition(self.root / name, opts, frames)
         elif kind == "check":
-            work = self._check(self.root / "checks" / f"{name}.json")
+            work = self._check(self.root / "checks" / f"{name}.json", frames)
         else:
-            work = self._cameras(self.root / name)
+            work = self._cameras(self.root / name, frames)
         run = RunProgress(kind)
         label = {"cameras": "calibrating the cameras", "acquire": "acquiring",
                  "check": "checking the calibration"}[kind]  # fmt: skip
@@ -219,7 +244,9 @@ class StationRuns:
             if status != "done":
                 run.stage = status
 
-    def _acquisition(self, out: Path, opts: Mapping[str, object]) -> Callable[[RunProgress], None]:
+    def _acquisition(
+        self, out: Path, opts: Mapping[str, object], frames: int | None
+    ) -> Callable[[RunProgress], None]:
         from ..formats.run_directory import RunDirectory
         from .acquire import AcquireRequest, check_out, check_same_rig
 
@@ -234,7 +261,7 @@ class StationRuns:
             raise InputError(f"poses: expected a whole number, got {poses!r}"[:200])
         rig = self.live.station.rig
         request = AcquireRequest(out, rig="page", poses=None if resume else poses, resume=resume,
-                                 manipulator=rig.selected)  # fmt: skip
+                                 frames=frames, manipulator=rig.selected)  # fmt: skip
         check_out(out, resume, False)
         manifest = RunDirectory(out).manifest if resume else None
         if manifest is not None:
@@ -297,13 +324,14 @@ class StationRuns:
             run.resume = ""
             run.message = f"stored {len(writer.done)} of {len(pose_ids)} poses in {out}"
 
-    def _check(self, out: Path) -> Callable[[RunProgress], None]:
+    def _check(self, out: Path, frames: int | None) -> Callable[[RunProgress], None]:
         from ..formats.check_file import CHECK_FORMAT
         from ..formats.json_file import check_json_output
         from ..procedures.check import CheckConfig
 
         check_json_output(out, CHECK_FORMAT, "check.json")
-        return lambda run: self._run_check(run, out, CheckConfig())
+        cfg = CheckConfig() if frames is None else CheckConfig(frames=frames)
+        return lambda run: self._run_check(run, out, cfg)
 
     def _run_check(self, run: RunProgress, out: Path, cfg: Any) -> None:
         from ..procedures.check import run_check
@@ -329,7 +357,7 @@ class StationRuns:
             run.message = (f"verdict {result.verdict}, offset ({off}) µm; wrote {out}"
                            + (f"; {flag}" if flag else ""))  # fmt: skip
 
-    def _cameras(self, out: Path) -> Callable[[RunProgress], None]:
+    def _cameras(self, out: Path, frames: int | None) -> Callable[[RunProgress], None]:
         from ..formats.cameras_file import CAMERAS_FORMAT
         from ..formats.json_file import check_json_output
 
@@ -340,13 +368,18 @@ class StationRuns:
                 "calibration_target to the rig file (docs/hardware.md)"
             )
         cameras_json = check_json_output(out / "cameras.json", CAMERAS_FORMAT, "cameras.json")
-        return lambda run: self._calibrate_cameras(run, cameras_json)
+        return lambda run: self._calibrate_cameras(run, cameras_json, frames)
 
-    def _calibrate_cameras(self, run: RunProgress, cameras_json: Path) -> None:
+    def _calibrate_cameras(self, run: RunProgress, cameras_json: Path, frames: int | None) -> None:
         from ..formats.cameras_file import save_stereo_calibration
         from ..formats.commands_csv import write_joint_csv
         from ..formats.images import write_tiff
-        from ..procedures.rig_stereo import calibrate_on_rig, default_steps_um, view_name
+        from ..procedures.rig_stereo import (
+            RigViewsConfig,
+            calibrate_on_rig,
+            default_steps_um,
+            view_name,
+        )
         from .stereo import STEPS_FILE
 
         rig = self.live.station.rig
@@ -365,8 +398,9 @@ class StationRuns:
         steps = default_steps_um()
         tick = self._tick(run, "views grabbed")
         try:
-            cal = calibrate_on_rig(stage, rig.cameras, rig.clock, target, steps, store=store,
-                                   progress=tick)  # fmt: skip
+            config = RigViewsConfig() if frames is None else RigViewsConfig(frames_per_view=frames)
+            cal = calibrate_on_rig(stage, rig.cameras, rig.clock, target, steps, config=config,
+                                   store=store, progress=tick)  # fmt: skip
         finally:
             # the tool's target in view again: the simulator and the twin show the calibration
             # target while its stage moved last, so the tool is told its place once more

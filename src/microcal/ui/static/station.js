@@ -395,6 +395,8 @@ async function main() {
     const body = { kind };
     if (name) body.name = name;
     if (kind === "acquire") body.poses = parseInt($("run-poses").value, 10);
+    const frames = $("run-frames").value.trim();
+    if (frames) body.frames = parseInt(frames, 10);
     startRun(body);
   });
   $("run-cancel").addEventListener("click", async () => {
