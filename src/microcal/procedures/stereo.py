@@ -74,6 +74,12 @@ def calibrate_views(
                 "--lens-model: the known-displacement method (a) fixes its own lens model; "
                 "leave --lens-model out or calibrate from tilted views (method b)"
             )
+    n_views = min((len(v) for v in names.values()), default=0)
+    if displacements_um is None and n_views and not 0 <= reference_view < n_views:
+        raise InputError(
+            f"--reference-view {reference_view}: expected a view from 0 to {n_views - 1} "
+            f"(the {n_views} views given)"
+        )
     detections: dict[str, list[Detection]] = {}
     sizes: dict[str, tuple[int, int]] = {}
     total = sum(len(v) for v in names.values())
