@@ -62,7 +62,7 @@ demo: $(STAMP)  ## run the calibration demo on the simulated platform
 	$(BIN)/microcal demo
 
 test: $(STAMP)  ## run the test suite (the long documentation examples: make test-docs)
-	$(BIN)/python -m pytest -n $(JOBS) -q -m "$(MARKS)"
+	$(BIN)/python -m pytest -n $(JOBS) --dist loadgroup -q -m "$(MARKS)"
 
 test-docs: $(STAMP)  ## run the documentation examples that take minutes (whole calibrations)
 	$(BIN)/python -m pytest -n $(JOBS) -q -m docs_long tests/docs

@@ -148,6 +148,10 @@ RESULTS = {
 }
 
 
+# the module's tests share what a fixture makes once: one worker runs them all
+pytestmark = pytest.mark.xdist_group("bad-input-corpus")
+
+
 @pytest.fixture(scope="module")
 def good(tmp_path_factory: pytest.TempPathFactory) -> Good:
     """Every good input of the corpus, each checked to be accepted."""

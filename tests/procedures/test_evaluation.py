@@ -28,6 +28,9 @@ from microcal.procedures.evaluation import (
 from support.cli import invoke_microcal
 from support.shared import made_once
 
+# the module's tests share what a fixture makes once: one worker runs them all
+pytestmark = pytest.mark.xdist_group("evaluation")
+
 
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory):

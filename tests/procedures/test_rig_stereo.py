@@ -35,6 +35,10 @@ def one_line_error(result, *fragments):
         assert fragment in lines[0], lines[0]
 
 
+# the module's tests share what a fixture makes once: one worker runs them all
+pytestmark = pytest.mark.xdist_group("rig-stereo")
+
+
 @pytest.fixture(scope="module")
 def calibrated(tmp_path_factory):
     """A calibration on the simulated rig (seed 4), its files and the truth; made once per

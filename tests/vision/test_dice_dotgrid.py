@@ -24,10 +24,14 @@ SPEC = "dotgrid:13x11:3500:1400:markers=3,7/8,7/3,4"
 VIEWS = (1, 5, 9, 13)
 SIZE = (2448, 2048)
 
-pytestmark = pytest.mark.skipif(
-    not (DATA / "CalB-sys2-0001_0.jpeg").is_file(),
-    reason=f"the real dot-grid photographs are not here ({DATA} is absent)",
-)
+pytestmark = [
+    pytest.mark.skipif(
+        not (DATA / "CalB-sys2-0001_0.jpeg").is_file(),
+        reason=f"the real dot-grid photographs are not here ({DATA} is absent)",
+    ),
+    # the module's tests share what a fixture makes once: one worker runs them all
+    pytest.mark.xdist_group("dice-dotgrid"),
+]
 
 
 def _name(view: int, side: int) -> str:

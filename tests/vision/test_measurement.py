@@ -39,6 +39,10 @@ def workspace_points(n=500):
     return np.random.default_rng(0).uniform([0, 0, 0], [9000, 9000, 5000], (n, 3))
 
 
+# the module's tests share what a fixture makes once: one worker runs them all
+pytestmark = pytest.mark.xdist_group("vision-measurement")
+
+
 @pytest.fixture(scope="module")
 def known_calibration():
     """Method (a): the dot grid at five known heights (stage steps), {V} = {G}."""

@@ -32,6 +32,10 @@ def one_line_error(out, message):
     assert message in lines[0]
 
 
+# the module's tests share what a fixture makes once: one worker runs them all
+pytestmark = pytest.mark.xdist_group("workflows-stereo")
+
+
 @pytest.fixture(scope="module")
 def microscope_files(tmp_path_factory):
     """Calibration images (multi-page TIFF per view) and a 6-pose run of the thesis preset."""
