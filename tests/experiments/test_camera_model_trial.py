@@ -20,8 +20,9 @@ from microcal.vision.targets import parse_target
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(("preset", "kind"), [("telecentric", "affine"), ("thesis", "pinhole")])
-@pytest.mark.parametrize("seed", [101, 202])
+@pytest.mark.parametrize(
+    ("preset", "kind", "seed"), [("telecentric", "affine", 101), ("thesis", "pinhole", 202)]
+)
 def test_auto_picks_the_model_of_the_lens(preset, kind, seed):
     trial = camera_model_trial(preset, seed, frames_per_view=3, poses=0)
     assert set(trial.chosen.values()) == {kind}
