@@ -30,6 +30,7 @@ from itertools import permutations
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from .._validation import FloatArray
@@ -237,6 +238,8 @@ def triangulated_pitch(
     w, h = cameras[first].image_size_px
     seg: dict[str, list[tuple[float, float, float]]] = {"x": [], "y": []}
     nominal: dict[str, float] = {}
+    pairs = {axis: found for axis, k in (("x", 0), ("y", 1))
+             if (found := _lattice_neighbours(obj, k)) is not None}  # fmt: skip
     for v in views:
         seen = [c for c in names if v in detections[c]]
         if len(seen) < 2:
@@ -250,19 +253,8 @@ def triangulated_pitch(
             q.append(qc)
         p, _, _ = triangulate_views([cameras[c] for c in names], q, [1.0] * len(names))
         where = q[0] if v in detections[first] else np.full((len(obj), 2), np.nan)
-        for axis, k in (("x", 0), ("y", 1)):
-            step = np.zeros(3)
-            step[k] = 1.0
-            diffs = obj[None, :, :] - obj[:, None, :]
-            along = np.abs(diffs[..., k])
-            across = np.linalg.norm(diffs - diffs * step, axis=2)
-            pos = along[along > 0]
-            if pos.size == 0:
-                continue
-            pitch = float(pos.min())
+        for axis, (pitch, i, j) in pairs.items():
             nominal[axis] = pitch
-            i, j = np.nonzero((np.abs(along - pitch) < 1e-6 * pitch) & (across < 1e-6 * pitch)
-                              & (diffs[..., k] > 0))  # fmt: skip
             ok = np.all(np.isfinite(p[i]), axis=1) & np.all(np.isfinite(p[j]), axis=1)
             dist = np.linalg.norm(p[j[ok]] - p[i[ok]], axis=1)
             mid = 0.5 * (where[i[ok]] + where[j[ok]])
@@ -293,6 +285,35 @@ def triangulated_pitch(
             "segments": len(rows),
         }
     return out
+
+
+def _lattice_neighbours(
+    obj: FloatArray, k: int, rows: int = 256
+) -> tuple[float, NDArray[np.intp], NDArray[np.intp]] | None:
+    """The lattice's pitch along axis ``k`` and its neighbour pairs ``(i, j)`` along it.
+
+    ``obj`` (N, 3): the target's points. The pitch is the smallest positive difference of
+    their coordinates ``k``; a pair is two points one pitch apart along ``k`` (``j`` after
+    ``i``) and level across it (within 1e-6 of the pitch), listed in the order of ``i``, then
+    ``j``. None when every point has the same coordinate ``k``. Compared a block of ``rows``
+    points at a time with all, so its memory stays ``rows x N``.
+    """
+    values = np.unique(obj[:, k])
+    if values.size < 2:
+        return None
+    pitch = float(np.min(np.diff(values)))
+    step = np.zeros(3)
+    step[k] = 1.0
+    found_i, found_j = [], []
+    for start in range(0, len(obj), rows):
+        diffs = obj[None, :, :] - obj[start : start + rows, None, :]
+        along = diffs[..., k]
+        across = np.linalg.norm(diffs - diffs * step, axis=2)
+        i, j = np.nonzero((np.abs(np.abs(along) - pitch) < 1e-6 * pitch)
+                          & (across < 1e-6 * pitch) & (along > 0))  # fmt: skip
+        found_i.append(i + start)
+        found_j.append(j)
+    return pitch, np.concatenate(found_i), np.concatenate(found_j)
 
 
 def _pair_transform(
