@@ -93,10 +93,21 @@ def test_adaptive_runs_resume_after_a_stop_between_and_within_batches(
         "family"] == "smooth"  # fmt: skip
 
 
-def test_the_same_measurements_choose_the_same_batch(tmp_path: Path) -> None:
+def test_the_same_measurements_choose_the_same_batch_and_the_calibration_is_the_last_fit(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     cameras = write_true_cameras(tmp_path / "cameras.json")
+    steps = []
+    step = adaptive_acquire.BatchedDesign.step
+
+    def keeping(self: adaptive_acquire.BatchedDesign, measured: object) -> object:
+        steps.append(step(self, measured))  # type: ignore[arg-type]
+        return steps[-1]
+
+    monkeypatch.setattr(adaptive_acquire.BatchedDesign, "step", keeping)
     a, b = tmp_path / "a", tmp_path / "b"
     _run(_request(a, cameras))
+    last = steps[-1].model
     b.mkdir()
     shutil.copytree(a / "batch-001", b / "batch-001")
     shutil.copy(a / "adaptive.json", b / "adaptive.json")
@@ -111,25 +122,9 @@ def test_the_same_measurements_choose_the_same_batch(tmp_path: Path) -> None:
     assert again.validation == written.validation
     assert again.extra["adaptive"] == written.extra["adaptive"]
     assert written.extra["adaptive"]["poses"] == 30
-
-
-def test_the_written_calibration_is_the_last_fit_of_the_run(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    cameras = write_true_cameras(tmp_path / "cameras.json")
-    steps = []
-    step = adaptive_acquire.BatchedDesign.step
-
-    def keeping(self: adaptive_acquire.BatchedDesign, measured: object) -> object:
-        steps.append(step(self, measured))  # type: ignore[arg-type]
-        return steps[-1]
-
-    monkeypatch.setattr(adaptive_acquire.BatchedDesign, "step", keeping)
-    _run(_request(tmp_path / "run", cameras))
-    last = steps[-1].model
-    written = load_calibration(tmp_path / "run" / "calibration.json").manipulators["m1"]
+    # the written calibration is the loop's last fit
     assert written.model.inputs == last.inputs
-    limits = np.array(json.loads((tmp_path / "run" / "adaptive.json").read_text())["workspace_um"])
+    limits = np.array(json.loads((a / "adaptive.json").read_text())["workspace_um"])
     grid = workspace_grid_um(AdaptiveSettings(until_um=1.0), limits[:, 0], limits[:, 1])
     u = np.hstack([grid, np.ones((len(grid), len(last.inputs) - 3))])
     # the loop read the temperatures from the journal, the file from measurements.csv (4
