@@ -58,7 +58,8 @@ def test_it_stops_on_its_tolerance_or_its_most_poses() -> None:
 def test_a_crash_mid_batch_then_resume_chooses_the_same_poses_and_loses_nothing(
     choose_directions: bool,
 ) -> None:
-    settings = dataclasses.replace(SETTINGS, choose_directions=choose_directions)
+    settings = dataclasses.replace(SETTINGS, choose_directions=choose_directions,
+                                   candidates=256 if choose_directions else SETTINGS.candidates)  # fmt: skip
     plain = run_adaptive(_design(settings), _measure)
     assert len(plain.measured) > SETTINGS.start_poses + SETTINGS.batch  # there is a batch to cut
     crash_at = SETTINGS.start_poses + SETTINGS.batch // 2  # in the middle of the first batch
