@@ -12,7 +12,7 @@ from ..kinematics.adaptive_design import AdaptiveSettings
 from ..procedures.acquisition import AcquisitionConfig
 from ..procedures.adaptive import AdaptiveDesign
 
-__all__ = ["ADAPTIVE_FILE", "ADAPTIVE_FORMAT", "APPROACH_UM", "CHOSEN", "BatchedDesign"]
+__all__ = ["ADAPTIVE_FILE", "ADAPTIVE_FORMAT", "APPROACH_UM", "BatchedDesign"]
 
 #: The adaptive run's options, in the run directory.
 ADAPTIVE_FILE = "adaptive.json"
@@ -22,24 +22,17 @@ ADAPTIVE_FORMAT = "microcal.adaptive/1"
 APPROACH_UM = 300.0
 
 
-#: adaptive.json's ``directions`` of a run whose design chooses each pose's approach
-#: directions (a run begun before, without the key, keeps them drawn).
-CHOSEN = "chosen"
-
-
 class BatchedDesign(AdaptiveDesign):
     """The adaptive design whose batches are runs of their own: each batch's poses are
     numbered from 1 and approached with that batch's seed, or in the directions the design
-    chose for them."""
+    chose for them (``AdaptiveSettings.choose_directions``, off in a run's design)."""
 
     def __init__(self, options: dict[str, Any], limits_um: FloatArray) -> None:
         self.options = options
         lim = np.asarray(limits_um, dtype=np.float64)
-        chosen = options.get("directions") == CHOSEN
         settings = AdaptiveSettings(until_um=float(options["until_um"]),
                                     max_poses=int(options["max_poses"]),
-                                    seed=int(options["seed"]),
-                                    choose_directions=chosen)  # fmt: skip
+                                    seed=int(options["seed"]))  # fmt: skip
         super().__init__(settings, lim[:, 0], lim[:, 1], lim, self.batch_config(0))
 
     def batch_config(self, index: int, directions: FloatArray | None = None) -> AcquisitionConfig:
