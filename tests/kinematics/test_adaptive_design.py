@@ -69,3 +69,41 @@ def test_the_choice_goes_where_the_model_has_not_been() -> None:
                          lambda i: joint_inputs(cand, np.ones_like(cand), 22.0, INPUTS), 8,
                          d[-1], np.ones(len(cand), dtype=bool))  # fmt: skip
     assert again == picks  # a deterministic function of what was measured
+
+
+def test_a_joint_scored_with_both_directions_is_chosen_once() -> None:
+    settings = AdaptiveSettings(until_um=1.0, candidates=256, grid_per_axis=5)
+    d = np.random.default_rng(3).uniform(LOW, HIGH, (60, 3))
+    model, u, p = _fit(d)
+    cand = candidate_joints_um(settings, LOW, HIGH)
+    test = joint_inputs(workspace_grid_um(settings, LOW, HIGH), np.ones((125, 3)), 22.0, INPUTS)
+    both = [np.ones(3), -np.ones(3)]
+
+    def rows(i: int) -> np.ndarray:
+        return np.vstack([joint_inputs(cand, np.broadcast_to(w, cand.shape), 22.0, INPUTS)
+                          for w in both])  # fmt: skip
+
+    group = np.tile(np.arange(len(cand)), 2)
+    picks = choose_batch(model, residual_variance_um2(model, u, p), test, rows, 10, d[-1],
+                         np.ones(2 * len(cand), dtype=bool), 1.0, 2, group)  # fmt: skip
+    joints = [k % len(cand) for k in picks]
+    assert len(set(joints)) == 10  # never one joint twice, whatever its directions
+
+
+def test_the_start_under_the_prior_is_spread_to_the_faces_and_fixed() -> None:
+    from microcal.procedures.acquisition import AcquisitionConfig
+    from microcal.procedures.adaptive import AdaptiveDesign
+
+    settings = AdaptiveSettings(
+        until_um=1.0, candidates=256, grid_per_axis=5, start="prior", exchange=0
+    )
+    limits = np.column_stack([LOW - 500.0, HIGH + 500.0])
+    approach = AcquisitionConfig(approach_um=300.0, approach_seed=1)
+    start = AdaptiveDesign(settings, LOW, HIGH, limits, approach).start_um()
+    assert start.shape == (20, 3)
+    assert len(np.unique(start, axis=0)) == 20
+    span = (start - LOW) / (HIGH - LOW)
+    assert np.all(span.min(axis=0) <= 0.05)
+    assert np.all(span.max(axis=0) >= 0.95)
+    again = AdaptiveDesign(settings, LOW, HIGH, limits, approach).start_um()
+    np.testing.assert_array_equal(again, start)  # a function of the settings alone

@@ -114,6 +114,7 @@ def acquire_fast_poses(
     probe: ProjectedProbe,
     times: PoseTimes | None = None,
     frames: int | None = None,
+    directions: FloatArray | None = None,
 ) -> Measured:
     """Move to each pose, settle, grab and measure; a pose never reached is NaN.
 
@@ -125,8 +126,11 @@ def acquire_fast_poses(
         Each pose's rig time is appended to it.
     frames : int, optional
         Frames per camera averaged per pose (default: the probe's).
+    directions : (b, 3) float, optional
+        The approach directions chosen for each pose (NaN or none: drawn from the pose).
     """
     k = probe.frames if frames is None else frames
+    chosen = np.full((len(d_um), 3), np.nan) if directions is None else directions
     m, clock = plat.manipulator, plat.clock
     n = d_um.shape[0]
     p, signs = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
@@ -136,7 +140,8 @@ def acquire_fast_poses(
     current = np.ones(3)
     for i, (d, pose) in enumerate(zip(d_um, poses, strict=True)):
         t0 = clock.now_s()
-        start = approach_start_um(d, pose, config, m.limits_um) if config.approach_um else d
+        start = (approach_start_um(d, pose, config, m.limits_um, chosen[i])
+                 if config.approach_um else d)  # fmt: skip
         reached = True
         for target in (start, d):
             if not _move_retrying(m, target, plat):
@@ -178,8 +183,9 @@ def run_adaptive_fast(
     design = AdaptiveDesign(settings, WORKSPACE_MIN_UM, WORKSPACE_MAX_UM,
                             plat.manipulator.limits_um, config)  # fmt: skip
 
-    def acquire(d: FloatArray, poses: list[int]) -> Measured:
-        return acquire_fast_poses(plat, d, poses, config, settle_s, probe, times, frames)
+    def acquire(d: FloatArray, poses: list[int], directions: FloatArray) -> Measured:
+        return acquire_fast_poses(plat, d, poses, config, settle_s, probe, times, frames,
+                                  directions)  # fmt: skip
 
     return run_adaptive(design, acquire)
 

@@ -68,6 +68,7 @@ __all__ = [
     "fit_adaptive_model",
     "predicted_tip_error_um",
     "predicted_workspace_error_um",
+    "prior_model",
     "residual_variance_um2",
     "start_design_um",
     "tip_error_draws_um",
@@ -114,6 +115,14 @@ class AdaptiveSettings:
         is thinnest and a polynomial's variance largest); below 2: none.
     exchange : int
         Passes of exchange over each batch after its greedy choice.
+    choose_directions : bool
+        The design chooses each pose's approach directions too (each candidate scored with
+        every combination of the moving joints' directions); False: each pose keeps the
+        directions the acquisition draws for it.
+    start : {"sobol", "prior"}
+        The start: scrambled Sobol joints, or the candidates that reduce the predicted
+        variance over the workspace most under the smooth model's prior
+        (:func:`prior_model`), chosen as every later batch is.
     """
 
     until_um: float
@@ -127,6 +136,8 @@ class AdaptiveSettings:
     seed: int = 0
     boundary_grid: int = 5
     exchange: int = 2
+    choose_directions: bool = False
+    start: str = "sobol"
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.until_um) and self.until_um > 0):
@@ -259,6 +270,43 @@ def predicted_workspace_error_um(
     return float(np.quantile(tip_error_draws_um(model, u, extra_var_um2), level))
 
 
+#: The prior of :func:`prior_model`: the smoothing parameter (on terms scaled to unit root
+#: mean square over the candidates) and the precision of the unpenalised terms.
+PRIOR_LAMBDA = 0.3
+PRIOR_FLAT = 1e-4
+
+
+def prior_model(
+    inputs: Sequence[str],
+    low_um: FloatArray,
+    high_um: FloatArray,
+    u_scale: FloatArray,
+    held_um: dict[str, float] | None = None,
+) -> KinematicModel:
+    """The smooth model before any pose: zero coefficients, and the covariance of its
+    roughness penalty taken as a prior (a wave of harmonic k has variance
+    ``1 / (PRIOR_LAMBDA k^4)`` in units of the noise, a term without a wave is all but
+    free), on terms scaled by their root mean square over the inputs ``u_scale`` (N, k)."""
+    from .families import family_terms
+    from .penalised import roughness_weights
+    from .terms import terms_without
+
+    extra = dict.fromkeys(inputs[3:], 1)
+    workspace = np.column_stack([low_um, high_um])
+    terms = terms_without(family_terms(FAMILIES[ADAPTIVE_FAMILY], tuple(inputs), extra,
+                                       workspace), held_um or {})  # fmt: skip
+    X = design_matrix(u_scale, tuple(inputs), terms)
+    scale = np.sqrt(np.mean(X**2, axis=0))
+    scale[scale == 0] = 1.0
+    w = roughness_weights([t.waves[0].harmonic if t.waves else 0 for t in terms])
+    var = 1.0 / (PRIOR_LAMBDA * w + PRIOR_FLAT) / scale**2
+    m = len(terms)
+    cov = np.broadcast_to(np.diag(var), (3, m, m)).copy()
+    return KinematicModel("polynomial", tuple(inputs), JOINTS, tuple(terms), np.zeros((3, m)),
+                          np.ones((3, m), dtype=bool), cov, {"method": "prior"},
+                          dict(held_um or {}))  # fmt: skip
+
+
 def _design_rows(model: KinematicModel, u: FloatArray) -> FloatArray:
     X: FloatArray = design_matrix(u, model.inputs, model.terms)
     return X
@@ -274,6 +322,7 @@ def choose_batch(
     available: np.ndarray,
     near_share: float = 0.8,
     exchange: int = 0,
+    group: np.ndarray | None = None,
 ) -> list[int]:
     """Candidates for the next ``count`` poses, chosen one after the other (module docstring).
 
@@ -296,6 +345,9 @@ def choose_batch(
     exchange : int
         Passes of exchange after the greedy choice: each pose of the batch in turn is
         replaced by the candidate that reduces the summed variance most with the others kept.
+    group : (C,) int, optional
+        Candidates of one group are one joint (scored with different approach
+        directions): taking one takes them all. Default: each its own.
 
     Returns
     -------
@@ -309,6 +361,7 @@ def choose_batch(
     S = S0.copy()
     s2 = np.maximum(np.asarray(sigma2_um2, dtype=np.float64), 1e-12)
     free = np.array(available, dtype=bool)
+    groups = np.arange(free.size) if group is None else np.asarray(group)
     last = np.asarray(start_um, dtype=np.float64)
     chosen: list[int] = []
     rows: list[FloatArray] = []
@@ -325,7 +378,7 @@ def choose_batch(
         move = np.max(np.abs(u_c[near, :3] - last), axis=1)
         pick = int(near[np.argmin(move)])
         chosen.append(pick)
-        free[pick] = False
+        free[groups == groups[pick]] = False
         _add(S, Z[pick], s2)
         last = u_c[pick, :3]
     for _ in range(exchange):  # each pose again, the others kept: the best candidate for it
@@ -336,11 +389,13 @@ def choose_batch(
                 if j != i:
                     _add(S, rows[j][c], s2)
             gain = _gain(T, S, rows[i], s2)
-            gain[~free] = -np.inf
+            own = groups == groups[chosen[i]]  # its joint with other directions may replace it
+            gain[~(free | own)] = -np.inf
             gain[chosen[i]] = _gain(T, S, rows[i][chosen[i]][None, :], s2)[0]
             pick = int(np.argmax(gain))
             if pick != chosen[i] and gain[pick] > gain[chosen[i]] * (1 + 1e-9):
-                free[chosen[i]], free[pick] = True, False
+                free[own] = True
+                free[groups == groups[pick]] = False
                 chosen[i], changed = pick, True
         if not changed:
             break

@@ -88,6 +88,11 @@ class AcquisitionConfig:
         (direction terms) needs. Either way each pose's record holds the direction each joint
         last moved in (``approach_x`` ... , +1 / -1).
     approach_seed : int
+    approach_directions : tuple of (3,) tuples
+        Approach directions chosen for the poses instead of drawn (a design that chooses
+        them, :mod:`~microcal.procedures.adaptive`): pose ``k`` (from 1) arrives moving in
+        directions ``approach_directions[k - 1]`` (+1: each joint moving up, so starting
+        below the pose); poses beyond them, or given NaN, draw theirs as above.
     """
 
     settle: Settle = "vision"
@@ -104,6 +109,7 @@ class AcquisitionConfig:
     roi_margin_squares: float = 3.0
     approach_um: float = 0.0
     approach_seed: int = 0
+    approach_directions: tuple[tuple[float, float, float], ...] = ()
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.approach_um) and self.approach_um >= 0):
@@ -130,16 +136,27 @@ def _moved(step_um: FloatArray, signs: FloatArray) -> FloatArray:
 
 
 def approach_start_um(
-    d_um: FloatArray, pose: int, config: AcquisitionConfig, limits_um: FloatArray
+    d_um: FloatArray,
+    pose: int,
+    config: AcquisitionConfig,
+    limits_um: FloatArray,
+    direction: FloatArray | None = None,
 ) -> FloatArray:
     """Where a pose is approached from with ``config.approach_um`` > 0, (3,) µm.
 
     Each joint sits ``approach_um`` past the pose on a side drawn from ``(approach_seed,
-    pose)``; a side that would leave the soft limits ``limits_um`` (3, 2) is the other one.
-    A held joint (limits of one value) stays where it is.
+    pose)``, or opposite the ``direction`` (3,) chosen for the pose (given, or in
+    ``config.approach_directions``); a side that would leave the soft limits ``limits_um``
+    (3, 2) is the other one. A held joint (limits of one value) stays where it is.
     """
-    rng = np.random.default_rng([config.approach_seed, pose])
-    side = rng.choice([-1.0, 1.0], 3)
+    chosen = config.approach_directions
+    if direction is None and 0 < pose <= len(chosen):
+        direction = np.asarray(chosen[pose - 1], dtype=np.float64)
+    if direction is not None and np.all(np.isfinite(direction)):
+        side = np.where(np.asarray(direction) < 0, 1.0, -1.0)
+    else:
+        rng = np.random.default_rng([config.approach_seed, pose])
+        side = rng.choice([-1.0, 1.0], 3)
     start = d_um + side * config.approach_um
     outside = (start < limits_um[:, 0]) | (start > limits_um[:, 1])
     out: FloatArray = np.where(outside, d_um - side * config.approach_um, start)

@@ -27,6 +27,7 @@ from ..kinematics.adaptive_design import (
     choose_batch,
     fit_adaptive_model,
     joint_inputs,
+    prior_model,
     residual_variance_um2,
     start_design_um,
     tip_error_draws_um,
@@ -137,6 +138,9 @@ class AdaptiveStep:
         Why it stopped or goes on, one line.
     next_um : (b, 3) float
         The next poses' commands (none when it stops).
+    next_directions : (b, 3) float
+        The approach directions the design chose for them (+1 / -1 per joint; NaN: the
+        acquisition draws them).
     model : KinematicModel or None
     fit_s : float
         Wall time of the fit and the choice, s (the rig waits for it).
@@ -152,6 +156,7 @@ class AdaptiveStep:
     next_um: FloatArray
     model: KinematicModel | None
     fit_s: float
+    next_directions: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
 
 
 class AdaptiveDesign:
@@ -193,12 +198,31 @@ class AdaptiveDesign:
         self.held_um = {j: float(self.low_um[k]) for k, j in enumerate(JOINTS) if held[k]}
 
     def start_um(self) -> FloatArray:
-        """The first poses' commands (the space-filling start)."""
-        return start_design_um(self.settings, self.low_um, self.high_um)
+        """The first poses' commands: the space-filling start, or the one chosen under the
+        smooth model's prior (``settings.start``)."""
+        s = self.settings
+        if s.start != "prior":
+            return start_design_um(s, self.low_um, self.high_um)
+        c_um = self.candidates_um
+        signs = tuple(f"s{a}" for k, a in enumerate("xyz") if JOINTS[k] not in self.held_um)
+        inputs = (*JOINTS, *signs)
 
-    def signs_for(self, d_um: FloatArray, pose: int) -> FloatArray:
-        """Approach directions joints (C, 3) arrive with as pose ``pose`` (1-based)."""
-        start = approach_start_um(d_um, pose, self.approach, self.limits_um)
+        def inputs_for(i: int) -> FloatArray:
+            return joint_inputs(c_um, self.signs_for(c_um, 1 + i), 0.0, inputs)
+
+        prior = prior_model(inputs, self.low_um, self.high_um, inputs_for(0), self.held_um)
+        test = joint_inputs(self.test_um, np.ones_like(self.test_um), 0.0, inputs)
+        picks = choose_batch(prior, np.ones(3), test, inputs_for, s.start_poses, self.low_um,
+                             np.ones(len(c_um), dtype=bool), s.near_share, s.exchange)  # fmt: skip
+        out: FloatArray = c_um[picks]
+        return out
+
+    def signs_for(
+        self, d_um: FloatArray, pose: int, direction: FloatArray | None = None
+    ) -> FloatArray:
+        """Approach directions joints (C, 3) arrive with as pose ``pose`` (1-based), drawn
+        or, where the limits allow, the ``direction`` (3,) chosen."""
+        start = approach_start_um(d_um, pose, self.approach, self.limits_um, direction)
         out: FloatArray = np.where(d_um > start, 1.0, np.where(d_um < start, -1.0, 1.0))
         return out
 
@@ -299,6 +323,26 @@ class AdaptiveDesign:
         """
         return fit_adaptive_model(u, inputs, p_um, self.low_um, self.high_um, self.held_um)
 
+    def planned_directions(self, measured: Measured, planned: int) -> FloatArray:
+        """The approach directions chosen for the first ``planned`` poses (NaN: drawn), of
+        which ``measured`` were measured: the batch not yet measured whole has its
+        directions chosen again from the poses before it (the same choice, the next step
+        being a function of them), (planned, 3)."""
+        out = np.full((planned, 3), np.nan)
+        starts = [a for a in self.batch_starts(planned) if a <= len(measured) and a < planned]
+        if starts and self.settings.choose_directions:
+            a = starts[-1]
+            chosen = self.step(measured.head(a)).next_directions[: planned - a]
+            out[a : a + len(chosen)] = chosen
+        return out
+
+    def direction_patterns(self) -> FloatArray:
+        """Every combination of the moving joints' approach directions (a held joint's is
+        +1), (P, 3)."""
+        moving = self.low_um != self.high_um
+        choices = [(-1.0, 1.0) if m else (1.0,) for m in moving]
+        return np.array(list(itertools.product(*choices)), dtype=np.float64)
+
     def _taken(self, commanded_um: FloatArray) -> np.ndarray:
         """(C,) bool: candidates already commanded."""
         free = np.ones(len(self.candidates_um), dtype=bool)
@@ -342,27 +386,37 @@ class AdaptiveDesign:
                                 time.perf_counter() - t0)  # fmt: skip
         count = min(s.batch, s.max_poses - n)
         free = self._taken(measured.d_um)
+        c_um = self.candidates_um
+        directions = np.full((count, 3), np.nan)
         if model is None:  # too few good poses to fit: the next candidates in Sobol order
             picks = np.flatnonzero(free)[:count].tolist()
         else:
             t_now = float(measured.temperature_c[ok][-1])
+            patterns = self.direction_patterns() if s.choose_directions else None
 
             def inputs_for(i: int) -> FloatArray:
-                c = self.candidates_um
-                return joint_inputs(c, self.signs_for(c, n + 1 + i), t_now, inputs)
+                if patterns is None:
+                    return joint_inputs(c_um, self.signs_for(c_um, n + 1 + i), t_now, inputs)
+                return np.vstack([joint_inputs(c_um, self.signs_for(c_um, n + 1 + i, w), t_now,
+                                               inputs) for w in patterns])  # fmt: skip
 
             sigma2 = residual_variance_um2(model, u, p)
             last = measured.d_um[-1] if n else self.low_um
-            picks = choose_batch(model, sigma2, self.test_inputs(measured, inputs), inputs_for,
-                                 count, last, free, s.near_share, s.exchange)  # fmt: skip
+            k = 1 if patterns is None else len(patterns)
+            rows = choose_batch(model, sigma2, self.test_inputs(measured, inputs), inputs_for,
+                                count, last, np.tile(free, k), s.near_share, s.exchange,
+                                np.tile(np.arange(len(c_um)), k))  # fmt: skip
+            picks = [r % len(c_um) for r in rows]
+            if patterns is not None:
+                directions = patterns[[r // len(c_um) for r in rows]]
         reason = ("too few poses measured to fit" if model is None else
                   f"predicted {level} error over the workspace {figure:.3g} µm > "
                   f"{s.until_um:g} µm" if trusted or figure > s.until_um else
                   f"the fit follows the noise on some axis (more than {MAX_EDF_SHARE:.0%} of "
                   f"the poses in effective terms)")  # fmt: skip
         return AdaptiveStep(n, int(ok.sum()), figure, worst, inflation, False, reason,
-                            self.candidates_um[picks], model,
-                            time.perf_counter() - t0)  # fmt: skip
+                            c_um[picks], model, time.perf_counter() - t0,
+                            directions[: len(picks)])  # fmt: skip
 
 
 @dataclass
@@ -382,8 +436,9 @@ class AdaptiveResult:
         return float(sum(st.fit_s for st in self.steps))
 
 
-#: Acquires commands (N, 3) as the given 1-based poses; returns their measurements.
-Acquire = Callable[[FloatArray, list[int]], Measured]
+#: Acquires commands (N, 3) as the given 1-based poses, each approached in the directions
+#: (N, 3) chosen for it (NaN: drawn as the acquisition does); returns their measurements.
+Acquire = Callable[[FloatArray, list[int], FloatArray], Measured]
 
 
 def run_adaptive(
@@ -414,11 +469,13 @@ def run_adaptive(
     plan = design.start_um() if planned_um is None else np.asarray(planned_um, dtype=np.float64)
     if planned_um is None and on_plan is not None and len(have) == 0:
         on_plan(plan)
+    directions = design.planned_directions(have, len(plan))
     result = AdaptiveResult(have)
     while True:
         if len(plan) > len(result.measured):
-            poses = list(range(len(result.measured) + 1, len(plan) + 1))
-            result.measured = result.measured + acquire(plan[len(result.measured) :], poses)
+            n = len(result.measured)
+            poses = list(range(n + 1, len(plan) + 1))
+            result.measured = result.measured + acquire(plan[n:], poses, directions[n:])
         step = design.step(result.measured)
         result.steps.append(step)
         if on_step is not None:
@@ -428,3 +485,4 @@ def run_adaptive(
         if on_plan is not None:
             on_plan(step.next_um)
         plan = np.vstack([plan, step.next_um])
+        directions = np.vstack([directions, step.next_directions])

@@ -31,6 +31,7 @@ from ..formats.run_lock import run_lock
 from ..formats.run_manifest import new_manifest
 from ..kinematics.adaptive_design import ADAPTIVE, AdaptiveSettings
 from ..kinematics.models import held_from_limits
+from ..procedures.acquisition import AcquisitionConfig
 from ..procedures.adaptive import Measured
 from .adaptive_batches import ADAPTIVE_FILE, ADAPTIVE_FORMAT, APPROACH_UM, BatchedDesign
 
@@ -172,17 +173,18 @@ def run_adaptive_acquire(request: Any) -> Iterator[str]:
             write_text_atomic(out / ADAPTIVE_FILE, json.dumps(options, indent=1) + "\n")
         with run_lock(out, "acquire"):
             measured = Measured.empty()
-            plan, index = design.start_um(), 0
+            plan, index, directions = design.start_um(), 0, None
             while True:
                 batch = _batch_dir(out, index)
-                yield from _acquire_batch(batch, index, plan, design, opened, spec, hint)
+                config = design.batch_config(index, directions)
+                yield from _acquire_batch(batch, index, plan, config, design, opened, spec, hint)
                 measured = measured + _measured(batch, options["cameras"])
                 step = design.step(measured)
                 yield (f"batch {index + 1}: {step.used} of {step.poses} poses measured; "
                        f"{step.reason}")  # fmt: skip
                 if step.stop:
                     break
-                plan, index = step.next_um, index + 1
+                plan, index, directions = step.next_um, index + 1, step.next_directions
             yield from _finish(out, options)
     yield f"adaptive run in {out}: {len(measured)} poses in {index + 1} batches ({step.reason})"
 
@@ -200,15 +202,15 @@ def _finish(out: Path, options: dict[str, Any]) -> Iterator[str]:
 
 
 def _acquire_batch(
-    batch: Path, index: int, plan: FloatArray, design: BatchedDesign, opened: Any, spec: Any,
-    hint: str,
+    batch: Path, index: int, plan: FloatArray, config: AcquisitionConfig, design: BatchedDesign,
+    opened: Any, spec: Any, hint: str,
 ) -> Iterator[str]:  # fmt: skip
-    """Acquire one batch: a new run directory of ``plan``, or the one there resumed."""
+    """Acquire one batch as ``config`` says: a new run directory of ``plan``, or the one
+    there resumed."""
     from .acquire import acquire_remaining
 
     if batch.exists() and not (batch / MANIFEST).is_file():
         shutil.rmtree(batch)  # a crash while it was being created: made again
-    config = design.batch_config(index)
     resume = batch.exists()
     m, o = opened.manipulator, design.options
     if resume:

@@ -24,7 +24,8 @@ APPROACH_UM = 300.0
 
 class BatchedDesign(AdaptiveDesign):
     """The adaptive design whose batches are runs of their own: each batch's poses are
-    numbered from 1 and approached with that batch's seed."""
+    numbered from 1 and approached with that batch's seed, or in the directions the design
+    chose for them (``AdaptiveSettings.choose_directions``, off in a run's design)."""
 
     def __init__(self, options: dict[str, Any], limits_um: FloatArray) -> None:
         self.options = options
@@ -34,15 +35,22 @@ class BatchedDesign(AdaptiveDesign):
                                     seed=int(options["seed"]))  # fmt: skip
         super().__init__(settings, lim[:, 0], lim[:, 1], lim, self.batch_config(0))
 
-    def batch_config(self, index: int) -> AcquisitionConfig:
-        """How batch ``index`` (0-based) is acquired."""
+    def batch_config(self, index: int, directions: FloatArray | None = None) -> AcquisitionConfig:
+        """How batch ``index`` (0-based) is acquired; ``directions`` (b, 3): the approach
+        directions chosen for its poses (NaN or none: drawn)."""
         o = self.options
         fixed = str(o["settle"]).startswith("fixed")
+        chosen = (
+            ()
+            if directions is None
+            else tuple((float(a), float(b), float(c)) for a, b, c in np.asarray(directions))
+        )
         return AcquisitionConfig(
             settle="fixed" if fixed else "vision",
             fixed_s=float(str(o["settle"]).partition(":")[2] or 30.0) if fixed else 30.0,
             frames_per_pose=int(o["frames"]), store_roi=o["store"] == "roi",
             approach_um=APPROACH_UM, approach_seed=int(o["seed"]) * 1000 + index,
+            approach_directions=chosen,
         )  # fmt: skip
 
     def where(self, pose: int) -> tuple[int, int]:
@@ -52,11 +60,13 @@ class BatchedDesign(AdaptiveDesign):
             return 0, pose
         return 1 + (pose - first - 1) // size, (pose - first - 1) % size + 1
 
-    def signs_for(self, d_um: FloatArray, pose: int) -> FloatArray:
+    def signs_for(
+        self, d_um: FloatArray, pose: int, direction: FloatArray | None = None
+    ) -> FloatArray:
         index, local = self.where(pose)
         config = self.batch_config(index)
         from ..procedures.acquisition import approach_start_um
 
-        start = approach_start_um(d_um, local, config, self.limits_um)
+        start = approach_start_um(d_um, local, config, self.limits_um, direction)
         out: FloatArray = np.where(d_um > start, 1.0, np.where(d_um < start, -1.0, 1.0))
         return out
