@@ -43,6 +43,7 @@ def test_one_seed_of_a_study_measures_models_against_the_oracle():
     assert set(run.tip_error_p95_um) >= {"matrix", "quadratic", "smooth", "auto", "oracle"}
 
 
+@pytest.mark.slow
 def test_study_command_writes_and_refuses_a_foreign_file(tmp_path):
     out = tmp_path / "st"
     out.mkdir()

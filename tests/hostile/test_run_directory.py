@@ -277,6 +277,7 @@ def _kept_aside(run: Path) -> dict[str, str]:
     return {p.name: sha256(p) for p in (run / "images" / "_set_aside").rglob("*") if p.is_file()}
 
 
+@pytest.mark.slow
 def test_a_damaged_journal_line_keeps_its_images_aside(run, box):
     """Line 5 damaged in the middle and line 12 cut short: their poses are acquired again,
     and the images they had are moved aside (named in one line), never written over."""

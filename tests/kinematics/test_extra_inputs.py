@@ -61,6 +61,7 @@ def test_acquisition_records_the_direction_each_joint_last_moved_in():
     np.testing.assert_array_equal(signs, approach_signs(d))
 
 
+@pytest.mark.slow
 def test_a_random_approach_is_recorded_and_repeats_on_resume():
     plat, d, cfg, signs = _journal(150.0)
     for k, row in enumerate(d):

@@ -91,6 +91,7 @@ def test_unknown_family_is_named():
         choose_family(d, p, JOINTS, {}, RANGE_UM, candidates=("quartic",))
 
 
+@pytest.mark.slow
 def test_smooth_fit_shrinks_noise_and_its_covariance_covers_the_truth():
     """Monte Carlo over 40 noise draws of one wavy truth: the penalised fit's 95 % region
     (chi-square, 3 degrees of freedom, the axes' predictions independent) holds the true

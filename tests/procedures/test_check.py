@@ -163,6 +163,7 @@ def test_the_check_refuses_poses_beyond_the_limits_and_a_board_out_of_view(calib
         run_check(plat.manipulator, plat.clock, blind, calibration)
 
 
+@pytest.mark.slow
 def test_a_run_records_its_device_and_a_calibration_refuses_another(tmp_path):
     from typer.testing import CliRunner
 
@@ -197,6 +198,7 @@ def test_a_run_records_its_device_and_a_calibration_refuses_another(tmp_path):
     ManipulatorCalibration("m1", _matrix_model()).check_device("B2")  # an older calibration
 
 
+@pytest.mark.slow
 def test_the_offset_tests_covariance_holds_the_models_error_common_to_the_poses():
     """Monte Carlo: each trial fits a matrix model afresh on 30 noisy poses (3 µm) and checks
     it at the ten poses of an unchanged rig (0.2 µm): the model's coefficient errors move all

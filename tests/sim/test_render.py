@@ -151,6 +151,7 @@ def test_charuco_and_dot_grid_render():
     assert nearest.max() < 0.05
 
 
+@pytest.mark.slow
 def test_a_shifted_scene_reuses_the_undistorted_grid_to_first_order():
     """Rendering keeps the ideal coordinates of a pixel box and shifts them to first order
     for the frame's vibration; against undistorting the shifted pixels, the difference is

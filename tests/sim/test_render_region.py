@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from microcal import sim
 from microcal.sim.render import render_placement, render_region, roi_of
@@ -29,6 +30,7 @@ def test_region_in_float32_matches_float64_render():
     assert np.abs(v32 - v64).mean() < 1e-5
 
 
+@pytest.mark.slow
 def test_a_region_rendered_alone_equals_that_region_of_the_whole_frame():
     _, cam, placement = _thesis_board()
     x0, y0, x1, y1 = roi_of(cam.model, placement, 10.0)

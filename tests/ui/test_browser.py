@@ -81,6 +81,7 @@ def test_click_in_two_views_go_closed_loop_and_the_tip_arrives_by_truth(served):
     assert page.inner_text("#error") == ""
 
 
+@pytest.mark.slow
 def test_a_second_browser_watches_and_cannot_move_anything(served):
     server, browser = served
     live = server.live

@@ -58,6 +58,7 @@ def _stop(proc: subprocess.Popen[str]) -> None:
         proc.wait(timeout=15)
 
 
+@pytest.mark.slow
 def test_beyond_loopback_every_request_needs_the_printed_token(netns, tmp_path: Path):
     cal = write_truth_calibration(tmp_path / "calibration.json")
     proc, url = _start(
@@ -81,6 +82,7 @@ def test_beyond_loopback_every_request_needs_the_printed_token(netns, tmp_path: 
         _stop(proc)
 
 
+@pytest.mark.slow
 def test_on_loopback_no_token_and_other_host_names_are_refused(netns, tmp_path: Path):
     cal = write_truth_calibration(tmp_path / "calibration.json")
     proc, url = _start(["--rig", "sim", "--calibration", str(cal), "--port", "0"])

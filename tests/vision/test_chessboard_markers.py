@@ -78,6 +78,7 @@ POSES = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("preset", ["thesis", "telecentric"])
 def test_rendered_boards_are_numbered_right_and_corners_within_a_fiftieth_pixel(preset):
     rng = np.random.default_rng(3)
@@ -187,6 +188,7 @@ def _write_pair(tmp_path, target, rng):
     return cams
 
 
+@pytest.mark.slow
 def test_partial_board_views_calibrate_the_thesis_cameras_and_a_wrong_spec_is_refused(tmp_path):
     from microcal.workflows.stereo import stereo_calibrate_images
 
@@ -216,6 +218,7 @@ def test_partial_board_views_calibrate_the_thesis_cameras_and_a_wrong_spec_is_re
     assert cal.rms_px < 0.1
 
 
+@pytest.mark.slow
 def test_a_board_moved_by_known_steps_across_its_plane_calibrates_from_different_parts(tmp_path):
     """Method (a) end to end (``calibrate-cameras --known-displacements``) with a marked
     chessboard of which each view sees a different part (the rendered box as the image)."""

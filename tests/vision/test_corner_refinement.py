@@ -88,6 +88,7 @@ def _dotted(views, seed):
     return out
 
 
+@pytest.mark.slow
 def test_a_board_with_codes_in_its_squares_gets_a_window_that_avoids_them():
     target = parse_target("chessboard:9x6:20000")
     views = render_calibration_views(LARGE, target, 6, seed=11, blur_sigma_px=0.7, tilt_deg=25.0)

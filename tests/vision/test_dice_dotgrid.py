@@ -168,6 +168,7 @@ def test_microcal_is_at_least_as_good_as_opencv_given_the_same_dots(calibrated):
     assert cal.rms_px <= stereo
 
 
+@pytest.mark.slow
 def test_a_marker_spec_that_does_not_match_the_plate_names_the_fix(tmp_path):
     from microcal.workflows.stereo import stereo_calibrate_images
 

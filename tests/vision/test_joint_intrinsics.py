@@ -93,6 +93,7 @@ def _calibrate(obs, model):
     return fixed, joint
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", ["radial2", "radial3-tangential"])
 def test_the_shared_views_put_the_baseline_right(model):
     # 11 views of a 6 x 4 board by a wide-angle pair, corners with 0.08 px noise, 12 rigs:

@@ -212,6 +212,7 @@ CROSSING_STEPS_UM = np.array([
 ])  # fmt: skip
 
 
+@pytest.mark.slow
 def test_a_slide_moved_by_known_steps_across_its_plane_calibrates_from_different_parts(tmp_path):
     """Method (a) end to end (``calibrate-cameras --known-displacements``) where each view
     sees a different part of the slide: the rendered box written as files (a camera whose

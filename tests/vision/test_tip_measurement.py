@@ -38,6 +38,7 @@ SIDE = _tilted(TOP, 40.0, "side")
     [("needle", 10.0, "tip:needle:12"), ("jaw", 0.0, "tip:jaw:12"),
      ("needle", 10.0, "tip:needle:12:2")],  # with its size: from the vertex along the axis
 )  # fmt: skip
+@pytest.mark.slow
 def test_the_tip_point_triangulated_from_two_views_is_the_tools_own(kind, elevation, spec):
     rng = np.random.default_rng(4)
     errors = []

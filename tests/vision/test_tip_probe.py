@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from microcal.sim import platform
 from microcal.vision.probe import VisionProbe
 
 
+@pytest.mark.slow
 def test_the_probe_measures_a_needles_tip_on_the_thesis_cameras() -> None:
     plat = platform("thesis-tip", seed=3, overrides={"board": "tip:needle:20:5"})
     m = plat.manipulator

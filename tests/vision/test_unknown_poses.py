@@ -77,6 +77,7 @@ def test_symmetric_board_numbered_by_colour_when_the_picture_tells():
         assert np.linalg.norm(det.q_px - truth[det.ids], axis=1).max() < 0.2
 
 
+@pytest.mark.slow
 def test_recovered_intrinsics_lie_within_their_reported_3_sigma():
     target = parse_target("chessboard:9x6:20000")
     z = []
@@ -121,6 +122,7 @@ def test_lens_model_selection_picks_the_true_family(family):
     assert picked.count(family) >= 5, picked
 
 
+@pytest.mark.slow
 def test_split_half_flags_few_clustered_views_and_passes_many_spread_ones():
     target = parse_target("chessboard:9x6:20000")
     _, few = _views(target, 5, seed=11, spread="centre")
@@ -140,6 +142,7 @@ def test_split_half_flags_few_clustered_views_and_passes_many_spread_ones():
     assert diag.verdict[0].startswith("no limit found")
 
 
+@pytest.mark.slow
 def test_stereo_with_a_symmetric_board_seen_turned():
     target = parse_target("chessboard:6x4:30000")  # looks the same turned by 180 degrees
     cams = wide_angle_stereo_pair()
@@ -174,6 +177,7 @@ def test_stereo_with_a_symmetric_board_seen_turned():
     assert n == 24
 
 
+@pytest.mark.slow
 def test_stereo_drops_a_pair_whose_pose_disagrees_and_says_why():
     target = parse_target("chessboard:7x4:25000")
     cams = wide_angle_stereo_pair()
@@ -243,6 +247,7 @@ def test_three_cameras_in_one_joint_refinement_with_views_each_seen_by_a_subset(
             assert (f"{c}{k:02d}" in turned) == (left_rev != this_rev), (c, k)
 
 
+@pytest.mark.slow
 def test_a_camera_that_shares_no_view_with_the_others_is_refused_with_its_name():
     target = parse_target("chessboard:7x4:25000")
     cams = _three_cameras()
@@ -263,6 +268,7 @@ def _reversed(det, truth):
     return np.linalg.norm(det.q_px - truth[::-1][det.ids], axis=1).max() < 1.0
 
 
+@pytest.mark.slow
 def test_three_cameras_agree_on_a_symmetric_board_through_one_another():
     target = parse_target("chessboard:6x4:30000")  # looks the same turned by 180 degrees
     cams = _three_cameras()

@@ -274,6 +274,7 @@ def test_a_new_run_never_goes_among_a_users_files(tmp_path):
     assert file_hashes(folder) == before
 
 
+@pytest.mark.slow
 def test_a_new_run_may_follow_the_cameras_calibrated_into_its_directory(tmp_path):
     """The guide's order: stereo-calibrate --out runs/a/cameras.json, then acquire --out
     runs/a. The cameras (and the views grabbed for them) stay as they were; a file named

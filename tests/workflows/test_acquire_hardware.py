@@ -66,6 +66,7 @@ def acquire(*args: str):
     return runner.invoke(app, ["acquire", *args], env={"COLUMNS": "200"})
 
 
+@pytest.mark.slow
 def test_twenty_poses_end_to_end_through_the_drivers(rig, tmp_path):
     path, fake, _ = rig
     run = tmp_path / "run"
@@ -93,6 +94,7 @@ def test_twenty_poses_end_to_end_through_the_drivers(rig, tmp_path):
     assert manifest["cameras"] == ["top", "side"]
 
 
+@pytest.mark.slow
 def test_dropped_connection_mid_move_is_reconnected_and_the_run_completes(rig, tmp_path):
     path, fake, _ = rig
     fake.faults.drop_after_move = 8  # pose 3's second axis
@@ -104,6 +106,7 @@ def test_dropped_connection_mid_move_is_reconnected_and_the_run_completes(rig, t
     assert fake.connections == 2
 
 
+@pytest.mark.slow
 def test_a_controller_error_stops_the_run_cleanly_and_resume_completes_it(rig, tmp_path):
     path, fake, _ = rig
     fake.faults.fail_after_moves = 7  # pose 3, axis x
@@ -128,6 +131,7 @@ def test_a_controller_error_stops_the_run_cleanly_and_resume_completes_it(rig, t
     assert all(r["status"] == "ok" for r in records)
 
 
+@pytest.mark.slow
 def test_a_camera_that_stops_answering_stops_the_run_cleanly_and_resume_completes(rig, tmp_path):
     path, _, top = rig
     run = tmp_path / "run"

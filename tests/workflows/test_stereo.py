@@ -144,6 +144,7 @@ def photo_pair():
     return cams
 
 
+@pytest.mark.slow
 def test_ordinary_photographs_any_format(tmp_path):
     board = parse_target("chessboard:9x6:25000")  # a printed board, 25 mm squares
     clock = SimClock()
