@@ -1,0 +1,111 @@
+"""The tool-centre point from poses of board and tip: the fit, its refusals, and applied to a
+board's calibration."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from microcal.errors import DetectionError, InputError
+from microcal.kinematics.manipulator_calibration import ManipulatorCalibration
+from microcal.kinematics.models import fit_matrix_model
+from microcal.procedures.tool_centre import (
+    CarriedPose,
+    fit_carried,
+    measure_carried,
+    tip_calibration,
+)
+from microcal.sim import platform
+from microcal.vision.targets import parse_target
+from microcal.vision.tip_target import parse_tip
+
+TRUTH = np.array([-2400.0, 30.0, -50.0])
+
+
+def _poses(rng, n=10, turning=False, board_R=None):
+    base = np.eye(3) if board_R is None else board_R
+    out = []
+    for _ in range(n):
+        b = rng.uniform(0, 8000, 3)
+        R = Rotation.from_rotvec(rng.normal(0, 0.3, 3)).as_matrix() @ base if turning else base
+        tip = b + R @ TRUTH + rng.normal(0, 0.3, 3)
+        seen_R = Rotation.from_rotvec(rng.normal(0, 0.002, 3)).as_matrix() @ R  # its noise
+        out.append(CarriedPose("ok", "", b + rng.normal(0, 0.1, 3), np.eye(3) * 0.01, seen_R,
+                               tip, np.eye(3) * 0.09))  # fmt: skip
+    return out
+
+
+def test_a_board_that_only_translates_gives_its_offset_and_orientation_with_a_covariance():
+    rng = np.random.default_rng(0)
+    board_R = Rotation.from_rotvec([0.0, 0.0, 0.02]).as_matrix()
+    misses = []
+    for _ in range(100):
+        tool = fit_carried(_poses(rng, board_R=board_R))
+        e = tool.offset_um - TRUTH
+        misses.append(float(e @ np.linalg.solve(tool.cov_um2, e)))
+        assert tool.board_R is not None
+    assert np.linalg.norm(tool.offset_g_um - board_R @ TRUTH) < 0.5  # µm: what is applied
+    assert 0.9 <= np.mean(np.array(misses) < 7.81) <= 1.0  # chi-square, 3 dof, 95 %
+
+
+def test_a_turning_board_is_fitted_pose_by_pose():
+    rng = np.random.default_rng(1)
+    tool = fit_carried(_poses(rng, turning=True))
+    assert tool.board_R is None
+    e = tool.offset_um - TRUTH  # each pose's measured turn (2 mrad) moves the tip by ~5 µm
+    assert np.linalg.norm(e) < 3.0
+    assert float(e @ np.linalg.solve(tool.cov_um2, e)) < 11.3  # chi-square, 3 dof, 99 %
+
+
+def test_failed_poses_are_left_out_and_too_few_is_one_line_with_their_reasons():
+    rng = np.random.default_rng(2)
+    poses = _poses(rng, n=3)
+    poses[1] = CarriedPose("failed", "tip: side: no tool in view")
+    assert fit_carried(poses).poses == 2
+    poses[2] = CarriedPose("failed", "board: top: board not found")
+    with pytest.raises(DetectionError) as info:
+        fit_carried(poses)
+    message = str(info.value)
+    assert "\n" not in message
+    assert "got 1 (pose 2: tip: side: no tool in view; pose 3: board: top:" in message
+
+
+def test_applied_the_board_calibration_serves_the_tip():
+    rng = np.random.default_rng(4)
+    d_fit = rng.uniform(0, 8000, (20, 3))
+    model = fit_matrix_model(d_fit, d_fit @ np.diag([0.98, 1.01, 0.99]).T + [50.0, -20.0, 10.0])
+    entry = ManipulatorCalibration("m1", model)
+    rng = np.random.default_rng(3)
+    tool = fit_carried(_poses(rng))
+    tip = tip_calibration(entry, tool)
+    d = np.array([[1000.0, 2000.0, 3000.0]])
+    np.testing.assert_allclose(tip.predict_um(d) - entry.predict_um(d), tool.offset_g_um[None],
+                               atol=1e-9)  # fmt: skip
+    np.testing.assert_allclose(tip.joints_for(tip.predict_um(d)[0]).ravel(), d[0], atol=1e-6)
+    assert "tool_centre" not in tip.extra
+    with pytest.raises(InputError, match="the board turns"):
+        tip_calibration(entry, fit_carried(_poses(rng, turning=True)))
+
+
+@pytest.fixture(scope="module")
+def board_frames():
+    """One pose of the thesis platform (a board, no tool), two cameras, one frame each."""
+    plat = platform("thesis", seed=0)
+    plat.manipulator.move_to_um([5000.0, 4800.0, 2700.0])
+    plat.manipulator.wait_until_stopped(plat.clock)
+    return {n: [c.grab()] for n, c in plat.cameras.items()}, plat.camera_models
+
+
+def test_a_tip_spec_on_images_of_a_board_fails_the_pose_with_its_reason(board_frames):
+    frames, models = board_frames
+    pose = measure_carried(frames, models, parse_target("chessboard:4x3:400"),
+                           parse_tip("tip:jaw"))  # fmt: skip
+    assert pose.status == "failed"
+    assert pose.reason.startswith("tip: ")
+    assert "no tool" in pose.reason or "tool" in pose.reason
+
+
+def test_specs_the_wrong_way_round_are_one_line():
+    with pytest.raises(InputError, match="expected a board's spec and a tip's spec"):
+        measure_carried({}, {}, parse_tip("tip:jaw"), parse_target("chessboard:4x3:400"))  # type: ignore[arg-type]
