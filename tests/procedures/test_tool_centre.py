@@ -109,3 +109,48 @@ def test_a_tip_spec_on_images_of_a_board_fails_the_pose_with_its_reason(board_fr
 def test_specs_the_wrong_way_round_are_one_line():
     with pytest.raises(InputError, match="expected a board's spec and a tip's spec"):
         measure_carried({}, {}, parse_tip("tip:jaw"), parse_target("chessboard:4x3:400"))  # type: ignore[arg-type]
+
+
+def test_a_board_spec_on_images_of_a_bare_tool_fails_the_pose_with_its_reason():
+    plat = platform("thesis-tip", seed=0)
+    plat.manipulator.move_to_um([5000.0, 4800.0, 2700.0])
+    plat.manipulator.wait_until_stopped(plat.clock)
+    # one camera, the part of its frame around the tool: a board's search in vain is slow
+    x, y = plat.cameras["top"].model.project(plat.truth_position_um()[None])[0].astype(int)
+    frames = {"top": [plat.cameras["top"].grab()[y - 150 : y + 150, x - 150 : x + 250]]}
+    pose = measure_carried(frames, plat.camera_models, parse_target("chessboard:4x3:400"),
+                           parse_tip("tip:pipette"))  # fmt: skip
+    assert pose.status == "failed"
+    assert pose.reason.startswith("board: ")
+    assert "top: " in pose.reason
+
+
+def test_the_orientation_is_carried_in_the_calibration_file_and_a_bad_one_refused(tmp_path):
+    import json
+
+    from microcal.errors import FormatError
+    from microcal.formats.calibration_file import (
+        Calibration,
+        load_calibration,
+        tool_centre_of,
+        write_calibration,
+    )
+
+    rng = np.random.default_rng(5)
+    d = rng.uniform(0, 8000, (20, 3))
+    figures = {"n_fit": 20, "n_validate": 0, "mean_um": 0.1, "std_um": 0.1, "max_um": 0.2,
+               "rms_um": 0.1}  # fmt: skip
+    tool = fit_carried(_poses(rng))
+    entry = ManipulatorCalibration("m1", fit_matrix_model(d, d), figures,
+                                   {"tool_centre": tool.to_json()})  # fmt: skip
+    path = tmp_path / "calibration.json"
+    write_calibration(path, Calibration({"m1": entry}))
+    back = tool_centre_of(load_calibration(path).manipulator("m1"))
+    assert back is not None
+    assert back.board_R is not None
+    np.testing.assert_allclose(back.offset_g_um, tool.offset_g_um)
+    raw = json.loads(path.read_text())
+    raw["manipulators"]["m1"]["tool_centre"]["board_R"][0][0] = 2.0
+    path.write_text(json.dumps(raw))
+    with pytest.raises(FormatError, match=r"tool_centre.board_R: expected a 3 x 3 rotation"):
+        load_calibration(path)

@@ -53,14 +53,18 @@ def find_tip(
 ) -> None:  # fmt: skip
     """Jog an axis back and forth, find what moved in the images, home in on the tool's tip
     and centre it in the camera, then print where it is (joints, and the tip in each camera).
-    A tool that is not found is left where it began.
+    A tool that is not found is left where it began (one error line). The rigs have no
+    focus drive yet: the tip is centred, not focused.
 
     Example: microcal find-tip --rig myrig.toml --tip tip:needle
     """
+    from ..errors import DetectionError
     from ..report.tool_lines import tip_search_lines
     from ..workflows.find_tip import find_tool_tip
 
     done = find_tool_tip(rig, manipulator=manipulator, seed=seed, camera=camera, tip=tip,
                          reach_um=reach_um)  # fmt: skip
+    if not done.search.found:
+        raise DetectionError(f"find-tip: {tip_search_lines(done)[0]}")
     for line in tip_search_lines(done):
         print(line)
