@@ -64,7 +64,8 @@ def find_tip(
 
     done = find_tool_tip(rig, manipulator=manipulator, seed=seed, camera=camera, tip=tip,
                          reach_um=reach_um)  # fmt: skip
+    lines = tip_search_lines(done.search, done.camera, done.seen_px)
     if not done.search.found:
-        raise DetectionError(f"find-tip: {tip_search_lines(done)[0]}")
-    for line in tip_search_lines(done):
+        raise DetectionError(f"find-tip: {lines[0]}")
+    for line in lines:
         print(line)

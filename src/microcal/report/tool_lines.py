@@ -2,15 +2,15 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 if TYPE_CHECKING:
+    from ..procedures.find_tip import TipSearch
     from ..procedures.tool_centre import CarriedPose
     from ..vision.tool_centre import ToolCentre
-    from ..workflows.find_tip import FoundTip
 
 __all__ = ["tip_search_lines", "tool_centre_lines"]
 
@@ -31,16 +31,15 @@ def tool_centre_lines(tool: ToolCentre, poses: Sequence[CarriedPose]) -> list[st
     return out
 
 
-def tip_search_lines(found: FoundTip) -> list[str]:
+def tip_search_lines(s: TipSearch, camera: str, seen_px: Mapping[str, np.ndarray]) -> list[str]:
     """Where the tip is (joints, and its apex in each camera that sees it), or why not."""
-    s = found.search
     joints = ", ".join(f"{v:.1f}" for v in s.joints_um)
     if not s.found:
         return [f"no tip found: {s.reason}; the manipulator is back where it began "
                 f"(joints {joints} µm)"]  # fmt: skip
-    out = [f"tip centred in {found.camera}: apex ({s.apex_px[0]:.1f}, {s.apex_px[1]:.1f}) px "
+    out = [f"tip centred in {camera}: apex ({s.apex_px[0]:.1f}, {s.apex_px[1]:.1f}) px "
            f"after {s.moves} moves; joints ({joints}) µm"]  # fmt: skip
-    for name, apex in found.seen_px.items():
-        if name != found.camera:
+    for name, apex in seen_px.items():
+        if name != camera:
             out.append(f"  {name}: apex ({apex[0]:.1f}, {apex[1]:.1f}) px")
     return out
