@@ -54,7 +54,7 @@ def _ap(entry: ManipulatorCalibration, seed: int, offset_um: list[float], tip: b
     desired = entry.predict_um(check_poses_um(low, high))
     out = []
     for p in desired:
-        d = entry.joints_for(p)
+        d = np.asarray(entry.joints_for(p), dtype=np.float64).reshape(3)
         arrived = []
         for _ in range(CYCLES):
             m.move_to_um(d - 50.0)
