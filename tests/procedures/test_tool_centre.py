@@ -69,6 +69,8 @@ def test_failed_poses_are_left_out_and_too_few_is_one_line_with_their_reasons():
     message = str(info.value)
     assert "\n" not in message
     assert "got 1 (pose 2: tip: side: no tool in view; pose 3: board: top:" in message
+    with pytest.raises(DetectionError, match=r"got 0 \(poses 1, 2: tip: top: no tool in view\)"):
+        fit_carried([CarriedPose("failed", "tip: top: no tool in view")] * 2)
 
 
 def test_applied_the_board_calibration_serves_the_tip():

@@ -117,7 +117,14 @@ def fit_carried(poses: Sequence[CarriedPose]) -> ToolCentre:
     """
     ok = [p for p in poses if p.status == "ok"]
     if len(ok) < 2:
-        why = "; ".join(f"pose {i + 1}: {p.reason}" for i, p in enumerate(poses) if p.reason)
+        failed: dict[str, list[int]] = {}
+        for i, p in enumerate(poses):
+            if p.reason:
+                failed.setdefault(p.reason, []).append(i + 1)
+        why = "; ".join(
+            f"pose{'s' if len(at) > 1 else ''} {', '.join(map(str, at))}: {reason}"
+            for reason, at in failed.items()
+        )
         raise DetectionError(
             f"tool centre: expected two or more poses with both the board and the tip, got "
             f"{len(ok)}" + (f" ({why})" if why else "")
