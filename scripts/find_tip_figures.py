@@ -119,21 +119,25 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--starts", type=int, default=6)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--cases", default="field,outside,none", help="which of field, outside, none")
     args = ap.parse_args()
+    cases = args.cases.split(",")
     rng = np.random.default_rng(args.seed)
     print("| case | found | true tip from the centre at the end (px) | apex error (px) | "
           "apex from the centre (px) | moves | s | reason |")  # fmt: skip
     print("| --- | --- | --- | --- | --- | --- | --- | --- |")
-    for i in range(args.starts):
+    for i in range(args.starts if "field" in cases else 0):
         start = rng.uniform([1500.0, 1500.0, 2400.0], [8000.0, 8000.0, 3000.0])
         row = _thesis(args.seed + i, start, "thesis-tip", NEEDLE)
         print(f"| thesis-tip, needle, start {np.round(start).astype(int).tolist()} µm | "
               + " | ".join(row) + " |")  # fmt: skip
-    for tip in ([283.0, 0.0, 0.0], [0.0, -283.0, 0.0], [-283.0, 60.0, 0.0]):
+    outside = ([283.0, 0.0, 0.0], [0.0, -283.0, 0.0], [-283.0, 60.0, 0.0])
+    for tip in outside if "outside" in cases else ():
         row = _outside(np.array(tip), args.seed)
         print(f"| microscope, tip 200 µm outside the field at {tip} µm | " + " | ".join(row) + " |")
-    row = _thesis(args.seed, np.array([5000.0, 4800.0, 2700.0]), "thesis", NEEDLE)
-    print("| thesis (a board, no tool) | " + " | ".join(row) + " |")
+    if "none" in cases:
+        row = _thesis(args.seed, np.array([5000.0, 4800.0, 2700.0]), "thesis", NEEDLE)
+        print("| thesis (a board, no tool) | " + " | ".join(row) + " |")
 
 
 if __name__ == "__main__":

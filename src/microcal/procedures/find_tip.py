@@ -12,7 +12,7 @@ A tool just mounted is somewhere near the field, perhaps outside it. The search:
 2. with the tip in view, jogs each joint of the plane a little back and forth and sees where
    the tip goes: the image's Jacobian (px per µm of each joint);
 3. moves the tip to the image's centre through that Jacobian, again until it is within a
-   pixel (or a few steps are spent).
+   pixel (or :data:`CENTRING_STEPS` are spent), the Jacobian refined by each step (Broyden).
 
 A tool that cannot be found is put back where it began. The procedure works on callables
 (move, read the position, grab a frame), so it serves a simulated and a real rig alike.
@@ -31,7 +31,13 @@ from .._validation import FloatArray
 from ..vision.tip import TipDetection, detect_tip
 from ..vision.tip_target import TipTarget
 
-__all__ = ["MOVED_LEVELS", "TipSearch", "find_tip", "moved_box"]
+__all__ = ["BROYDEN_MIN_PX", "CENTRING_STEPS", "MOVED_LEVELS", "TipSearch", "find_tip", "moved_box"]
+
+#: The centring's steps at most (each refines the image's Jacobian by what it moved).
+CENTRING_STEPS = 8
+
+#: A centring step refines the Jacobian when it was meant to move the tip this far, px.
+BROYDEN_MIN_PX = 10.0
 
 #: A pixel moved when its change between two frames exceeds this many times the frames'
 #: typical change (the median absolute difference, noise).
@@ -213,15 +219,22 @@ def find_tip(
                          "the tip does not move across the image with these joints")  # fmt: skip
     centre = (np.asarray(image_size_px, dtype=np.float64) - 1.0) / 2.0
     seen = at(here)
-    for _ in range(5):
+    for _ in range(CENTRING_STEPS):
         if not seen.found:
             break
         miss = centre - seen.apex_px
         if float(np.hypot(*miss)) <= tolerance_px:
             break
+        step_um = np.linalg.solve(J, miss)
         here = here.copy()
-        here[list(plane)] += np.linalg.solve(J, miss)
+        here[list(plane)] += step_um
+        before = seen.apex_px
         seen = at(here)
+        if seen.found and float(np.hypot(*(J @ step_um))) > BROYDEN_MIN_PX:
+            # Broyden's update: the Jacobian learns from each long step what the jogs missed
+            # (a short one would teach it the apex's noise)
+            moved = seen.apex_px - before
+            J = J + np.outer(moved - J @ step_um, step_um) / float(step_um @ step_um)
     if not seen.found:
         move_to(start)
         return TipSearch(False, start, nan2, J, moves + 1,
