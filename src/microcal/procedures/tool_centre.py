@@ -3,8 +3,11 @@
 At each pose every camera's frames are measured twice: the board (its virtual point and,
 from its corners triangulated, its orientation: :func:`~microcal.vision.board_pose.board_pose`)
 and the tool's tip (its apex in each camera, triangulated:
-:func:`~microcal.vision.measurement.measure_one`). A pose where either is missing is kept
-with its reason and left out of the fit.
+:func:`~microcal.vision.measurement.measure_one`). Before the tip is searched, the board
+(its printed pattern and white margin, mapped from its corners by a homography) is painted
+over with the frame's background level in each camera (:func:`hide_board`), so that its dark
+squares and bright margin are neither taken for tools nor pull the tip's outline. A pose
+where either is missing is kept with its reason and left out of the fit.
 
 The fit (:func:`fit_carried`): when the board's orientation is the same at every pose within
 :data:`TURNING_RAD` (a manipulator that only translates, as the thesis's), the tip's offset
@@ -23,6 +26,7 @@ import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -37,7 +41,19 @@ from ..vision.tip_target import TipTarget
 from ..vision.tool_centre import ToolCentre, fit_tool_centre
 from .check import offset_updated
 
-__all__ = ["TURNING_RAD", "CarriedPose", "fit_carried", "measure_carried", "tip_calibration"]
+__all__ = [
+    "BOARD_HIDE_MARGIN",
+    "TURNING_RAD",
+    "CarriedPose",
+    "fit_carried",
+    "hide_board",
+    "measure_carried",
+    "tip_calibration",
+]
+
+#: How far beyond its printed pattern the board is painted over before the tip is searched,
+#: in pitches (its white margin, one pitch, and its blur).
+BOARD_HIDE_MARGIN = 1.4
 
 #: A board whose orientation differs between poses by more than this turns, rad.
 TURNING_RAD = 0.01
@@ -72,6 +88,32 @@ class CarriedPose:
     tip_cov_um2: FloatArray = field(default_factory=lambda: _nan(3, 3))
 
 
+def hide_board(
+    frames: Sequence[NDArray[np.generic]], corners_px: FloatArray, board: Target
+) -> list[NDArray[np.generic]]:
+    """The frames with the board painted over by each frame's median (its background).
+
+    ``corners_px`` (N, 2): the board's corners in the first frame (it stands still during a
+    pose); the board's outline, :data:`BOARD_HIDE_MARGIN` pitches beyond its pattern, is
+    mapped into the image by the homography from the board's plane to its corners.
+    """
+    model = board.points_um()[:, :2].astype(np.float32)
+    H, _ = cv2.findHomography(model, np.asarray(corners_px, dtype=np.float32).reshape(-1, 2))
+    if H is None:
+        return list(frames)
+    x0, x1, y0, y1 = board.extent_um()
+    m = BOARD_HIDE_MARGIN * board.pitch_um
+    outline = np.array([[x0 - m, y0 - m], [x1 + m, y0 - m], [x1 + m, y1 + m], [x0 - m, y1 + m]])
+    poly = cv2.perspectiveTransform(outline.reshape(-1, 1, 2).astype(np.float64), H)
+    out = []
+    for image in frames:
+        painted = np.array(image, copy=True)
+        fill = float(np.median(painted))
+        cv2.fillConvexPoly(painted, np.round(poly.reshape(-1, 2)).astype(np.int32), fill)
+        out.append(painted)
+    return out
+
+
 def measure_carried(
     frames: Mapping[str, Sequence[NDArray[np.generic]]],
     cameras: Mapping[str, AnyCamera],
@@ -96,7 +138,11 @@ def measure_carried(
         pose = board_pose(mb.corners_px, cameras, board, near=near)
     except DetectionError as exc:
         return CarriedPose("failed", f"board: {exc}")
-    mt = measure_one(frames, cameras, tip)
+    hidden = {
+        n: hide_board(frames[n], mb.corners_px[n], board) if n in mb.corners_px else frames[n]
+        for n in frames
+    }
+    mt = measure_one(hidden, cameras, tip)
     if mt.status != "ok":
         return CarriedPose("failed", f"tip: {mt.reason}")
     return CarriedPose("ok", "", mb.p_um, mb.cov_um2, pose.R, mt.p_um, mt.cov_um2)
