@@ -66,7 +66,9 @@ def _thesis(seed: int, start_um: np.ndarray, preset: str, spec: str) -> tuple[st
             f"{wall:.0f}",
             f"{s.reason} (back within {back:.2f} µm)",
         )
-    truth = cam.model.project(plat.scene.board_placement(clock.now_s()).tip_um[None])[0]
+    tool = plat.scene.board_placement(clock.now_s())
+    assert isinstance(tool, ToolPlacement)
+    truth = cam.model.project(tool.tip_um[None])[0]
     return ("yes", f"{np.hypot(*(truth - centre)):.2f}", f"{np.hypot(*(s.apex_px - truth)):.2f}",
             f"{np.hypot(*(s.apex_px - centre)):.2f}", f"{s.moves}", f"{wall:.0f}", "")  # fmt: skip
 

@@ -28,6 +28,7 @@ from microcal.procedures.check import check_poses_um
 from microcal.procedures.tool_centre import tip_calibration
 from microcal.sim import platform
 from microcal.sim.platforms import PlatformConfig
+from microcal.sim.render import Placement
 from microcal.vision.tool_centre import ToolCentre
 from microcal.workflows.tool_centre import measure_tool_centre
 
@@ -63,7 +64,8 @@ def _ap(entry: ManipulatorCalibration, seed: int, offset_um: list[float], tip: b
             m.wait_until_stopped(clock)
             clock.sleep(2.0)
             board = scene.board_placement(clock.now_s())
-            arrived.append(scene.carried.at(board).tip_um if tip else m.true_position_um())  # type: ignore[union-attr]
+            assert isinstance(board, Placement)
+            arrived.append(scene.carried.at(board).tip_um if tip else m.true_position_um())
         out.append(pose_accuracy(p, np.array(arrived))[1])
     return out
 
