@@ -55,8 +55,9 @@ __all__ = [
 #: in pitches (its white margin, one pitch, and its blur).
 BOARD_HIDE_MARGIN = 1.4
 
-#: A board whose orientation differs between poses by more than this turns, rad.
-TURNING_RAD = 0.01
+#: A board whose orientation differs between poses by more than this turns, rad (the
+#: orientation from one pose's corners scatters by some 5 mrad on the thesis's cameras).
+TURNING_RAD = 0.05
 
 
 def _nan(*shape: int) -> FloatArray:
