@@ -171,7 +171,7 @@ def find_tip(
         box = moved_box(before, after)
         if box is None:
             return TipDetection.none("nothing moved in the field")
-        det = detect_tip(grab(), target)
+        det = detect_tip(before, target)  # the tool is back where this frame saw it
         if not det.found:
             return det
         x, y = det.apex_px
