@@ -25,6 +25,8 @@ COMMANDS = [
     "check",
     "goto",
     "study",
+    "tool-centre",
+    "find-tip",
     "twin",
     "ui",
 ]

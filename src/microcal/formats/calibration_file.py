@@ -69,6 +69,7 @@ class _ToolCentreSchema(FileSchema):
     cov_um2: list[list[float]] = Field(min_length=3, max_length=3)
     rms_um: float = Field(ge=0)
     poses: int = Field(ge=2)
+    board_R: list[list[float]] | None = None  # noqa: N815 (R, as in the thesis)
 
 
 class _ManipulatorSchema(FileSchema):
@@ -195,6 +196,14 @@ def _check_tool_centre(path: Path, name: str, tool: _ToolCentreSchema | None) ->
             f"{path}: manipulators.{name}.tool_centre.cov_um2: expected 3 x 3 numbers with "
             f"variances >= 0"
         )
+    R = tool.board_R
+    if R is not None and (
+        len(R) != 3 or any(len(row) != 3 for row in R)
+        or not np.allclose(np.asarray(R) @ np.asarray(R).T, np.eye(3), atol=1e-6)
+    ):  # fmt: skip
+        raise FormatError(
+            f"{path}: manipulators.{name}.tool_centre.board_R: expected a 3 x 3 rotation"
+        )
 
 
 def tool_centre_of(calibration: ManipulatorCalibration) -> ToolCentre | None:
@@ -202,9 +211,11 @@ def tool_centre_of(calibration: ManipulatorCalibration) -> ToolCentre | None:
     entry = calibration.extra.get("tool_centre")
     if not isinstance(entry, dict):
         return None
+    R = entry.get("board_R")
     return ToolCentre(np.asarray(entry["offset_um"], dtype=np.float64),
                       np.asarray(entry["cov_um2"], dtype=np.float64),
-                      float(entry["rms_um"]), int(entry["poses"]))  # fmt: skip
+                      float(entry["rms_um"]), int(entry["poses"]),
+                      None if R is None else np.asarray(R, dtype=np.float64))  # fmt: skip
 
 
 def _check_validation(path: Path, name: str, validation: _ValidationSchema | None) -> None:

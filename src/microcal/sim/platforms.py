@@ -28,6 +28,9 @@ The other presets (:data:`PRESETS`) change the cameras only, but for ``populatio
   the board (:data:`THESIS_TIP`, markerless): its tip point at the end-effector, its shank
   along {G}'s +x rising :data:`TOOL_ELEVATION_DEG` towards +z, seen against a bright field
   (:mod:`~microcal.sim.tools`, :mod:`~microcal.sim.tool_render`).
+- ``thesis-gripper``: the ``thesis`` platform whose end-effector carries a gripper jaw
+  beside its board (:mod:`~microcal.sim.carried_tool`): both are seen, the jaw's tip at a
+  fixed offset in the board's frame (``tool_offset_um``), for the tool-centre point.
 
 Any preset takes a tool's tip instead of the board when its ``board`` is a tip spec
 (``tip:needle``, :mod:`~microcal.vision.tip_target`).
@@ -38,6 +41,7 @@ A rig file turns these effects on or off on any preset with ``manipulator.real_m
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -54,6 +58,7 @@ from ..thesis.cameras import thesis_cameras
 from ..vision.targets import Target, parse_spec, parse_target
 from ..vision.tip_target import TipTarget
 from .camera import CameraFaults, ImageFormation, SimCamera
+from .carried_tool import CarriedTool, carried_tool
 from .clock import SimClock
 from .manipulator import ManipulatorFaults, SimManipulator
 from .motion import MotionNoise, PlayHysteresis, play_radii_um
@@ -184,6 +189,12 @@ class PlatformConfig:
     """A tool's shank (``board`` a tip spec): its angle above {G}'s x-y plane, degrees."""
     tool_azimuth_deg: float = 0.0
     """A tool's shank: its direction in {G}'s x-y plane from +x towards +y, degrees."""
+    tool: str = ""
+    """A tool carried beside the board (a tip spec, ``tip:jaw:30:40``; the preset
+    ``thesis-gripper``), its shank along ``tool_elevation_deg`` / ``tool_azimuth_deg``;
+    empty: none (:mod:`~microcal.sim.carried_tool`)."""
+    tool_offset_um: tuple[float, float, float] = (-2400.0, 0.0, 0.0)
+    """The carried tool's tip point in the board's frame, µm (the tool-centre point's truth)."""
     calibration_target: str = CALIBRATION_TARGET
     """The target on the target stage (method (a) of the stereo calibration)."""
     top: CameraConfig = field(
@@ -212,13 +223,19 @@ class PlatformConfig:
 #: The simulator's presets (see the module docstring).
 PRESETS = (
     "thesis", "telecentric", "thesis-3cam", "population", "thesis-platform", "thesis-real",
-    "thesis-tip",
+    "thesis-tip", "thesis-gripper",
 )  # fmt: skip
 
 #: The ``thesis-tip`` preset's tool: a patch pipette of 10 degrees with a 1 µm opening.
 THESIS_TIP = "tip:pipette:10:1"
 #: The ``thesis-tip`` shank's elevation above {G}'s x-y plane, degrees.
 TOOL_ELEVATION_DEG = 20.0
+#: The ``thesis-gripper`` preset's jaw beside the board: 30 degrees, a 40 µm rounded end.
+THESIS_JAW = "tip:jaw:30:40"
+#: The ``thesis-gripper`` jaw's shank: away from the board along {G}'s -x (across the
+#: cameras' baseline, so that the cameras fix its tip along it), rising 10 degrees.
+JAW_AZIMUTH_DEG = 180.0
+JAW_ELEVATION_DEG = 10.0
 #: What lies behind a tool (bright field: the light through the sample), as a reflectance.
 BRIGHT_FIELD = 0.85
 
@@ -274,6 +291,9 @@ def preset_config(preset: str) -> PlatformConfig:
     elif preset == "thesis-tip":
         config = dataclasses.replace(config, board=THESIS_TIP,
                                      tool_elevation_deg=TOOL_ELEVATION_DEG)  # fmt: skip
+    elif preset == "thesis-gripper":
+        config = dataclasses.replace(config, tool=THESIS_JAW, tool_elevation_deg=JAW_ELEVATION_DEG,
+                                     tool_azimuth_deg=JAW_AZIMUTH_DEG)  # fmt: skip
     elif preset == "thesis-platform":
         config = dataclasses.replace(
             config,
@@ -335,6 +355,18 @@ def check_overrides(overrides: Mapping[str, object], preset: str = "thesis") -> 
         raise InputError(f"override 'board': {exc}") from None
     check_number("tool_elevation_deg", config.tool_elevation_deg, low=-89, high=89)
     check_number("tool_azimuth_deg", config.tool_azimuth_deg, low=-360, high=360)
+    if config.tool:
+        carried = parse_spec(config.tool)
+        if not isinstance(carried, TipTarget) or isinstance(parse_spec(config.board), TipTarget):
+            raise InputError(
+                f"override 'tool': expected a tool's tip spec (tip:jaw) beside a board, got "
+                f"{config.tool!r} beside {config.board!r}"
+            )
+    if not all(math.isfinite(v) for v in config.tool_offset_um) or len(config.tool_offset_um) != 3:
+        raise InputError(
+            f"override 'tool_offset_um': expected three finite numbers (µm), got "
+            f"{list(config.tool_offset_um)}"
+        )
     return config
 
 
@@ -371,6 +403,7 @@ class Scene:
         self.calibration_target = calibration_target
         self._shown: tuple[str, float] | None = None
         self.tool = tool  # its tip point is moved to the end-effector
+        self.carried: CarriedTool | None = None  # a tool beside the board (thesis-gripper)
 
     def show(self, name: str, t_s: float) -> None:
         """From ``t_s`` on, the board of device ``name`` is seen (until a device moves)."""
@@ -402,6 +435,8 @@ class Scene:
         out: list[Placement | ToolPlacement] = [] if self.fixed is None else [self.fixed]
         if self.show_board:
             out.append(self.board_placement(t_s))
+            if self.carried is not None and isinstance(out[-1], Placement):
+                out.append(self.carried.at(out[-1]))
         return out
 
 
@@ -491,6 +526,13 @@ def platform(
         manipulator, board, np.eye(3), stage, parse_target(config.calibration_target), others,
         tool,
     )  # fmt: skip
+    if config.tool:
+        tip = parse_spec(config.tool)
+        assert isinstance(tip, TipTarget)  # checked with the overrides
+        scene.carried = carried_tool(
+            tip, np.array(config.tool_offset_um), config.tool_elevation_deg,
+            config.tool_azimuth_deg,
+        )  # fmt: skip
     reflectance = None if tool is None else Reflectance(background=BRIGHT_FIELD)
     top, side = thesis_cameras()
     views: list[tuple[CameraModel, CameraConfig, np.random.SeedSequence]] = [

@@ -36,26 +36,42 @@ class ToolCentre:
     rms_um : float
         RMS of the poses' residuals.
     poses : int
+    board_R : (3, 3) float or None
+        The board's orientation in {G} (its axes as columns) when it does not turn (a
+        manipulator that only translates): the tip is then ``board + board_R @ offset_um``
+        at every pose. None: the identity (or a board that turns: give its orientation).
     """
 
     offset_um: FloatArray
     cov_um2: FloatArray
     rms_um: float
     poses: int
+    board_R: FloatArray | None = None  # noqa: N815 (R, as in the thesis and Placement)
+
+    @property
+    def offset_g_um(self) -> FloatArray:
+        """The offset in {G}'s axes for a board that does not turn, (3,) µm."""
+        out: FloatArray = self.offset_um if self.board_R is None else self.board_R @ self.offset_um
+        return out
 
     def apply(self, board_um: ArrayLike, R: ArrayLike | None = None) -> FloatArray:
-        """The tip in {G} for board positions (N, 3) (and orientations (N, 3, 3))."""
+        """The tip in {G} for board positions (N, 3) (and orientations (N, 3, 3); without
+        them, :attr:`board_R`)."""
         b = np.atleast_2d(np.asarray(board_um, dtype=np.float64))
         if R is None:
-            return b + self.offset_um
+            return b + self.offset_g_um
         out: FloatArray = b + np.einsum("nij,j->ni", np.asarray(R, dtype=np.float64),
                                         self.offset_um)  # fmt: skip
         return out
 
     def to_json(self) -> dict[str, object]:
         """The calibration file's ``tool_centre`` entry (``docs/formats.md``)."""
-        return {"offset_um": self.offset_um.tolist(), "cov_um2": self.cov_um2.tolist(),
-                "rms_um": self.rms_um, "poses": self.poses}  # fmt: skip
+        out: dict[str, object] = {"offset_um": self.offset_um.tolist(),
+                                  "cov_um2": self.cov_um2.tolist(), "rms_um": self.rms_um,
+                                  "poses": self.poses}  # fmt: skip
+        if self.board_R is not None:
+            out["board_R"] = self.board_R.tolist()
+        return out
 
 
 def fit_tool_centre(

@@ -66,6 +66,10 @@ def add_manipulator(
     ``manifest`` the run they were measured in (its device is recorded with the entry);
     ``mat`` a .mat file to export the written calibration to as well.
 
+    The device's tool-centre point (``tool_centre``, :mod:`microcal.workflows.tool_centre`)
+    in an existing ``out`` is kept when the new entry has none: a new fit of the board does
+    not move the tool on it.
+
     ``out`` is read and written under its lock (:func:`~microcal.formats.file_lock.locked_update`,
     the .mat export too): two fits into one file at once keep both entries.
     """
@@ -77,6 +81,10 @@ def add_manipulator(
         if cameras is not None:
             camera_data = read_cameras(cameras)[0]
         manipulators = dict(existing.manipulators) if existing else {}
+        before = manipulators.get(entry.name)
+        kept = before.extra.get("tool_centre") if before is not None else None
+        if kept is not None and "tool_centre" not in entry.extra:
+            entry = dataclasses.replace(entry, extra={**entry.extra, "tool_centre": kept})
         manipulators[entry.name] = entry
         calibration = Calibration(
             manipulators,
