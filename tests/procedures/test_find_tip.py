@@ -55,6 +55,7 @@ def _search(rig: Rig):
                     image_size_px=CAMERA.image_size_px, field_um=166.0)  # fmt: skip
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("tip", [[-60.0, 50.0, 0.0], [40.0, -30.0, 0.0], [283.0, 0.0, 0.0]])
 def test_a_tool_in_the_field_or_200_um_outside_it_is_found_and_centred(tip):
     rig = Rig(tip)
