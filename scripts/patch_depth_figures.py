@@ -47,8 +47,9 @@ def image_axis(rig: PatchRig) -> np.ndarray:
     cam = rig.camera()
     tip = rig.manipulator.true_position_um()
     q = cam.project(np.array([tip, tip + rig.config.tool_axis * 10.0]))
-    d = q[1] - q[0]
-    return d / np.linalg.norm(d)
+    d = np.asarray(q[1] - q[0], dtype=np.float64)
+    out: np.ndarray = d / np.linalg.norm(d)
+    return out
 
 
 def end_offset_px(rig: PatchRig) -> float:
@@ -70,7 +71,7 @@ def truth_reading(rig: PatchRig) -> tuple[float, np.ndarray]:
 
 
 def box_at(c: np.ndarray) -> tuple[int, int, int, int]:
-    x, y = int(round(c[0])), int(round(c[1]))
+    x, y = round(float(c[0])), round(float(c[1]))
     return x - HALF_PX, y - HALF_PX, x + HALF_PX + 1, y + HALF_PX + 1
 
 
@@ -80,7 +81,7 @@ def run_seed(seed: int, tips: int, prior_um: float) -> list[dict[str, float]]:
     axis = image_axis(rig)
     offset = end_offset_px(rig)
     # calibration: the tip at the origin, a fine sweep, then the stack around its focus
-    z0, px0 = truth_reading(rig)
+    _, px0 = truth_reading(rig)
     near0 = px0 + rng.uniform(-3, 3, 2)
     t0 = rig.clock.now_s()
     fine = depth_by_sweep(rig.grab_at_focus, box_at(near0), axis, 0.0, frames=15,
@@ -165,7 +166,8 @@ def table(rows: list[dict[str, float]]) -> str:
         secs = np.mean([r["sweep_s" if name == "sweep" else "grab_s"] for r in ok])
         wall = np.mean([r[f"{name}_wall"] for r in ok])
         out.append(f"| {label} | {len(ok)} of {len(rows)} | {xy:.3f} | {zr:.3f} | "
-                   f"{float(dz.mean()):+.3f} | {cz:.0f} % | {nz:.2f} | {cxy:.0f} % | {frames:.0f} | "
+                   f"{float(dz.mean()):+.3f} | {cz:.0f} % | {nz:.2f} | {cxy:.0f} % | "
+                   f"{frames:.0f} | "
                    f"{secs:.2f} | {wall:.2f} |")  # fmt: skip
     return "\n".join(out)
 
@@ -182,7 +184,7 @@ def main() -> None:
         rows += run_seed(seed, args.tips, args.prior_um)
     print(table(rows))
     calib = np.mean([r["calib_s"] for r in rows])
-    print(f"\ncalibration per seed (fine sweep of 15 frames + stacks of 17 and 9): {calib:.2f} s rig time")
+    print(f"\ncalibration per seed (fine sweep of 15 frames, stacks of 17 and 9): {calib:.2f} s")
 
 
 if __name__ == "__main__":

@@ -104,7 +104,8 @@ class FocusDrive:
         self.speed_um_s = check_number("speed_um_s", speed_um_s, above=0)
         self.settle_s = check_number("settle_s", settle_s, low=0)
         self._command = 0.0
-        self._follower = -self.errors.backlash_um / 2.0  # at home, come from below  # the mechanism behind the dead band
+        # the mechanism behind the dead band: at home, come from below
+        self._follower = -self.errors.backlash_um / 2.0
         self._scatter = 0.0
         #: Moves made so far.
         self.moves = 0

@@ -288,7 +288,8 @@ class PatchFrame:
         electrons = np.clip(light, 0.0, None) * np.float32(cfg.full_well_e)
         noisy = electrons + noise * np.sqrt(electrons + np.float32(cfg.read_noise_e**2))
         dn = np.clip(np.rint(noisy * np.float32(top / cfg.full_well_e)), 0, top)
-        return dn.astype(np.uint16)
+        out: NDArray[np.uint16] = dn.astype(np.uint16)
+        return out
 
 
 class PatchRig:
@@ -312,8 +313,9 @@ class PatchRig:
         s_focus, s_stage, s_manip, s_tex = root.spawn(4)
         self.clock = SimClock()
         self.focus = FocusDrive(self.clock, np.random.default_rng(s_focus), config.focus)
+        xy_limits = ((-5000.0, 5000.0), (-5000.0, 5000.0), (0.0, 0.0))
         self.stage = SimStage(self.clock, np.random.default_rng(s_stage), name="xy",
-                              limits_um=((-5000.0, 5000.0), (-5000.0, 5000.0), (0.0, 0.0)))  # fmt: skip
+                              limits_um=xy_limits)  # fmt: skip
         self.manipulator = SimManipulator(
             patch_kinematics(config), self.clock, np.random.default_rng(s_manip),
             limits_um=((0.0, 20000.0),) * 3, speed_um_s=1000.0, loop_settle_s=0.2,
@@ -323,7 +325,8 @@ class PatchRig:
         self.clock.sleep(20.0)
         tex_seed = int(s_tex.generate_state(1)[0])
         self._texture = [
-            _relative_texture(Background("tissue", 0.5, level=0.5, seed=tex_seed + i)) for i in range(2)
+            _relative_texture(Background("tissue", 0.5, level=0.5, seed=tex_seed + i))
+            for i in range(2)
         ]
         self._n_frames = 0
 
@@ -336,8 +339,8 @@ class PatchRig:
     def camera(self) -> AffineCamera:
         """The camera model with the objective where it truly is now (ground truth)."""
         cfg = self.config
-        return microscope_camera(cfg.um_per_px, cfg.size_px,
-                                 centre_um=self.focus.objective_offset_um(), name="scope")  # fmt: skip
+        centre = self.focus.objective_offset_um()
+        return microscope_camera(cfg.um_per_px, cfg.size_px, centre_um=centre, name="scope")
 
     def truth(self) -> PatchTruth:
         """Where the tip is now and how far from focus."""
@@ -397,7 +400,10 @@ class PatchRig:
             shift_y = -oy + stage_um[1] / cfg.um_per_px
             map_x = np.broadcast_to((xs[None, :] + shift_x) / _TEXEL_PX, light.shape)
             map_y = np.broadcast_to((ys[:, None] + shift_y) / _TEXEL_PX, light.shape)
-            mx, my = np.ascontiguousarray(map_x, np.float32), np.ascontiguousarray(map_y, np.float32)
+            mx, my = (
+                np.ascontiguousarray(map_x, np.float32),
+                np.ascontiguousarray(map_y, np.float32),
+            )
             a = cv2.remap(self._texture[0], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
             b = cv2.remap(self._texture[1], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
             phase = math.pi / 2.0 * focus_um / cfg.focus_period_um

@@ -120,6 +120,11 @@ def _window(frame: Frame, box: Box) -> NDArray[np.float32]:
     return to_gray(np.asarray(frame.region(x0, y0, x1, y1)))
 
 
+def _shape_of(frame: Frame) -> tuple[int, int]:
+    h, w = frame.shape[:2]
+    return int(h), int(w)
+
+
 def _check_box(box: Box, shape: tuple[int, int]) -> Box:
     h, w = shape
     x0, y0, x1, y1 = (int(v) for v in box)
@@ -147,7 +152,7 @@ def sweep_positions_um(centre_um: float, frames: int = 13, step_um: float = 0.5)
     """The sweep's focus positions, ascending, centred on ``centre_um``, (frames,) µm."""
     n = int(check_number("frames", frames, low=5, high=MAX_SWEEP_FRAMES, integer=True))
     check_number("step_um", step_um, above=0, high=10)
-    out: FloatArray = centre_um + step_um * (np.arange(n) - (n - 1) / 2.0)
+    out: FloatArray = np.asarray(centre_um + step_um * (np.arange(n) - (n - 1) / 2.0), np.float64)
     return out
 
 
@@ -203,7 +208,7 @@ def _peak_of(z: FloatArray, s: FloatArray) -> tuple[float, float] | None:
     A = np.column_stack([np.ones_like(zc), zc, zc * zc])
     wts = 1.0 / yy  # relative errors of s: errors of 1/s^2 grow with it
     coef, *_ = np.linalg.lstsq(A * wts[:, None], yy * wts, rcond=None)
-    c0, c1, c2 = coef
+    _, c1, c2 = coef
     if c2 <= 0:
         return None
     vertex = -c1 / (2 * c2)
@@ -274,20 +279,22 @@ def depth_by_sweep(
     axis = _unit(axis_px)
     zs = sweep_positions_um(centre_um, frames, step_um)
     t0 = clock()
-    windows = []
+    windows: list[NDArray[np.float32]] = []
     for z in zs:
         frame = grab_at_focus(float(z))
         if not windows:
-            region = _check_box(region, tuple(np.asarray(frame.shape)[:2]))  # type: ignore[arg-type]
+            region = _check_box(region, _shape_of(frame))
         windows.append(_window(frame, region))
     x0, y0, x1, y1 = region
     origin = np.array([(x1 - x0 - 1) / 2.0, (y1 - y0 - 1) / 2.0])
     strips = _strips(windows[0].shape, origin, axis, half_width_px, strip_px, reach_px)
     energies = [_gradient_energy(w) for w in windows]
-    sharp = np.array(
-        [[float(e[t].mean() - e[b].mean()) for e in energies]
-         for t, b in zip(strips.tool, strips.background, strict=True)]
-    )  # fmt: skip  (J strips, K frames)
+    sharp = np.array(  # (J strips, K frames)
+        [
+            [float(e[t].mean() - e[b].mean()) for e in energies]
+            for t, b in zip(strips.tool, strips.background, strict=True)
+        ]
+    )
     # where the tool begins: first in the sharpest frame, then in the frame nearest the tip's focus
     k = int(np.argmax(np.clip(sharp, 0.0, None).sum(axis=0)))
     start, _ = _tool_start(windows[k], strips, half_width_px)
@@ -328,12 +335,11 @@ def _line(s: FloatArray, z: FloatArray, v: FloatArray) -> tuple[float, float, Fl
         if new.sum() < 3 or np.array_equal(new, keep):
             break
         keep = new
-    return float(coef[0]), float(coef[1]), np.linalg.inv(N) * scale**2
+    cov: FloatArray = np.asarray(np.linalg.inv(N) * scale**2, dtype=np.float64)
+    return float(coef[0]), float(coef[1]), cov
 
 
-def _tool_start(
-    gray: NDArray[np.float32], strips: _Strips, half_px: float
-) -> tuple[float, float]:
+def _tool_start(gray: NDArray[np.float32], strips: _Strips, half_px: float) -> tuple[float, float]:
     """Where the tool's darkness begins along the axis, px from the strips' origin (where the
     mean darkness across the tool rises to half its level just behind the tip), and the
     tool's centre line across the axis there, px."""
@@ -445,7 +451,7 @@ def build_stack(
 ) -> ReferenceStack:
     """A reference stack from frames of the tool in one place, the focus at ``offsets_um``
     from the tip's focus (known to ``focus_var_um2``), the tip point's image at ``tip_px``
-(known to ``tip_cov_px``).
+    (known to ``tip_cov_px``).
 
     Raises
     ------
@@ -490,8 +496,8 @@ def grab_stack(
     ``tip_focus_var_um2`` and ``tip_cov_px`` are the variance of ``tip_focus_um`` and the
     covariance of ``tip_px`` (from a focus sweep)."""
     check_number("step_um", step_um, above=0, high=10)
-    n = int(round(2 * reach_um / step_um)) + 1
-    offsets = step_um * (np.arange(n) - (n - 1) / 2.0)
+    n = round(2 * reach_um / step_um) + 1
+    offsets: FloatArray = np.asarray(step_um * (np.arange(n) - (n - 1) / 2.0), np.float64)
     frames = [grab_at_focus(float(tip_focus_um + o)) for o in offsets]
     return build_stack(frames, offsets, tip_px, half_px=half_px,
                        focus_var_um2=tip_focus_var_um2, tip_cov_px=tip_cov_px)  # fmt: skip
@@ -531,7 +537,7 @@ def _stack_scores(
     x0 = round(float(near[0] - stack.anchor_px[0])) - search_px
     y0 = round(float(near[1] - stack.anchor_px[1])) - search_px
     box = (x0, y0, x0 + w + 2 * search_px, y0 + h + 2 * search_px)
-    box = _check_box(box, tuple(np.asarray(frame.shape)[:2]))  # type: ignore[arg-type]
+    box = _check_box(box, _shape_of(frame))
     win = _high_pass(_window(frame, box))
     scores, places = np.zeros(K), np.zeros((K, 2))
     for k in range(K):
