@@ -24,8 +24,10 @@ injection rigs have.
 Frames are lazy (:class:`PatchFrame`, a :class:`~microcal.vision.lazy_frame.RegionFrame`):
 a region is rendered when it is read, so a procedure that looks at the tip's neighbourhood
 pays for a few hundred pixels squared, not for 4 megapixels. Each frame's noise is drawn
-per 64 x 64 tile from the frame's own seed, so a pixel has the same value whichever region
-it is read in.
+per 64 x 64 tile from the frame's own seed and the sample is a function of position, so a
+pixel has the same value whichever region it is read in, but for the tool's blur: it is
+interpolated between levels of blur chosen over the region read, so that a pixel of the
+tool may differ by a count or two between two regions.
 """
 
 from __future__ import annotations

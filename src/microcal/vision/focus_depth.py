@@ -601,8 +601,9 @@ def depth_by_stack(
     k = int(np.argmax(scores))
     if scores[k] < min_score:
         raise DetectionError(
-            f"reference stack: no tool like the reference near the tip "
-            f"(best correlation {scores[k]:.2f}, at least {min_score:g})"
+            f"reference stack: no tool like the reference near the tip, or the tip far "
+            f"outside the stack's focus range (best correlation {scores[k]:.2f}, at least "
+            f"{min_score:g})"
         )
     K = len(scores)
     if k == 0 or k == K - 1:
