@@ -15,6 +15,7 @@ from microcal.vision.focus_depth import (
     depth_by_best_plane,
     depth_by_stack,
     depth_by_sweep,
+    depth_from_stack_at,
     grab_stack,
     sweep_positions_um,
 )
@@ -79,6 +80,11 @@ def test_the_stack_interpolates_between_planes_and_the_baseline_rounds_to_one() 
     assert abs(est.z_um - z) < 0.25
     assert est.sigma_um > math.sqrt(0.003)
     assert np.linalg.norm(est.apex_px - px) < 2.0
+    t0 = rig.clock.now_s()
+    again = depth_from_stack_at(rig.grab_at_focus, z - 0.38, stack, px, clock=rig.clock.now_s)
+    assert abs(again.z_um - z) < 0.25
+    assert again.frames == 1
+    assert again.seconds >= rig.clock.now_s() - t0 > 0.02  # a move and a frame
     base = depth_by_best_plane(frame, focus, coarse, px)
     assert (focus - base.z_um) % 1.0 == pytest.approx(0.0, abs=1e-9) or (
         focus - base.z_um

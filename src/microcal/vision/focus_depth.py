@@ -26,6 +26,7 @@ which the tip point is in focus), its variance, and its cost in frames and secon
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -44,16 +45,20 @@ __all__ = [
     "ALIGN_SIGMA_PX",
     "INTERPOLATION_SIGMA",
     "MAX_SWEEP_FRAMES",
+    "STACK_ABOVE_UM",
     "DepthEstimate",
     "ReferenceStack",
     "build_stack",
     "depth_by_best_plane",
     "depth_by_stack",
     "depth_by_sweep",
+    "depth_from_stack_at",
     "grab_stack",
     "sweep_positions_um",
 ]
 
+#: How far above the expected focus the stack method takes its frame, µm.
+STACK_ABOVE_UM = 1.0
 #: The most frames a focus sweep takes.
 MAX_SWEEP_FRAMES = 15
 #: The error of the interpolation between two planes of a stack, as a fraction of their
@@ -632,6 +637,25 @@ def _apex_cov(stack: ReferenceStack) -> FloatArray:
     (:data:`ALIGN_SIGMA_PX` per axis, against another sample behind the tool)."""
     out: FloatArray = stack.anchor_cov_px + np.eye(2) * (ALIGN_SIGMA_PX * stack.step_um) ** 2
     return out
+
+
+def depth_from_stack_at(
+    grab_at_focus: GrabAtFocus,
+    prior_um: float,
+    stack: ReferenceStack,
+    near_px: Sequence[float] | FloatArray,
+    *,
+    above_um: float = STACK_ABOVE_UM,
+    clock: Callable[[], float] = time.perf_counter,
+) -> DepthEstimate:
+    """The stack method as a procedure: one frame ``above_um`` above the expected focus
+    ``prior_um`` (where the shank rising through the focal plane is sharp), matched by
+    :func:`depth_by_stack`; the cost counts the move and the frame on ``clock``."""
+    t0 = clock()
+    focus = float(prior_um) + float(above_um)
+    frame = grab_at_focus(focus)
+    est = depth_by_stack(frame, focus, stack, near_px)
+    return dataclasses.replace(est, seconds=clock() - t0 + est.seconds)
 
 
 def _mix(
