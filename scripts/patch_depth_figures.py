@@ -143,15 +143,16 @@ def record(row: dict[str, float], name: str, est: DepthEstimate, z_true: float,
 
 def table(rows: list[dict[str, float]]) -> str:
     out = ["| method | measured | x, y RMS (µm) | z RMS (µm) | z mean (µm) | z 95 % covered "
-           "| z error / sigma (RMS) | x, y 95 % covered | frames | rig time (s) | compute (s) |",
-           "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]  # fmt: skip
+           "| z error / sigma (RMS) | x, y 95 % covered | x, y mean chi2 (2 expected) | frames "
+           "| rig time (s) | compute (s) |",
+           "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]  # fmt: skip
     for name, label in (("sweep", "focus sweep (13 frames)"),
                         ("stack", "reference stack 0.5 µm, interpolated"),
                         ("stack1", "reference stack 1 µm, interpolated"),
                         ("best", "baseline: best plane of the 1 µm stack")):  # fmt: skip
         ok = [r for r in rows if f"{name}_dz" in r]
         if not ok:
-            out.append(f"| {label} | 0 of {len(rows)} | | | | | | | | | |")
+            out.append(f"| {label} | 0 of {len(rows)} | | | | | | | | | | |")
             continue
         dz = np.array([r[f"{name}_dz"] for r in ok])
         sz = np.array([r[f"{name}_sz"] for r in ok])
@@ -167,7 +168,7 @@ def table(rows: list[dict[str, float]]) -> str:
         wall = np.mean([r[f"{name}_wall"] for r in ok])
         out.append(f"| {label} | {len(ok)} of {len(rows)} | {xy:.3f} | {zr:.3f} | "
                    f"{float(dz.mean()):+.3f} | {cz:.0f} % | {nz:.2f} | {cxy:.0f} % | "
-                   f"{frames:.0f} | "
+                   f"{chi.mean():.2f} | {frames:.0f} | "
                    f"{secs:.2f} | {wall:.2f} |")  # fmt: skip
     return "\n".join(out)
 

@@ -46,6 +46,7 @@ __all__ = [
     "INTERPOLATION_SIGMA",
     "MAX_SWEEP_FRAMES",
     "STACK_ABOVE_UM",
+    "SWEEP_APEX_SIGMA_PX",
     "DepthEstimate",
     "ReferenceStack",
     "build_stack",
@@ -61,15 +62,19 @@ __all__ = [
 STACK_ABOVE_UM = 1.0
 #: The most frames a focus sweep takes.
 MAX_SWEEP_FRAMES = 15
-#: The error of the interpolation between two planes of a stack, as a fraction of their
-#: spacing (1 sigma; measured on the simulator's pipette, ``docs/vision.md``).
-INTERPOLATION_SIGMA = 0.13
+#: The error of the interpolation between two planes of a stack ``s`` µm apart, 1 sigma:
+#: ``a s + b s^2`` µm with ``(a, b)`` these (the blur does not change linearly between
+#: planes; measured on the simulator's pipette, ``docs/vision.md``).
+INTERPOLATION_SIGMA = (0.1, 0.06)
 #: The error of aligning a frame on a stack's planes, 1 sigma per axis, px per µm of the
 #: planes' spacing (measured as :data:`INTERPOLATION_SIGMA`).
 ALIGN_SIGMA_PX = 1.0
 #: How well the sweep finds where the tool starts along its axis, 1 sigma, px (measured
 #: as :data:`INTERPOLATION_SIGMA`).
-START_SIGMA_PX = 0.35
+START_SIGMA_PX = 0.25
+#: How well the sweep finds the tip's image, 1 sigma per axis, px (measured as
+#: :data:`INTERPOLATION_SIGMA`).
+SWEEP_APEX_SIGMA_PX = 0.55
 #: The stack methods compare images less their smooth part, a Gaussian of this sigma, px.
 SMOOTH_PX = 5.0
 
@@ -320,7 +325,7 @@ def depth_by_sweep(
     var = float(np.array([1.0, tip_s]) @ cov @ np.array([1.0, tip_s]))
     var += (g * START_SIGMA_PX) ** 2  # where the tool starts along the axis
     apex = np.array([x0, y0]) + origin + tip_s * axis + centre_line * np.array([-axis[1], axis[0]])
-    cov_px = np.diag([0.5**2, 0.5**2])
+    cov_px = np.eye(2) * SWEEP_APEX_SIGMA_PX**2
     return DepthEstimate(z_tip, var, len(zs), clock() - t0, "sweep", apex, cov_px, zs)
 
 
@@ -627,7 +632,8 @@ def depth_by_stack(
     tc = min(max(t, 0.0), 1.0)  # the planes' places, interpolated as their images are
     between = places[j] * (1.0 - tc) + places[j + 1] * tc
     apex = np.array([box[0], box[1]]) + between + stack.anchor_px
-    var = var_t * step**2 + (INTERPOLATION_SIGMA * step) ** 2 + stack.focus_var_um2
+    a, b = INTERPOLATION_SIGMA
+    var = var_t * step**2 + (a * step + b * step**2) ** 2 + stack.focus_var_um2
     return DepthEstimate(float(focus_um - offset), float(var), 1, time.perf_counter() - t0,
                          "stack", apex, _apex_cov(stack), np.array([focus_um]))  # fmt: skip
 
