@@ -30,6 +30,8 @@ from microcal.errors import MicrocalError
 from microcal.sim.patch import PatchRig, patch_rig
 from microcal.vision.focus_depth import (
     DepthEstimate,
+    Frame,
+    ReferenceStack,
     depth_by_best_plane,
     depth_by_stack,
     depth_by_sweep,
@@ -75,13 +77,18 @@ def box_at(c: np.ndarray) -> tuple[int, int, int, int]:
     return x - HALF_PX, y - HALF_PX, x + HALF_PX + 1, y + HALF_PX + 1
 
 
+def linear(frame: Frame, focus_um: float, stack: ReferenceStack, near: np.ndarray) -> DepthEstimate:
+    """The stack method with the linear interpolation between two planes (round 1's)."""
+    return depth_by_stack(frame, focus_um, stack, near, interpolation="linear")
+
+
 def run_seed(seed: int, tips: int, prior_um: float) -> list[dict[str, float]]:
     rig = patch_rig(seed)
     rng = np.random.default_rng([seed, 9283])
     axis = image_axis(rig)
     offset = end_offset_px(rig)
     # calibration: the tip at the origin, a fine sweep, then the stack around its focus
-    _, px0 = truth_reading(rig)
+    z0, px0 = truth_reading(rig)
     near0 = px0 + rng.uniform(-3, 3, 2)
     t0 = rig.clock.now_s()
     fine = depth_by_sweep(rig.grab_at_focus, box_at(near0), axis, 0.0, frames=15,
@@ -91,6 +98,7 @@ def run_seed(seed: int, tips: int, prior_um: float) -> list[dict[str, float]]:
                                tip_cov_px=fine.cov_px)
               for step in (0.5, 1.0)}  # fmt: skip
     calib_s = rig.clock.now_s() - t0
+    shared = (fine.apex_px - px0, fine.z_um - z0)  # the stacks' own errors, alike for every tip
     rows = []
     for _ in range(tips):
         joints = 10000.0 + np.array([rng.uniform(-100, 100), rng.uniform(-100, 100),
@@ -115,11 +123,13 @@ def run_seed(seed: int, tips: int, prior_um: float) -> list[dict[str, float]]:
         frame = rig.grab_at_focus(above)
         row["grab_s"] = rig.clock.now_s() - t_grab
         for name, fn, step in (("stack", depth_by_stack, 0.5), ("stack1", depth_by_stack, 1.0),
+                               ("stack1lin", linear, 1.0),
                                ("best", depth_by_best_plane, 1.0)):  # fmt: skip
             wall = time.perf_counter()
             try:
                 est = fn(frame, above, stacks[step], near)
-                record(row, name, est, z_true, frame.truth.tip_px, rig, time.perf_counter() - wall)
+                record(row, name, est, z_true, frame.truth.tip_px, rig, time.perf_counter() - wall,
+                       shared)  # fmt: skip
             except MicrocalError as exc:
                 row[f"{name}_fail"] = 1.0
                 print(f"seed {seed}: {name}: {exc}")
@@ -128,7 +138,10 @@ def run_seed(seed: int, tips: int, prior_um: float) -> list[dict[str, float]]:
 
 
 def record(row: dict[str, float], name: str, est: DepthEstimate, z_true: float,
-           px_true: np.ndarray, rig: PatchRig, wall_s: float) -> None:  # fmt: skip
+           px_true: np.ndarray, rig: PatchRig, wall_s: float,
+           shared: tuple[np.ndarray, float] | None = None) -> None:  # fmt: skip
+    """One estimate's errors; with ``shared`` (the reference's own errors, px and µm, known
+    from the truth) also the errors less them against the covariance less the shared part."""
     pitch = rig.config.um_per_px
     row[f"{name}_dz"] = est.z_um - z_true
     row[f"{name}_sz"] = est.sigma_um
@@ -136,6 +149,12 @@ def record(row: dict[str, float], name: str, est: DepthEstimate, z_true: float,
     row[f"{name}_dx"], row[f"{name}_dy"] = float(d[0]), float(d[1])
     cov = est.cov_px * pitch**2
     row[f"{name}_chi2xy"] = float(d @ np.linalg.solve(cov, d))
+    if shared is not None and np.any(est.shared_cov_px):
+        own = d - shared[0] * pitch
+        own_cov = (est.cov_px - est.shared_cov_px) * pitch**2
+        row[f"{name}_chi2own"] = float(own @ np.linalg.solve(own_cov, own))
+        own_z = row[f"{name}_dz"] - shared[1]
+        row[f"{name}_zown"] = float(abs(own_z) / math.sqrt(est.var_um2 - est.shared_var_um2))
     row[f"{name}_frames"] = est.frames
     row[f"{name}_s"] = est.seconds
     row[f"{name}_wall"] = wall_s
@@ -144,15 +163,16 @@ def record(row: dict[str, float], name: str, est: DepthEstimate, z_true: float,
 def table(rows: list[dict[str, float]]) -> str:
     out = ["| method | measured | x, y RMS (µm) | z RMS (µm) | z mean (µm) | z 95 % covered "
            "| z error / sigma (RMS) | x, y 95 % covered | x, y mean chi2 (2 expected) | frames "
-           "| rig time (s) | compute (s) |",
-           "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]  # fmt: skip
+           "| rig time (s) | compute (s) | own part: x, y / z 95 % covered |",
+           "|" + " --- |" * 13]  # fmt: skip
     for name, label in (("sweep", "focus sweep (13 frames)"),
                         ("stack", "reference stack 0.5 µm, interpolated"),
                         ("stack1", "reference stack 1 µm, interpolated"),
+                        ("stack1lin", "reference stack 1 µm, linear (round 1)"),
                         ("best", "baseline: best plane of the 1 µm stack")):  # fmt: skip
         ok = [r for r in rows if f"{name}_dz" in r]
         if not ok:
-            out.append(f"| {label} | 0 of {len(rows)} | | | | | | | | | | |")
+            out.append(f"| {label} | 0 of {len(rows)} | | | | | | | | | | | |")
             continue
         dz = np.array([r[f"{name}_dz"] for r in ok])
         sz = np.array([r[f"{name}_sz"] for r in ok])
@@ -166,10 +186,15 @@ def table(rows: list[dict[str, float]]) -> str:
         frames = np.mean([r[f"{name}_frames"] for r in ok])
         secs = np.mean([r["sweep_s" if name == "sweep" else "grab_s"] for r in ok])
         wall = np.mean([r[f"{name}_wall"] for r in ok])
+        own = "n/a"
+        if f"{name}_chi2own" in ok[0]:
+            co = float(np.mean([r[f"{name}_chi2own"] <= 5.991 for r in ok])) * 100
+            cz_own = float(np.mean([r[f"{name}_zown"] <= 1.96 for r in ok])) * 100
+            own = f"{co:.0f} % / {cz_own:.0f} %"
         out.append(f"| {label} | {len(ok)} of {len(rows)} | {xy:.3f} | {zr:.3f} | "
                    f"{float(dz.mean()):+.3f} | {cz:.0f} % | {nz:.2f} | {cxy:.0f} % | "
                    f"{chi.mean():.2f} | {frames:.0f} | "
-                   f"{secs:.2f} | {wall:.2f} |")  # fmt: skip
+                   f"{secs:.2f} | {wall:.2f} | {own} |")  # fmt: skip
     return "\n".join(out)
 
 

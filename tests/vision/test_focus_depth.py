@@ -113,3 +113,33 @@ def test_a_tip_outside_the_sweep_or_the_stack_or_the_field_is_refused_in_one_lin
             depth_by_stack(frame, z + beyond, stack, px)
     with pytest.raises(InputError, match="one per offset"):
         build_stack([frame, frame], [0.0, 1.0, 2.0], px)
+
+
+def test_the_quadratic_between_three_planes_reads_a_coarse_stack_and_states_its_shared_part() -> (
+    None
+):
+    rig = patch_rig(3, size_px=SIZE)
+    z0, px0 = _reading(rig)
+    anchor_cov = np.eye(2) * 0.3
+    coarse = grab_stack(rig.grab_at_focus, z0, px0, step_um=1.0, tip_focus_var_um2=0.001,
+                        tip_cov_px=anchor_cov)  # fmt: skip
+    rig.manipulator.move_to_um(10000.0 + np.array([-5.0, 4.0, 3.0]))
+    rig.clock.sleep(2.0)
+    z, px = _reading(rig)
+    errors = {"quadratic": [], "linear": []}
+    for above in (0.55, 0.8, 1.3):  # between the planes and near one
+        frame = rig.grab_at_focus(z + above)
+        for how, errs in errors.items():
+            est = depth_by_stack(frame, z + above, coarse, px + (1.0, -1.0), interpolation=how)
+            errs.append(abs(est.z_um - z))
+            assert np.linalg.norm(est.apex_px - px) < 2.5
+            assert np.allclose(est.shared_cov_px, anchor_cov)  # the anchor, alike for all tips
+            own = est.cov_px - est.shared_cov_px
+            assert np.all(np.diag(own) > 0)
+            assert own[0, 1] == 0.0
+            assert est.shared_var_um2 == pytest.approx(0.001)
+    assert max(errors["quadratic"]) < 0.3  # µm, a 1 µm stack
+    assert np.mean(errors["quadratic"]) <= np.mean(errors["linear"]) + 0.02
+    with pytest.raises(InputError, match="interpolation must be") as info:
+        depth_by_stack(frame, z + 1.3, coarse, px, interpolation="cubic")
+    assert "\n" not in str(info.value)

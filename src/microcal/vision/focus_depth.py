@@ -44,7 +44,10 @@ from .lazy_frame import RegionFrame
 __all__ = [
     "ALIGN_SIGMA_PX",
     "INTERPOLATION_SIGMA",
+    "LINEAR_ALIGN_SIGMA_PX",
     "MAX_SWEEP_FRAMES",
+    "QUADRATIC_ALIGN_SIGMA_PX",
+    "QUADRATIC_SIGMA",
     "STACK_ABOVE_UM",
     "SWEEP_APEX_SIGMA_PX",
     "DepthEstimate",
@@ -66,9 +69,16 @@ MAX_SWEEP_FRAMES = 15
 #: ``a s + b s^2`` µm with ``(a, b)`` these (the blur does not change linearly between
 #: planes; measured on the simulator's pipette, ``docs/vision.md``).
 INTERPOLATION_SIGMA = (0.1, 0.06)
-#: The error of aligning a frame on a stack's planes, 1 sigma per axis, px per µm of the
-#: planes' spacing (measured as :data:`INTERPOLATION_SIGMA`).
+#: The same for the quadratic interpolation through three planes (the default).
+QUADRATIC_SIGMA = (0.0, 0.0)
+#: The error of aligning a frame on a stack's best plane, 1 sigma per axis, px per µm of
+#: the planes' spacing (measured as :data:`INTERPOLATION_SIGMA`): the baseline's.
 ALIGN_SIGMA_PX = 1.0
+#: The same with the planes' places interpolated (linear, quadratic): ``hypot(a, b s)`` px
+#: per axis with ``(a, b)`` these, ``s`` the spacing in µm; measured against the truth less
+#: the stack's own anchor error, which is stated apart (:attr:`DepthEstimate.shared_cov_px`).
+LINEAR_ALIGN_SIGMA_PX = (0.0, 0.65)
+QUADRATIC_ALIGN_SIGMA_PX = (0.2, 0.45)
 #: How well the sweep finds where the tool starts along its axis, 1 sigma, px (measured
 #: as :data:`INTERPOLATION_SIGMA`).
 START_SIGMA_PX = 0.25
@@ -105,6 +115,11 @@ class DepthEstimate:
         Its covariance, px^2.
     focus_um : (K,) float
         The focus positions of the frames grabbed.
+    shared_cov_px : (2, 2) float
+        The part of :attr:`cov_px` that every estimate made with the same reference shares
+        (a stack's anchor: its error moves all of them alike), px^2; zero for the sweep.
+    shared_var_um2 : float
+        The part of :attr:`var_um2` shared alike (a stack's own focus), µm^2.
     """
 
     z_um: float
@@ -115,6 +130,8 @@ class DepthEstimate:
     apex_px: FloatArray = field(default_factory=lambda: np.full(2, np.nan))
     cov_px: FloatArray = field(default_factory=lambda: np.full((2, 2), np.nan))
     focus_um: FloatArray = field(default_factory=lambda: np.zeros(0))
+    shared_cov_px: FloatArray = field(default_factory=lambda: np.zeros((2, 2)))
+    shared_var_um2: float = 0.0
 
     @property
     def sigma_um(self) -> float:
@@ -574,7 +591,9 @@ def depth_by_best_plane(
     var = stack.step_um**2 / 12.0 + stack.focus_var_um2
     return DepthEstimate(float(focus_um - stack.offsets_um[k]), var, 1,
                          time.perf_counter() - t0, "best plane", apex,
-                         _apex_cov(stack), np.array([focus_um]))  # fmt: skip
+                         _apex_cov(stack, ALIGN_SIGMA_PX * stack.step_um), np.array([focus_um]),
+                         shared_cov_px=stack.anchor_cov_px.copy(),
+                         shared_var_um2=stack.focus_var_um2)  # fmt: skip
 
 
 def depth_by_stack(
@@ -585,6 +604,7 @@ def depth_by_stack(
     *,
     search_px: int = 12,
     min_score: float = 0.5,
+    interpolation: str = "quadratic",
 ) -> DepthEstimate:
     """The tip's depth from one frame against the tool's reference stack (see the module
     docstring).
@@ -621,27 +641,87 @@ def depth_by_stack(
             f"reference stack: the tip is outside the stack's focus range "
             f"({stack.offsets_um[0]:+.1f} to {stack.offsets_um[-1]:+.1f} µm from it)"
         )
-    j = k - 1 if scores[k - 1] >= scores[k + 1] else k  # the pair of planes around the tip
     place = places[k]
     _, h, w = stack.planes.shape
     centre = (place[0] + (w - 1) / 2.0, place[1] + (h - 1) / 2.0)
     patch = cv2.getRectSubPix(win, (w, h), centre)
-    t, var_t = _mix(patch, stack.planes[j], stack.planes[j + 1])
     step = stack.step_um
-    offset = stack.offsets_um[j] + t * step
-    tc = min(max(t, 0.0), 1.0)  # the planes' places, interpolated as their images are
-    between = places[j] * (1.0 - tc) + places[j + 1] * tc
+    if interpolation == "linear":
+        j = k - 1 if scores[k - 1] >= scores[k + 1] else k  # the pair of planes around the tip
+        t, var_t = _mix(patch, stack.planes[j], stack.planes[j + 1])
+        offset = stack.offsets_um[j] + t * step
+        tc = min(max(t, 0.0), 1.0)  # the planes' places, interpolated as their images are
+        weights = np.array([1.0 - tc, tc])
+        between = weights @ places[j : j + 2]
+        a, b = INTERPOLATION_SIGMA
+        var_interp = (a * step + b * step**2) ** 2
+        align = math.hypot(LINEAR_ALIGN_SIGMA_PX[0], LINEAR_ALIGN_SIGMA_PX[1] * step)
+    elif interpolation == "quadratic":
+        t, var_t = _mix_quadratic(patch, stack.planes[k - 1 : k + 2])
+        offset = stack.offsets_um[k] + t * step
+        between = _lagrange3(min(max(t, -1.0), 1.0)) @ places[k - 1 : k + 2]
+        a, b = QUADRATIC_SIGMA
+        var_interp = (a * step + b * step**2) ** 2
+        align = math.hypot(QUADRATIC_ALIGN_SIGMA_PX[0], QUADRATIC_ALIGN_SIGMA_PX[1] * step)
+    else:
+        raise InputError(
+            f"reference stack: interpolation must be 'quadratic' or 'linear', got {interpolation!r}"
+        )
     apex = np.array([box[0], box[1]]) + between + stack.anchor_px
-    a, b = INTERPOLATION_SIGMA
-    var = var_t * step**2 + (a * step + b * step**2) ** 2 + stack.focus_var_um2
+    var = var_t * step**2 + var_interp + stack.focus_var_um2
     return DepthEstimate(float(focus_um - offset), float(var), 1, time.perf_counter() - t0,
-                         "stack", apex, _apex_cov(stack), np.array([focus_um]))  # fmt: skip
+                         "stack", apex, _apex_cov(stack, align), np.array([focus_um]),
+                         shared_cov_px=stack.anchor_cov_px.copy(),
+                         shared_var_um2=stack.focus_var_um2)  # fmt: skip
 
 
-def _apex_cov(stack: ReferenceStack) -> FloatArray:
-    """The tip's image found by the stack: the anchor's covariance and the alignment's
-    (:data:`ALIGN_SIGMA_PX` per axis, against another sample behind the tool)."""
-    out: FloatArray = stack.anchor_cov_px + np.eye(2) * (ALIGN_SIGMA_PX * stack.step_um) ** 2
+def _lagrange3(t: float) -> FloatArray:
+    """The weights of three evenly spaced planes at ``-1, 0, 1`` read at ``t``, (3,)."""
+    return np.array([0.5 * t * (t - 1.0), 1.0 - t * t, 0.5 * t * (t + 1.0)])
+
+
+def _mix_quadratic(patch: NDArray[np.float32], planes: NDArray[np.float32]) -> tuple[float, float]:
+    """``patch ~ c0 + cx x + cy y + g I(t)``, ``I(t)`` the quadratic through three planes
+    (at ``t = -1, 0, 1``): the ``t`` of least squares (in ``[-1.5, 1.5]``) and its variance.
+
+    The light's offset and tilt are projected out once; then the fit's residual at ``t`` is
+    ``|p|^2 - (l.b)^2 / (l.G l)`` with ``l`` the weights at ``t``, ``G`` and ``b`` the three
+    planes' Gram matrix and their products with the patch, so ``t`` is found on a fine grid
+    and refined by a parabola; its variance is ``2 s^2`` over the residual's curvature.
+    """
+    h, w = patch.shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    base = np.column_stack([np.ones(h * w), (xx.ravel() - w / 2) / w, (yy.ravel() - h / 2) / h])
+    q, _ = np.linalg.qr(base)
+    y = patch.ravel().astype(np.float64)
+    P = planes.reshape(3, -1).T.astype(np.float64)
+    y = y - q @ (q.T @ y)
+    P = P - q @ (q.T @ P)
+    G, b, yy2 = P.T @ P, P.T @ y, float(y @ y)
+    ts = np.linspace(-1.5, 1.5, 301)
+    L = np.stack([_lagrange3(float(t)) for t in ts])  # (T, 3)
+    num = (L @ b) ** 2
+    den = np.einsum("ti,ij,tj->t", L, G, L)
+    rss = yy2 - num / np.maximum(den, 1e-12)
+    i = int(np.argmin(rss))
+    dt = ts[1] - ts[0]
+    t = float(ts[i])
+    curv = 0.0
+    if 0 < i < len(ts) - 1:
+        r0, r1, r2 = rss[i - 1], rss[i], rss[i + 1]
+        curv = (r0 - 2 * r1 + r2) / dt**2
+        if curv > 0:
+            t += float(0.5 * dt * (r0 - r2) / (r0 - 2 * r1 + r2))
+    s2 = float(rss[i]) / max(len(y) - 4, 1)
+    var = 2.0 * s2 / curv if curv > 0 else 0.25
+    return t, float(var)
+
+
+def _apex_cov(stack: ReferenceStack, align_sigma_px: float) -> FloatArray:
+    """The tip's image found by the stack: the anchor's covariance (shared by every tip
+    found with the stack) and the alignment's (``align_sigma_px`` per axis, against another
+    sample behind the tool)."""
+    out: FloatArray = stack.anchor_cov_px + np.eye(2) * align_sigma_px**2
     return out
 
 
