@@ -120,6 +120,9 @@ class DepthEstimate:
         (a stack's anchor: its error moves all of them alike), px^2; zero for the sweep.
     shared_var_um2 : float
         The part of :attr:`var_um2` shared alike (a stack's own focus), µm^2.
+    cov_z_px : (2,) float
+        Covariance of :attr:`z_um` with :attr:`apex_px`, µm px (the sweep reads the depth
+        where it finds the tip along the tool's axis, so the two errors go together).
     """
 
     z_um: float
@@ -132,6 +135,7 @@ class DepthEstimate:
     focus_um: FloatArray = field(default_factory=lambda: np.zeros(0))
     shared_cov_px: FloatArray = field(default_factory=lambda: np.zeros((2, 2)))
     shared_var_um2: float = 0.0
+    cov_z_px: FloatArray = field(default_factory=lambda: np.zeros(2))
 
     @property
     def sigma_um(self) -> float:
@@ -343,7 +347,9 @@ def depth_by_sweep(
     var += (g * START_SIGMA_PX) ** 2  # where the tool starts along the axis
     apex = np.array([x0, y0]) + origin + tip_s * axis + centre_line * np.array([-axis[1], axis[0]])
     cov_px = np.eye(2) * SWEEP_APEX_SIGMA_PX**2
-    return DepthEstimate(z_tip, var, len(zs), clock() - t0, "sweep", apex, cov_px, zs)
+    cov_z = g * START_SIGMA_PX**2 * axis  # the start's error moves the apex and the depth
+    return DepthEstimate(z_tip, var, len(zs), clock() - t0, "sweep", apex, cov_px, zs,
+                         cov_z_px=cov_z)  # fmt: skip
 
 
 def _line(s: FloatArray, z: FloatArray, v: FloatArray) -> tuple[float, float, FloatArray]:
