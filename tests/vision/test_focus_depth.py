@@ -1,0 +1,145 @@
+"""The tip's depth from focus on the ``patch`` preset: the sweep, the reference stack, the
+baseline, and their refusals (small frames, regions of 81 x 81 px)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from microcal.errors import DetectionError, InputError, LimitError
+from microcal.sim.patch import PatchRig, patch_rig
+from microcal.vision.focus_depth import (
+    build_stack,
+    depth_by_best_plane,
+    depth_by_stack,
+    depth_by_sweep,
+    depth_from_stack_at,
+    grab_stack,
+    sweep_positions_um,
+)
+
+SIZE = (256, 256)
+
+
+def _reading(rig: PatchRig) -> tuple[float, np.ndarray]:
+    """The focus reading with the tip in focus, and the tip's image there (truth)."""
+    tip = rig.manipulator.true_position_um()
+    e = rig.config.focus
+    z = float(tip[2] / ((1.0 + e.scale) * e.axis[2]))
+    here = rig.focus.position_um()
+    rig.move_focus(z)
+    px = rig.camera().project(tip[None, :])[0]
+    rig.move_focus(here)
+    return z, px
+
+
+def _box(c: np.ndarray) -> tuple[int, int, int, int]:
+    x, y = round(float(c[0])), round(float(c[1]))
+    return x - 40, y - 40, x + 41, y + 41
+
+
+def _offset_px(rig: PatchRig) -> float:
+    cfg = rig.config
+    return cfg.tool.end_radius_um * math.sin(math.radians(cfg.approach_deg)) / cfg.um_per_px
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_sweep_finds_the_tips_depth_and_image(seed: int) -> None:
+    rig = patch_rig(seed, size_px=SIZE)
+    rig.manipulator.move_to_um(10000.0 + np.array([4.0, -3.0, 6.0]))
+    rig.clock.sleep(2.0)
+    z, px = _reading(rig)
+    prior = z + (0.7 if seed else -0.8)
+    t0 = rig.clock.now_s()
+    est = depth_by_sweep(rig.grab_at_focus, _box(px + (2.0, -1.0)), (1.0, 0.0), prior,
+                         end_offset_px=_offset_px(rig), clock=rig.clock.now_s)  # fmt: skip
+    assert abs(est.z_um - z) < 0.15  # a tenth of the depth of field
+    assert 0.01 < est.sigma_um < 0.2
+    assert np.linalg.norm(est.apex_px - px) < 1.5  # px, 0.25 µm
+    assert est.frames == 13 <= 15
+    assert est.method == "sweep"
+    assert est.seconds == pytest.approx(rig.clock.now_s() - t0)
+    assert np.allclose(est.focus_um, sweep_positions_um(prior))
+
+
+def test_the_stack_interpolates_between_planes_and_the_baseline_rounds_to_one() -> None:
+    rig = patch_rig(2, size_px=SIZE)
+    z0, px0 = _reading(rig)
+    stack = grab_stack(rig.grab_at_focus, z0, px0, step_um=0.5, tip_focus_var_um2=0.003)
+    coarse = grab_stack(rig.grab_at_focus, z0, px0, step_um=1.0)
+    assert stack.planes.shape == (17, 49, 49)
+    assert stack.step_um == 0.5
+    rig.manipulator.move_to_um(10000.0 + np.array([6.0, 5.0, -4.0]))
+    rig.clock.sleep(2.0)
+    z, px = _reading(rig)
+    focus = z + 0.62  # above the tip, where the rising shank is sharp
+    frame = rig.grab_at_focus(focus)
+    est = depth_by_stack(frame, focus, stack, px + (-2.0, 2.0))
+    assert abs(est.z_um - z) < 0.25
+    assert est.sigma_um > math.sqrt(0.003)
+    assert np.linalg.norm(est.apex_px - px) < 2.0
+    t0 = rig.clock.now_s()
+    again = depth_from_stack_at(rig.grab_at_focus, z - 0.38, stack, px, clock=rig.clock.now_s)
+    assert abs(again.z_um - z) < 0.25
+    assert again.frames == 1
+    assert again.seconds >= rig.clock.now_s() - t0 > 0.02  # a move and a frame
+    base = depth_by_best_plane(frame, focus, coarse, px)
+    assert (focus - base.z_um) % 1.0 == pytest.approx(0.0, abs=1e-9) or (
+        focus - base.z_um
+    ) % 1.0 == pytest.approx(1.0, abs=1e-9)  # whole planes
+    assert base.sigma_um == pytest.approx(1.0 / math.sqrt(12.0))
+
+
+def test_a_tip_outside_the_sweep_or_the_stack_or_the_field_is_refused_in_one_line() -> None:
+    rig = patch_rig(4, size_px=SIZE)
+    z, px = _reading(rig)
+    with pytest.raises(DetectionError, match="not inside the sweep") as info:
+        depth_by_sweep(rig.grab_at_focus, _box(px), (1.0, 0.0), z + 9.0, frames=7)
+    assert "\n" not in str(info.value)
+    with pytest.raises(InputError, match="outside the field"):
+        depth_by_sweep(rig.grab_at_focus, (230, 230, 311, 311), (1.0, 0.0), z)
+    with pytest.raises(LimitError, match="focus drive's range"):
+        depth_by_sweep(rig.grab_at_focus, _box(px), (1.0, 0.0), 600.0)
+    with pytest.raises(InputError, match="frames"):
+        depth_by_sweep(rig.grab_at_focus, _box(px), (1.0, 0.0), z, frames=21)
+    with pytest.raises(InputError, match="axis_px"):
+        depth_by_sweep(rig.grab_at_focus, _box(px), (0.0, 0.0), z)
+    stack = grab_stack(rig.grab_at_focus, z, px, reach_um=2.0, step_um=0.5)
+    for beyond in (2.6, 6.0):  # just beyond the stack's last plane, and far beyond it
+        frame = rig.grab_at_focus(z + beyond)
+        with pytest.raises(DetectionError, match="outside the stack's focus range"):
+            depth_by_stack(frame, z + beyond, stack, px)
+    with pytest.raises(InputError, match="one per offset"):
+        build_stack([frame, frame], [0.0, 1.0, 2.0], px)
+
+
+def test_the_quadratic_between_three_planes_reads_a_coarse_stack_and_states_its_shared_part() -> (
+    None
+):
+    rig = patch_rig(3, size_px=SIZE)
+    z0, px0 = _reading(rig)
+    anchor_cov = np.eye(2) * 0.3
+    coarse = grab_stack(rig.grab_at_focus, z0, px0, step_um=1.0, tip_focus_var_um2=0.001,
+                        tip_cov_px=anchor_cov)  # fmt: skip
+    rig.manipulator.move_to_um(10000.0 + np.array([-5.0, 4.0, 3.0]))
+    rig.clock.sleep(2.0)
+    z, px = _reading(rig)
+    errors = {"quadratic": [], "linear": []}
+    for above in (0.55, 0.8, 1.3):  # between the planes and near one
+        frame = rig.grab_at_focus(z + above)
+        for how, errs in errors.items():
+            est = depth_by_stack(frame, z + above, coarse, px + (1.0, -1.0), interpolation=how)
+            errs.append(abs(est.z_um - z))
+            assert np.linalg.norm(est.apex_px - px) < 2.5
+            assert np.allclose(est.shared_cov_px, anchor_cov)  # the anchor, alike for all tips
+            own = est.cov_px - est.shared_cov_px
+            assert np.all(np.diag(own) > 0)
+            assert own[0, 1] == 0.0
+            assert est.shared_var_um2 == pytest.approx(0.001)
+    assert max(errors["quadratic"]) < 0.3  # µm, a 1 µm stack
+    assert np.mean(errors["quadratic"]) <= np.mean(errors["linear"]) + 0.02
+    with pytest.raises(InputError, match="interpolation must be") as info:
+        depth_by_stack(frame, z + 1.3, coarse, px, interpolation="cubic")
+    assert "\n" not in str(info.value)
