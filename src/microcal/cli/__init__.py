@@ -6,12 +6,12 @@ formats function and prints; a user error ends with one line on stderr and exit 
 
 from __future__ import annotations
 
-from . import acquire, check, demo, evaluate, fit, goto, measure, stereo, study, twin, ui
+from . import acquire, check, demo, evaluate, fit, goto, measure, scope, stereo, study, twin, ui
 from ._app import WORKFLOW, app
 
 __all__ = ["WORKFLOW", "app", "main"]
 # registered on import
-_COMMANDS = (acquire, check, demo, evaluate, fit, goto, measure, stereo, study, twin, ui)
+_COMMANDS = (acquire, check, demo, evaluate, fit, goto, measure, scope, stereo, study, twin, ui)
 
 
 def main(argv: list[str] | None = None) -> None:
