@@ -458,8 +458,8 @@ def _hardware(path: Path, data: Mapping[str, object], from_file: bool = False) -
             others[name] = _build(path, where, _MANIPULATORS[m.kind], keys)
         given |= {"manipulators": others, "boards": boards}
     if rig.microscope is not None:
-        given["microscope"] = _build(path, "microscope", MMStageSpec,
-                                     {"kind": "micromanager", **_given(rig.microscope)})  # fmt: skip
+        scope = {"kind": "micromanager", **_given(rig.microscope)}
+        given["microscope"] = _build(path, "microscope", MMStageSpec, scope)
     try:
         return _spec(HardwareRigSpec, {"manipulator": manipulator, "cameras": cameras,
                                        "micromanager": micromanager, **given})  # fmt: skip

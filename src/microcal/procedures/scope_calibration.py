@@ -93,12 +93,16 @@ class ScopeRun:
         One line per view the slide was not found in (its position and the reason).
     frames : int
         Frames grabbed.
+    renumbered : list of str
+        One line per view whose marker-based numbering disagreed with the stage's moves and
+        that was numbered again from the first fit's prediction.
     """
 
     calibration: ScopeCalibration
     views: list[SlideView] = field(default_factory=list)
     missed: list[str] = field(default_factory=list)
     frames: int = 0
+    renumbered: list[str] = field(default_factory=list)
 
 
 def calibrate_scope(
@@ -180,7 +184,35 @@ def calibrate_scope(
     except InputError as exc:
         why = f" (first miss: {missed[0]})" if missed else ""
         raise InputError(f"{exc}{why}") from None
-    return ScopeRun(cal, views, missed, total)
+    renumbered = []
+    if cal.rejected:  # numbered again from the stage's prediction, then fitted again
+        for k, miss_px in cal.rejected:
+            views[k] = _renumbered(views[k], cal, target)
+            v = views[k]
+            renumbered.append(f"stage {v.stage_um[0]:.1f}, {v.stage_um[1]:.1f} µm, focus "
+                              f"{v.focus_um:.2f} µm: numbered again from the stage's "
+                              f"prediction (the markers' numbering missed it by {miss_px:.1f} "
+                              "px RMS)")  # fmt: skip
+        cal = fit_stage_affine(views, target.points_um(), size)
+    for k, miss_px in cal.rejected:
+        v = views[k]
+        missed.append(f"stage {v.stage_um[0]:.1f}, {v.stage_um[1]:.1f} µm, focus "
+                      f"{v.focus_um:.2f} µm: left out, its features miss the stage's moves by "
+                      f"{miss_px:.1f} px RMS (the slide numbered wrongly)")  # fmt: skip
+    kept = [v for k, v in enumerate(views) if k not in {j for j, _ in cal.rejected}]
+    return ScopeRun(cal, kept, missed, total, renumbered)
+
+
+def _renumbered(view: SlideView, cal: ScopeCalibration, target: Target) -> SlideView:
+    """A view's features numbered by the fitted model's prediction at its stage and focus:
+    each takes the number of the slide's point predicted within a third of a pitch."""
+    predicted = cal.predict_px(target.points_um(), view.stage_um, view.focus_um)
+    pitch_px = target.pitch_um / cal.pixel_size_um
+    d = np.linalg.norm(view.q_px[:, None, :] - predicted[None, :, :], axis=2)
+    nearest = d.argmin(axis=1)
+    ok = d[np.arange(len(nearest)), nearest] < pitch_px / 3
+    ids, first = np.unique(nearest[ok], return_index=True)
+    return SlideView(view.stage_um, view.focus_um, ids.astype(np.intp), view.q_px[ok][first])
 
 
 def _focused_at(views: list[SlideView], xy: FloatArray) -> SlideView | None:

@@ -11,7 +11,7 @@ __all__ = ["scope_lines"]
 
 def _pm(value: float, sd: float, unit: str = "") -> str:
     """``value ± sd`` with two significant digits of the standard deviation."""
-    digits = max(0, 1 - int(math.floor(math.log10(sd)))) if sd > 0 else 4
+    digits = max(0, 1 - math.floor(math.log10(sd))) if sd > 0 else 4
     return f"{value:.{digits}f} ± {sd:.{digits}f}{unit}"
 
 

@@ -269,7 +269,7 @@ class StageSlideScope:
         value, alpha = render_slide(self.camera(), self.placement(), (0, 0, w, h),
                                     supersample=3, reflectance=refl)  # fmt: skip
         img = (refl.glass + alpha * (np.nan_to_num(value) - refl.glass)).astype(np.float32)
-        img = cv2.GaussianBlur(img, (0, 0), self.blur_px())
-        img += self._rng.normal(0.0, self.noise, img.shape).astype(np.float32)
+        out: NDArray[np.float32] = cv2.GaussianBlur(img, (0, 0), self.blur_px())
+        out += self._rng.normal(0.0, self.noise, out.shape).astype(np.float32)
         self.frames += 1
-        return img
+        return out

@@ -45,6 +45,7 @@ from ..json_value import JsonValue
 __all__ = [
     "MIN_FEATURES",
     "MIN_VIEWS",
+    "REJECT_PX",
     "ScopeCalibration",
     "SlideView",
     "fit_stage_affine",
@@ -56,6 +57,9 @@ __all__ = [
 MIN_VIEWS = 4
 #: Fewest features a view must have to be used.
 MIN_FEATURES = 6
+#: A view whose features miss the stage's prediction by more than this (RMS, px; and ten
+#: times the views' median) is left out: its slide was numbered wrongly.
+REJECT_PX = 2.0
 _N = 12  # parameters: M (4), B (2), g (2), t (2), k1, k2
 
 
@@ -127,6 +131,9 @@ class ScopeCalibration:
     views, features : int
         Views used and features in them.
     image_size_px : (int, int)
+    rejected : tuple of (int, float)
+        Views left out (their index in the views given, and their RMS miss, px): the slide's
+        numbering in them disagrees with the stage's moves.
     params : (12,) float
         The fitted parameters (M row-major, B's a and b, g, t, k1, k2).
     cov : (12, 12) float
@@ -162,6 +169,19 @@ class ScopeCalibration:
     image_size_px: tuple[int, int]
     params: FloatArray
     cov: FloatArray
+    rejected: tuple[tuple[int, float], ...] = ()
+    slide_mirror: float = 1.0
+
+    def predict_px(self, plane_um: FloatArray, stage_um: FloatArray, focus_um: float) -> FloatArray:
+        """Where the fitted model sees the slide's points ``plane_um`` (N, 2 or 3) with the
+        stage at ``stage_um`` and the focus at ``focus_um``, (N, 2) px."""
+        P = np.asarray(plane_um, dtype=np.float64)[:, :2]
+        w, h = self.image_size_px
+        centre = np.array([(w - 1) / 2, (h - 1) / 2])
+        n = len(P)
+        s = np.tile(np.asarray(stage_um, dtype=np.float64), (n, 1))
+        z = np.full(n, float(focus_um))
+        return _model(self.params, P, s, z, centre, math.hypot(w, h) / 2, self.slide_mirror)
 
     @property
     def micromanager_affine(self) -> list[float]:
@@ -206,6 +226,7 @@ class ScopeCalibration:
             "rms_px": self.rms_px,
             "views": self.views,
             "features": self.features,
+            "rejected_views": [int(k) for k, _ in self.rejected],
             "image_size_px": [int(v) for v in self.image_size_px],
         }
 
@@ -316,6 +337,43 @@ def _linear_start(
     return np.concatenate([M.ravel(), [a, b], g, t, [0.0, 0.0]]), mirror
 
 
+def _view_misses(
+    P: FloatArray, s: FloatArray, z: FloatArray, y: FloatArray, which: NDArray[np.intp],
+    trials: int = 300,
+) -> FloatArray:  # fmt: skip
+    """Each view's RMS miss of the linear model fitted to the views that agree best (a view
+    whose slide was numbered wrongly misses by pitches): the fit of random sets of views with
+    the least median miss, px, (V,)."""
+    n_views = int(which.max()) + 1
+    X = np.column_stack([P, s, z, np.ones(len(z))])
+    count = np.bincount(which, minlength=n_views)
+
+    def misses(rows: NDArray[np.bool_]) -> FloatArray:
+        coef, *_ = np.linalg.lstsq(X[rows], y[rows], rcond=None)
+        e = X @ coef - y
+        out: FloatArray = np.sqrt(np.bincount(which, np.sum(e * e, axis=1), n_views) / count)
+        return out
+
+    def score(m: FloatArray) -> tuple[int, float]:
+        return int(np.count_nonzero(m <= REJECT_PX)), -float(np.median(m))
+
+    best = misses(np.ones(len(z), dtype=bool))
+    if n_views <= MIN_VIEWS:
+        return best
+    rng = np.random.default_rng(0)
+    for _ in range(trials):  # the largest set of views that agree (views misnumbered alike
+        pick = rng.choice(n_views, size=MIN_VIEWS, replace=False)  # agree only among
+        rows = np.isin(which, pick)  # themselves, at one stage position)
+        if np.ptp(z[rows]) <= 0 or np.linalg.matrix_rank(s[rows] - s[rows].mean(0), 1e-6) < 2:
+            continue
+        m = misses(rows)
+        if score(m) > score(best):
+            best = m
+    good = best <= max(REJECT_PX, 10.0 * float(np.median(best[best <= REJECT_PX])))  \
+        if np.any(best <= REJECT_PX) else best <= np.inf  # fmt: skip
+    return misses(np.isin(which, np.flatnonzero(good)))
+
+
 def _jacobian(f: Callable[[FloatArray], FloatArray], p: FloatArray) -> FloatArray:
     """Central differences of a derived figure ``f`` (k,) in the parameters, (k, 12)."""
     base = np.atleast_1d(f(p))
@@ -336,8 +394,8 @@ def _sd(f: Callable[[FloatArray], FloatArray], p: FloatArray, cov: FloatArray) -
 
 
 def _affine(p: FloatArray) -> FloatArray:
-    out: FloatArray = -np.linalg.inv(p[:4].reshape(2, 2))
-    return out
+    inverse: FloatArray = np.linalg.inv(np.asarray(p[:4], dtype=np.float64).reshape(2, 2))
+    return -inverse
 
 
 def _figures(p: FloatArray, r: float) -> FloatArray:
@@ -388,10 +446,22 @@ def fit_stage_affine(
         line each).
     """
     plane = np.asarray(plane_um, dtype=np.float64)[:, :2]
-    P, s, z, q, which = _stack(views, plane)
     w, h = image_size_px
     centre = np.array([(w - 1) / 2, (h - 1) / 2])
     r = math.hypot(w, h) / 2
+    index = [k for k, v in enumerate(views) if len(v.ids) >= MIN_FEATURES]
+    P, s, z, q, which = _stack([views[k] for k in index], plane)
+    miss = _view_misses(P, s, z, q - centre, which)
+    bad = miss > REJECT_PX
+    rejected = [(index[k], float(miss[k])) for k in np.flatnonzero(bad)]
+    used = [views[k] for j, k in enumerate(index) if not bad[j]]
+    if len(used) < MIN_VIEWS:
+        raise InputError(
+            f"stage calibration: the slide's numbering agrees with the stage's moves in "
+            f"{len(used)} of {len(index)} views; it needs {MIN_VIEWS} or more (bring the "
+            "slide's marker dots nearer the field's centre, or step the stage less)"
+        )
+    P, s, z, q, which = _stack(used, plane)
     start, mirror = _linear_start(P, s, z, q - centre)
 
     def residuals(p: FloatArray) -> FloatArray:
@@ -414,7 +484,9 @@ def fit_stage_affine(
     clustered = JtJ_inv @ meat @ JtJ_inv * (n_views / max(n_views - 1, 1))
     independent = s2 * JtJ_inv
     # never below the independent-residual covariance, parameter by parameter
-    grow = np.sqrt(np.maximum(np.diag(independent), 1e-300) / np.maximum(np.diag(clustered), 1e-300))
+    grow = np.sqrt(
+        np.maximum(np.diag(independent), 1e-300) / np.maximum(np.diag(clustered), 1e-300)
+    )
     cov = clustered * np.outer(np.maximum(grow, 1.0), np.maximum(grow, 1.0))
 
     fig = _figures(p, r)
@@ -452,4 +524,6 @@ def fit_stage_affine(
         image_size_px=(int(w), int(h)),
         params=p,
         cov=cov,
+        rejected=tuple(rejected),
+        slide_mirror=mirror,
     )

@@ -96,8 +96,7 @@ def _run_sim(req: ScopeRequest) -> tuple[ScopeRun, dict[str, JsonValue]]:
 
     if req.objective not in SIM_OBJECTIVES:
         raise InputError(
-            f"--objective {req.objective}: the simulated microscope has "
-            f"{', '.join(SIM_OBJECTIVES)}"
+            f"--objective {req.objective}: the simulated microscope has {', '.join(SIM_OBJECTIVES)}"
         )
     obj = SIM_OBJECTIVES[req.objective]
     scope = StageSlideScope(random_truth(req.seed, req.objective), slide=req.target or "",
@@ -120,7 +119,9 @@ def _run_rig(req: ScopeRequest) -> tuple[ScopeRun, dict[str, JsonValue]]:
             "slide); add one, or use --rig sim"
         )
     if req.target is None:
-        raise InputError("--target: name the slide (e.g. dotgrid:41x41:10:5:markers=20,20/22,20/20,19)")
+        raise InputError(
+            "--target: name the slide (e.g. dotgrid:41x41:10:5:markers=20,20/22,20/20,19)"
+        )
     cams = list(spec.cameras)
     name = req.camera or cams[0]
     if name not in spec.cameras or (req.camera is None and len(cams) > 1):
@@ -143,12 +144,12 @@ def _run_rig(req: ScopeRequest) -> tuple[ScopeRun, dict[str, JsonValue]]:
 
         def stage(xy: FloatArray) -> None:
             scope.move_to_um([xy[0], xy[1], scope.position_um()[2]])
-            scope.wait_until_stopped()
+            scope.wait_until_stopped(rig.clock)
 
         def focus(z: float) -> None:
             p = scope.position_um()
             scope.move_to_um([p[0], p[1], z])
-            scope.wait_until_stopped()
+            scope.wait_until_stopped(rig.clock)
 
         w = int(np.asarray(camera.grab()).shape[1])
         plan = scope_plan(w * nominal, depth_for(req.numerical_aperture or 0.5))
@@ -191,4 +192,3 @@ def scope_show(path: Path, objective: str) -> dict[str, JsonValue]:
         The file holds no set of that name (the ones it holds are named).
     """
     return load_objective(path, objective)
-
