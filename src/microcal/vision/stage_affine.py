@@ -394,8 +394,9 @@ def _sd(f: Callable[[FloatArray], FloatArray], p: FloatArray, cov: FloatArray) -
 
 
 def _affine(p: FloatArray) -> FloatArray:
-    inverse: FloatArray = np.linalg.inv(np.asarray(p[:4], dtype=np.float64).reshape(2, 2))
-    return -inverse
+    inverse = np.linalg.inv(np.asarray(p[:4], dtype=np.float64).reshape(2, 2))
+    out: FloatArray = -np.asarray(inverse, dtype=np.float64)
+    return out
 
 
 def _figures(p: FloatArray, r: float) -> FloatArray:
