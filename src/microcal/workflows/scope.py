@@ -172,6 +172,8 @@ def scope_calibrate(req: ScopeRequest) -> ScopeResult:
     """
     check_objective_name(req.objective)
     out = check_json_output(req.out, SCOPE_FORMAT, "scope.json")
+    if out.exists():
+        objective_names(out)  # a file this microcal cannot read is refused before any work
     if req.target is not None:
         parse_target(req.target)
     run, where = (_run_sim if req.rig == "sim" else _run_rig)(req)
