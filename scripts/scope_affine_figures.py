@@ -5,7 +5,8 @@ pixel size, camera rotation, stage skew, distortion, focus-axis tilt) is calibra
 ``microcal scope-calibrate``'s procedure and compared with its truth: the affine map's
 scale (per image axis) and rotation, the pixel size, the focus axis's angle, the
 distortion's residual over the field, and how the stated standard deviations cover the
-errors.
+errors; and, from a focus sweep of 15 frames, the field curvature (the focal surface's sag
+at the image's corner).
 
 Usage (from the checkout)::
 
@@ -49,8 +50,11 @@ def one_seed(seed: int, objective: str, size: int, stage_sigma_um: float) -> dic
     obj = SIM_OBJECTIVES[objective]
     plan = scope_plan(size * obj.um_per_px, depth_for(obj.numerical_aperture))
     t0 = time.perf_counter()
-    run = calibrate_scope(scope.move_stage, scope.move_focus, scope.grab, scope.target, plan)
-    cal = run.calibration
+    d = depth_for(obj.numerical_aperture)
+    run = calibrate_scope(scope.move_stage, scope.move_focus, scope.grab, scope.target, plan,
+                          sweep_um=np.linspace(-3 * d, 3 * d, 15))  # fmt: skip
+    cal, curv = run.calibration, run.curvature
+    assert curv is not None
     A = truth.affine_um()[:, :2]
     true_scale = np.linalg.norm(A, axis=0)
     scale_err = cal.scale_um / true_scale - 1
@@ -74,6 +78,9 @@ def one_seed(seed: int, objective: str, size: int, stage_sigma_um: float) -> dic
         "tilt_z": abs(cal.focus_angle_deg - truth.focus_tilt_deg) / cal.focus_angle_sd_deg,
         "dist_corner_true_px": r_corner(truth, size),
         "dist_resid_px": _distortion_residual_px(cal, truth, size),
+        "curv_true_um": truth.field_curvature_um,
+        "curv_err_um": abs(curv.corner_um - truth.field_curvature_um),
+        "curv_z": abs(curv.corner_um - truth.field_curvature_um) / curv.corner_sd_um,
     }
 
 
@@ -100,8 +107,9 @@ def main() -> None:
             f"rotation {row['rot_err_deg']:.5f}° (z {row['rot_z']:.1f}), pixel size "
             f"{row['ps_err_pct']:+.5f} %, focus angle {row['tilt_true_deg']:.3f}° err "
             f"{row['tilt_err_deg']:.4f}° (z {row['tilt_z']:.1f}), distortion corner "
-            f"{row['dist_corner_true_px']:+.3f} px resid {row['dist_resid_px']:.4f} px "
-            f"[{row['s']:.1f} s]",
+            f"{row['dist_corner_true_px']:+.3f} px resid {row['dist_resid_px']:.4f} px, field "
+            f"curvature {row['curv_true_um']:+.3f} µm err {row['curv_err_um']:.3f} µm (z "
+            f"{row['curv_z']:.1f}) [{row['s']:.1f} s]",
             flush=True,
         )
     print(f"\n{args.objective}, {args.size}x{args.size} px, stage error {args.stage_sigma_um} µm, "
@@ -111,11 +119,12 @@ def main() -> None:
                        ("ps_err_pct", "pixel size error, %"),
                        ("tilt_err_deg", "focus-axis angle error, deg"),
                        ("dist_resid_px", "distortion residual RMS, px"),
+                       ("curv_err_um", "field curvature (corner sag) error, µm"),
                        ("rms_px", "features' RMS, px")):  # fmt: skip
         v = np.abs([r[key] for r in rows])
         print(f"  {label}: {v.max():.5f} / {np.median(v):.5f}")
     for key, label in (("scale_z", "scale"), ("rot_z", "rotation"), ("ps_z", "pixel size"),
-                       ("tilt_z", "focus angle")):  # fmt: skip
+                       ("tilt_z", "focus angle"), ("curv_z", "field curvature")):  # fmt: skip
         z = np.array([r[key] for r in rows])
         print(
             f"  {label}: |error| / stated SD: median {np.median(z):.2f}, max {z.max():.2f}, "

@@ -23,6 +23,7 @@ def scope_calibrate(
     na: Annotated[float | None, Option(min=0, help="The objective's NA.")] = None,
     camera: Annotated[str | None, Option(help="The camera (a rig of several).")] = None,
     seed: Annotated[int, Option(min=0, help="Seed of the simulated microscope.")] = 0,
+    field_curvature: Annotated[bool, Option(help="Also fit the focal surface.")] = False,
 ) -> None:  # fmt: skip
     """Move a slide by known steps with the X-Y stage and the focus, and fit the camera's
     image-to-stage affine (Micro-Manager's pixel-size affine), pixel size, distortion and
@@ -34,9 +35,10 @@ def scope_calibrate(
     from ..workflows.scope import ScopeRequest
     from ..workflows.scope import scope_calibrate as work
 
-    req = ScopeRequest(rig, objective, out, target, um_per_px, na, camera, seed)
+    req = ScopeRequest(rig, objective, out, target, um_per_px, na, camera, seed,
+                       field_curvature=field_curvature)  # fmt: skip
     result = work(req)
-    for line in scope_lines(objective, result.calibration.to_json()):
+    for line in scope_lines(objective, result.record):
         print(line)
     print(f"{result.path}: objectives {', '.join(result.objectives)}")
 

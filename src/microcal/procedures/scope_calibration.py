@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from .._validation import FloatArray, check_number
 from ..errors import InputError
 from ..vision.detect import detect, to_gray
+from ..vision.focal_surface import FieldCurvature, fit_field_curvature, region_sharpness
 from ..vision.stage_affine import (
     ScopeCalibration,
     SlideView,
@@ -96,6 +97,8 @@ class ScopeRun:
     renumbered : list of str
         One line per view whose marker-based numbering disagreed with the stage's moves and
         that was numbered again from the first fit's prediction.
+    curvature : FieldCurvature or None
+        The focal surface, when a focus sweep was asked for.
     """
 
     calibration: ScopeCalibration
@@ -103,6 +106,7 @@ class ScopeRun:
     missed: list[str] = field(default_factory=list)
     frames: int = 0
     renumbered: list[str] = field(default_factory=list)
+    curvature: FieldCurvature | None = None
 
 
 def calibrate_scope(
@@ -115,6 +119,7 @@ def calibrate_scope(
     start_stage_um: FloatArray | None = None,
     start_focus_um: float = 0.0,
     progress: Callable[[int, int], None] | None = None,
+    sweep_um: FloatArray | None = None,
 ) -> ScopeRun:
     """Move the slide through the plan's views, find it in each frame, fit the calibration.
 
@@ -135,6 +140,10 @@ def calibrate_scope(
         ones), and where they are left at the end.
     progress : callable, optional
         ``progress(done, total)`` after each view.
+    sweep_um : (K,) float, optional
+        Focus offsets of a sweep at the start's stage position for the field curvature
+        (:func:`~microcal.vision.focal_surface.fit_field_curvature`), increasing; none by
+        default.
 
     Returns
     -------
@@ -174,6 +183,12 @@ def calibrate_scope(
                               f"µm): {det.reason}")  # fmt: skip
             if progress is not None:
                 progress(k + 1, total)
+        sharp = []
+        if sweep_um is not None:
+            move_stage(start)
+            for dz in np.asarray(sweep_um, dtype=np.float64):
+                move_focus(start_focus_um + float(dz))
+                sharp.append(region_sharpness(np.asarray(grab())))
     finally:
         move_stage(start)
         move_focus(start_focus_um)
@@ -200,7 +215,11 @@ def calibrate_scope(
                       f"{v.focus_um:.2f} µm: left out, its features miss the stage's moves by "
                       f"{miss_px:.1f} px RMS (the slide numbered wrongly)")  # fmt: skip
     kept = [v for k, v in enumerate(views) if k not in {j for j, _ in cal.rejected}]
-    return ScopeRun(cal, kept, missed, total, renumbered)
+    curvature = None
+    if sweep_um is not None:
+        curvature = fit_field_curvature(np.asarray(sweep_um, float), np.array(sharp))
+    frames = total + (0 if sweep_um is None else len(sweep_um))
+    return ScopeRun(cal, kept, missed, frames, renumbered, curvature)
 
 
 def _renumbered(view: SlideView, cal: ScopeCalibration, target: Target) -> SlideView:

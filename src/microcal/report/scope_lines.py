@@ -35,4 +35,8 @@ def scope_lines(objective: str, record: Mapping[str, Any]) -> list[str]:
         f"axis; dxdz {focus['dxdz']:.4f}, dydz {focus['dydz']:.4f}",
         f"  {r['views']} views, {r['features']} features, RMS {r['rms_px']:.3f} px",
     ]
+    curv = r.get("field_curvature")
+    if isinstance(curv, Mapping):
+        sag = _pm(curv["corner_um"], curv["corner_sd_um"], " µm")
+        lines.insert(-1, f"  field curvature: the corner in focus {sag} from the centre")
     return lines

@@ -13,7 +13,9 @@ calibration recovers:
 - radial distortion about the image centre (``k1``, ``k2`` in half image diagonals, as
   :class:`~microcal.geometry.affine_camera.AffineCamera` takes them);
 - the focus axis's tilt against the optical axis (the camera moves sideways by
-  ``tan(tilt)`` per µm of focus, towards ``focus_azimuth_deg`` in the stage's frame).
+  ``tan(tilt)`` per µm of focus, towards ``focus_azimuth_deg`` in the stage's frame);
+- field curvature: the focal surface is a paraboloid about the image centre whose sag at
+  the corner is ``field_curvature_um`` (each pixel's blur follows its own defocus).
 
 World frame = the stage's frame at stage position 0: moving the stage to ``s`` moves the
 slide by ``W s`` (``W`` the stage's axes, skewed), moving the focus to ``z`` moves the camera
@@ -101,6 +103,9 @@ class ScopeTruth:
         The slide's rotation on the stage, degrees.
     slide_offset_um : (2,) float
         The slide's centre off the field's centre at stage position 0, µm.
+    field_curvature_um : float
+        The focal surface's sag at the image's corner, µm (a paraboloid about the image
+        centre: the corner is in focus when the focus is at this value).
     """
 
     um_per_px: float = 0.1625
@@ -113,6 +118,7 @@ class ScopeTruth:
     numerical_aperture: float = 0.8
     slide_rotation_deg: float = 0.0
     slide_offset_um: tuple[float, float] = (0.0, 0.0)
+    field_curvature_um: float = 0.0
 
     def __post_init__(self) -> None:
         check_number("um_per_px", self.um_per_px, above=0)
@@ -158,7 +164,8 @@ class ScopeTruth:
 def random_truth(seed: int, objective: str = "40x") -> ScopeTruth:
     """A random microscope of one objective (``SIM_OBJECTIVES``): pixel size within 2 %,
     rotation within 3 degrees, stage skew within 0.2 degrees, distortion up to 0.2 % at the
-    corner, focus-axis tilt up to 1 degree, the slide turned up to 5 degrees."""
+    corner, focus-axis tilt up to 1 degree, the slide turned up to 5 degrees, field curvature
+    up to 0.65 µm / NA² at the corner (about the depth of field)."""
     obj = SIM_OBJECTIVES[objective]
     rng = np.random.default_rng(seed)
     return ScopeTruth(
@@ -172,6 +179,7 @@ def random_truth(seed: int, objective: str = "40x") -> ScopeTruth:
         numerical_aperture=obj.numerical_aperture,
         slide_rotation_deg=float(rng.uniform(-5, 5)),
         slide_offset_um=(float(rng.normal(0, 2)), float(rng.normal(0, 2))),
+        field_curvature_um=float(rng.uniform(-1.0, 1.0)) * 0.65 / obj.numerical_aperture**2,
     )
 
 
@@ -255,12 +263,38 @@ class StageSlideScope:
         centre = np.array([*(np.asarray(t.slide_offset_um) + moved), 0.0])
         return Placement(self._target, R, centre - R @ self._target.centre_um, margin_um=0.0)
 
-    def blur_px(self) -> float:
+    def blur_px(self, sag_um: float | FloatArray = 0.0) -> float | FloatArray:
         """Standard deviation of the image's blur at the current focus, px: the optics' own
-        and the defocus disc's (radius ``|z| tan(asin(NA))``, taken as two sigmas)."""
+        and the defocus disc's (radius ``|z - sag| tan(asin(NA))``, taken as two sigmas),
+        where the focal surface's sag is ``sag_um`` (a number, or one per pixel)."""
         na = self.truth.numerical_aperture
-        disc_um = abs(self.focus_um) * math.tan(math.asin(min(na, 0.999)))
-        return math.hypot(self.psf_px, 0.5 * disc_um / self.truth.um_per_px)
+        disc_um = np.abs(self.focus_um - np.asarray(sag_um)) * math.tan(math.asin(min(na, 0.999)))
+        out = np.hypot(self.psf_px, 0.5 * disc_um / self.truth.um_per_px)
+        return float(out) if np.ndim(out) == 0 else out
+
+    def sag_um(self) -> FloatArray:
+        """The focal surface's sag at each pixel, (h, w) µm."""
+        w, h = self.image_size_px
+        x = np.arange(w) - (w - 1) / 2
+        y = np.arange(h) - (h - 1) / 2
+        rho2 = (x[None, :] ** 2 + y[:, None] ** 2) / ((w / 2) ** 2 + (h / 2) ** 2)
+        out: FloatArray = self.truth.field_curvature_um * rho2
+        return out
+
+    def _blurred(self, img: NDArray[np.float32]) -> NDArray[np.float32]:
+        """The image blurred as each pixel's defocus says (levels of blur blended per pixel)."""
+        if self.truth.field_curvature_um == 0:
+            flat: NDArray[np.float32] = cv2.GaussianBlur(img, (0, 0), float(self.blur_px()))
+            return flat
+        sigma = np.asarray(self.blur_px(self.sag_um()), dtype=np.float64)
+        levels = np.linspace(sigma.min(), sigma.max(), 6)
+        stack = np.stack([cv2.GaussianBlur(img, (0, 0), float(s)) for s in levels])
+        pos = np.clip((sigma - levels[0]) / max(levels[1] - levels[0], 1e-12), 0, len(levels) - 1)
+        lo = np.minimum(np.floor(pos).astype(int), len(levels) - 2)
+        f = (pos - lo).astype(np.float32)
+        rows, cols = np.indices(sigma.shape)
+        out: NDArray[np.float32] = (1 - f) * stack[lo, rows, cols] + f * stack[lo + 1, rows, cols]
+        return out
 
     def grab(self) -> NDArray[np.float32]:
         """One frame, (h, w) float32 in reflectance units, with blur and noise."""
@@ -269,7 +303,7 @@ class StageSlideScope:
         value, alpha = render_slide(self.camera(), self.placement(), (0, 0, w, h),
                                     supersample=3, reflectance=refl)  # fmt: skip
         img = (refl.glass + alpha * (np.nan_to_num(value) - refl.glass)).astype(np.float32)
-        out: NDArray[np.float32] = cv2.GaussianBlur(img, (0, 0), self.blur_px())
+        out = self._blurred(img)
         out += self._rng.normal(0.0, self.noise, out.shape).astype(np.float32)
         self.frames += 1
         return out

@@ -61,6 +61,8 @@ class ScopeRequest:
         Seed of the simulated microscope.
     image_px : int
         The simulated camera's width and height.
+    field_curvature : bool
+        Also sweep the focus through ±3 λ/NA² in 15 steps and fit the focal surface.
     """
 
     rig: str
@@ -72,11 +74,13 @@ class ScopeRequest:
     camera: str | None = None
     seed: int = 0
     image_px: int = 512
+    field_curvature: bool = False
 
 
 @dataclass(frozen=True)
 class ScopeResult:
-    """What ``scope-calibrate`` did: the calibration, the file and the objectives it holds."""
+    """What ``scope-calibrate`` did: the calibration, the set written (``record``), the file
+    and the objectives it holds."""
 
     path: Path
     objective: str
@@ -84,11 +88,20 @@ class ScopeResult:
     missed: list[str] = field(default_factory=list)
     frames: int = 0
     objectives: list[str] = field(default_factory=list)
+    record: dict[str, JsonValue] = field(default_factory=dict)
 
 
 def _magnification(objective: str) -> float | None:
     m = re.match(r"^(\d+(?:\.\d+)?)[xX]", objective)
     return float(m.group(1)) if m else None
+
+
+def _sweep(req: ScopeRequest, na: float) -> np.ndarray | None:
+    """The focus sweep's offsets for the field curvature (None when not asked for)."""
+    if not req.field_curvature:
+        return None
+    d = depth_for(na)
+    return np.linspace(-3 * d, 3 * d, 15)
 
 
 def _run_sim(req: ScopeRequest) -> tuple[ScopeRun, dict[str, JsonValue]]:
@@ -103,7 +116,8 @@ def _run_sim(req: ScopeRequest) -> tuple[ScopeRun, dict[str, JsonValue]]:
                             image_size_px=(req.image_px, req.image_px), seed=req.seed)  # fmt: skip
     na = req.numerical_aperture or obj.numerical_aperture
     plan = scope_plan(req.image_px * (req.um_per_px or obj.um_per_px), depth_for(na))
-    run = calibrate_scope(scope.move_stage, scope.move_focus, scope.grab, scope.target, plan)
+    run = calibrate_scope(scope.move_stage, scope.move_focus, scope.grab, scope.target, plan,
+                          sweep_um=_sweep(req, na))  # fmt: skip
     return run, {"rig": f"simulated microscope, seed {req.seed}", "slide": scope.slide}
 
 
@@ -152,9 +166,10 @@ def _run_rig(req: ScopeRequest) -> tuple[ScopeRun, dict[str, JsonValue]]:
             scope.wait_until_stopped(rig.clock)
 
         w = int(np.asarray(camera.grab()).shape[1])
-        plan = scope_plan(w * nominal, depth_for(req.numerical_aperture or 0.5))
-        run = calibrate_scope(stage, focus, camera.grab, target, plan,
-                              start_stage_um=start[:2], start_focus_um=float(start[2]))  # fmt: skip
+        na = req.numerical_aperture or 0.5
+        plan = scope_plan(w * nominal, depth_for(na))
+        run = calibrate_scope(stage, focus, camera.grab, target, plan, start_stage_um=start[:2],
+                              start_focus_um=float(start[2]), sweep_um=_sweep(req, na))  # fmt: skip
     finally:
         rig.close()
     return run, {"rig": str(req.rig), "camera": name, "slide": target.spec}
@@ -179,10 +194,13 @@ def scope_calibrate(req: ScopeRequest) -> ScopeResult:
     run, where = (_run_sim if req.rig == "sim" else _run_rig)(req)
     cal = run.calibration
     record: dict[str, JsonValue] = {**cal.to_json(), **where}
+    if run.curvature is not None:
+        record["field_curvature"] = run.curvature.to_json()
     if run.missed:
         record["missed_views"] = list(run.missed)
     write_objective(out, req.objective, record, provenance(objective=req.objective))
-    return ScopeResult(out, req.objective, cal, run.missed, run.frames, objective_names(out))
+    return ScopeResult(out, req.objective, cal, run.missed, run.frames, objective_names(out),
+                       record)  # fmt: skip
 
 
 def scope_show(path: Path, objective: str) -> dict[str, JsonValue]:
