@@ -170,7 +170,7 @@ FRAGMENTS: dict[tuple[str, int], tuple[str, str]] = {
     ("docs/hardware.md", 5): (_HEAD, _MCS2 + "[manipulator]\n" + _MCS2 + _CAMERAS),
     ("docs/hardware.md", 6): (_HEAD + _BOARD, "[manipulator]\n" + _MCS2 + _CAMERAS),
     # a one-camera microscope: its stage and focus
-    ("docs/microscope.md", 3): (
+    ("docs/microscope.md", 4): (
         _HEAD + "[manipulator]\n" + _MCS2,
         '[cameras.scope]\nkind = "micromanager"\ndevice = "Camera"\n',
     ),
