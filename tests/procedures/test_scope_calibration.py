@@ -21,9 +21,8 @@ def test_the_rendered_slide_gives_the_affine_within_the_issue_s_bounds():
     plan = scope_plan(256 * obj.um_per_px, depth_for(obj.numerical_aperture), focus_steps=3)
     scope.move_stage(np.array([5.0, -3.0]))
     scope.move_focus(0.0)
-    sweep = np.linspace(-2.5, 2.5, 11)
     run = calibrate_scope(scope.move_stage, scope.move_focus, scope.grab, scope.target, plan,
-                          start_stage_um=np.array([5.0, -3.0]), sweep_um=sweep)  # fmt: skip
+                          start_stage_um=np.array([5.0, -3.0]))  # fmt: skip
     cal = run.calibration
     # the views far right see the marker dots at the image's edge, and some are numbered a
     # few pitches off: they miss the stage's moves and are numbered again from the first fit
@@ -36,9 +35,8 @@ def test_the_rendered_slide_gives_the_affine_within_the_issue_s_bounds():
     assert abs(cal.rotation_deg - math.degrees(math.atan2(A[1, 0], A[0, 0]))) < 0.05
     assert abs(cal.focus_angle_deg - truth.focus_tilt_deg) < 0.05
     assert cal.rms_px < 0.05
-    assert run.curvature is not None
-    assert run.frames == 15 + 11
-    assert abs(run.curvature.corner_um - truth.field_curvature_um) < 0.15
+    assert run.curvature is None
+    assert run.frames == 15
     np.testing.assert_array_equal(scope.stage_um, [5.0, -3.0])  # back where it started
     assert scope.focus_um == 0.0
 

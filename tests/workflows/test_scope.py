@@ -33,7 +33,11 @@ def test_two_objectives_in_one_file_each_chosen_by_name(tmp_path):
     out = tmp_path / "scope.json"
     first = scope_calibrate(ScopeRequest("sim", "40x", out, seed=2, image_px=192))
     stored_40x = json.loads(out.read_text())["objectives"]["40x"]
-    second = scope_calibrate(ScopeRequest("sim", "10x", out, seed=2, image_px=256))
+    second = scope_calibrate(ScopeRequest("sim", "10x", out, seed=2, image_px=256,
+                                          field_curvature=True))  # fmt: skip
+    assert second.frames == 21 + 15
+    sag = json.loads(out.read_text())["objectives"]["10x"]["field_curvature"]["corner_um"]
+    assert abs(sag - random_truth(2, "10x").field_curvature_um) < 0.5  # 0.9 µm, DOF 6 µm
     assert second.objectives == ["10x", "40x"]
     assert json.loads(out.read_text())["objectives"]["40x"] == stored_40x
     for name, result in (("40x", first), ("10x", second)):
