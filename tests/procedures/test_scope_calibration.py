@@ -46,8 +46,12 @@ def test_a_slide_never_found_is_one_line_naming_the_first_miss():
     scope = StageSlideScope(truth, image_size_px=(128, 128))
     plan = scope_plan(20.0, 0.5, grid=2, focus_steps=2)
     blank = lambda: np.full((128, 128), 0.5, np.float32)  # noqa: E731
+    moves = []
     with pytest.raises(InputError) as exc:
-        calibrate_scope(scope.move_stage, scope.move_focus, blank, scope.target, plan)
+        calibrate_scope(moves.append, scope.move_focus, blank, scope.target, plan)
+    # the 4 positions of the square, the 3 of the focus steps (which share one move each),
+    # and back to the start
+    assert len(moves) == 4 + 3 + 1
     text = str(exc.value)
     assert text.startswith("stage calibration: the slide was found in 0 views")
     assert "(first miss: view 1 (stage -4.0, -4.0 µm, focus +0.00 µm): " in text

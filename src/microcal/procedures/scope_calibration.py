@@ -123,6 +123,10 @@ def calibrate_scope(
 ) -> ScopeRun:
     """Move the slide through the plan's views, find it in each frame, fit the calibration.
 
+    The stage is moved only when a view's stage position differs from the last one's, so
+    the focus steps at one position share its error of position (the focus axis is then
+    measured free of it).
+
     Parameters
     ----------
     move_stage : callable
@@ -159,11 +163,14 @@ def calibrate_scope(
     missed: list[str] = []
     size: tuple[int, int] | None = None
     total = len(plan.positions)
+    here: FloatArray | None = None  # the stage stays where it is for focus steps
     try:
         for k, (dx, dy, dz) in enumerate(plan.positions):
             xy = start + (dx, dy)
             z = start_focus_um + float(dz)
-            move_stage(xy)
+            if here is None or not np.allclose(here, xy, rtol=0, atol=1e-9):
+                move_stage(xy)
+                here = xy
             move_focus(z)
             image = np.asarray(grab())
             size = (int(image.shape[1]), int(image.shape[0]))
@@ -185,7 +192,8 @@ def calibrate_scope(
                 progress(k + 1, total)
         sharp = []
         if sweep_um is not None:
-            move_stage(start)
+            if here is None or not np.allclose(here, start, rtol=0, atol=1e-9):
+                move_stage(start)
             for dz in np.asarray(sweep_um, dtype=np.float64):
                 move_focus(start_focus_um + float(dz))
                 sharp.append(region_sharpness(np.asarray(grab())))
