@@ -21,11 +21,13 @@ the image-to-stage map ``A = -M^-1`` (its six numbers, translation 0), the pixel
 ``sqrt(|det A|)``, and the focus axis as the field's travel over the sample per µm of focus
 (``-A g``, stage µm per µm) with its angle to the optical axis.
 
-Uncertainties: the parameters' covariance is the sandwich ``(J'J)^-1 (sum_v J_v' r_v r_v' J_v)
-(J'J)^-1`` with the views as clusters (an error of a stage position moves every feature of its
-view together, so the features of one view are not independent), and never below the
-independent-residual covariance ``s^2 (J'J)^-1``; each derived figure's standard deviation
-is propagated from it to first order.
+Uncertainties: an error of a stage position moves every feature seen there together, so the
+residuals are the features' own scatter (variance ``s²``, estimated within each stage
+position) plus a common shift per stage position and image axis (variance ``tau²``,
+estimated from the positions' mean residuals, with the three parameters per image axis the
+model spends at that level taken off). The parameters' covariance is
+``(J'J)^-1 (s² J'J + tau² sum_c J_c' 1 1' J_c) (J'J)^-1``; each derived figure's standard
+deviation is propagated from it to first order.
 """
 
 from __future__ import annotations
@@ -475,20 +477,23 @@ def fit_stage_affine(
     J = sol.jac
     n = res.size
     JtJ_inv = np.linalg.pinv(J.T @ J)
-    s2 = float(res @ res) / max(n - _N, 1)
-    meat = np.zeros((_N, _N))
-    rows = np.repeat(which, 2)
-    n_views = int(which.max()) + 1
-    for v in range(n_views):
-        g = J[rows == v].T @ res[rows == v]
-        meat += np.outer(g, g)
-    clustered = JtJ_inv @ meat @ JtJ_inv * (n_views / max(n_views - 1, 1))
-    independent = s2 * JtJ_inv
-    # never below the independent-residual covariance, parameter by parameter
-    grow = np.sqrt(
-        np.maximum(np.diag(independent), 1e-300) / np.maximum(np.diag(clustered), 1e-300)
-    )
-    cov = clustered * np.outer(np.maximum(grow, 1.0), np.maximum(grow, 1.0))
+    # An error of a stage position moves every feature seen there alike: each position's
+    # common shift (per image axis) is a random effect of variance tau2 besides the features'
+    # own scatter s2 (estimated within the positions).
+    _, position = np.unique(np.round(s, 6), axis=0, return_inverse=True)
+    n_pos = int(position.max()) + 1
+    key = 2 * np.repeat(position.ravel(), 2) + np.tile([0, 1], len(z))
+    counts = np.bincount(key, minlength=2 * n_pos).astype(float)
+    means = np.bincount(key, res, minlength=2 * n_pos) / np.maximum(counts, 1)
+    within = res - means[key]
+    s2 = float(within @ within) / max(n - 2 * n_pos - _N, 1)
+    # the model takes up three parameters per image axis at the positions' level (M's row, t)
+    spread = float(np.sum(means**2 - s2 / np.maximum(counts, 1)))
+    tau2 = max(spread / max(2 * n_pos - 6, 1), 0.0)
+    summed = np.zeros((2 * n_pos, _N))
+    np.add.at(summed, key, J)
+    meat = s2 * (J.T @ J) + tau2 * (summed.T @ summed)
+    cov = JtJ_inv @ meat @ JtJ_inv
 
     fig = _figures(p, r)
     fig_sd = _sd(lambda x: _figures(x, r), p, cov)
@@ -520,7 +525,7 @@ def fit_stage_affine(
         slide_scale=float(fig[7]),
         slide_scale_sd=float(fig_sd[7]),
         rms_px=float(np.sqrt(np.mean(res.reshape(-1, 2) ** 2) * 2)),
-        views=n_views,
+        views=int(which.max()) + 1,
         features=len(z),
         image_size_px=(int(w), int(h)),
         params=p,
