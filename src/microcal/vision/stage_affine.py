@@ -23,11 +23,11 @@ the image-to-stage map ``A = -M^-1`` (its six numbers, translation 0), the pixel
 
 Uncertainties: an error of a stage position moves every feature seen there together, so the
 residuals are the features' own scatter (variance ``s²``, estimated within each stage
-position) plus a common shift per stage position and image axis (variance ``tau²``,
-estimated from the positions' mean residuals, with the three parameters per image axis the
-model spends at that level taken off). The parameters' covariance is
-``(J'J)^-1 (s² J'J + tau² sum_c J_c' 1 1' J_c) (J'J)^-1``; each derived figure's standard
-deviation is propagated from it to first order.
+visit: views in a row, in the order given, at one stage position) plus a common shift per
+visit and image axis (variance ``tau²``, estimated from the visits' mean residuals, with the
+three parameters per image axis the model spends at that level taken off). The parameters'
+covariance is ``(J'J)^-1 (s² J'J + tau² sum_c J_c' 1 1' J_c) (J'J)^-1``; each derived
+figure's standard deviation is propagated from it to first order.
 """
 
 from __future__ import annotations
@@ -376,6 +376,13 @@ def _view_misses(
     return misses(np.isin(which, np.flatnonzero(good)))
 
 
+def _visits(s: FloatArray) -> NDArray[np.intp]:
+    """Each feature's stage visit: features in a row (views in the order taken) at one stage
+    position share a visit; the stage moved between visits, (n,)."""
+    moved = np.any(np.abs(np.diff(s, axis=0)) > 1e-6, axis=1)
+    return np.concatenate([[0], np.cumsum(moved)]).astype(np.intp)
+
+
 def _jacobian(f: Callable[[FloatArray], FloatArray], p: FloatArray) -> FloatArray:
     """Central differences of a derived figure ``f`` (k,) in the parameters, (k, 12)."""
     base = np.atleast_1d(f(p))
@@ -432,7 +439,9 @@ def fit_stage_affine(
     ----------
     views : sequence of SlideView
         Views at three stage positions or more (not on one line) and two focus positions
-        or more; views with fewer than :data:`MIN_FEATURES` features are left out.
+        or more, in the order they were taken (views in a row at one stage position share
+        the stage's error of position); views with fewer than :data:`MIN_FEATURES` features
+        are left out.
     plane_um : (F, 2) or (F, 3) float
         The slide's feature positions (``target.points_um()``), µm.
     image_size_px : (int, int)
@@ -477,12 +486,12 @@ def fit_stage_affine(
     J = sol.jac
     n = res.size
     JtJ_inv = np.linalg.pinv(J.T @ J)
-    # An error of a stage position moves every feature seen there alike: each position's
-    # common shift (per image axis) is a random effect of variance tau2 besides the features'
-    # own scatter s2 (estimated within the positions).
-    _, position = np.unique(np.round(s, 6), axis=0, return_inverse=True)
+    # An error of a stage position moves every feature seen there alike: each visit's common
+    # shift (per image axis) is a random effect of variance tau2 besides the features' own
+    # scatter s2 (estimated within the visits).
+    position = _visits(s)
     n_pos = int(position.max()) + 1
-    key = 2 * np.repeat(position.ravel(), 2) + np.tile([0, 1], len(z))
+    key = 2 * np.repeat(position, 2) + np.tile([0, 1], len(z))
     counts = np.bincount(key, minlength=2 * n_pos).astype(float)
     means = np.bincount(key, res, minlength=2 * n_pos) / np.maximum(counts, 1)
     within = res - means[key]
