@@ -1326,6 +1326,44 @@ def report_cases() -> list[Case]:
     ]  # fmt: skip
 
 
+ONE_CAMERA_RIG = """driver = "hardware"
+[manipulator]
+kind = "smaract-mcs2"
+address = "192.168.1.200"
+channels = { x = 0, y = 1, z = 2 }
+limits_um = { x = [0, 8000], y = [0, 8000], z = [0, 4800] }
+[cameras.scope]
+kind = "aravis"
+address = "192.168.1.11"
+"""
+
+
+def _scope(w: Work, *extra: str, out: Path | None = None) -> list[str]:
+    target = out if out is not None else w / "scope.json"
+    return ["scope-calibrate", "--objective", "40x", "--out", str(target), *extra]
+
+
+def scope_cases() -> list[Case]:
+    s = "scope-calibrate-"
+    return [
+        Case(s + "objective-missing", lambda w: ["scope-calibrate"], "--objective"),
+        Case(s + "objective-bad-name", lambda w: ["scope-calibrate", "--objective", "40x/oil"], "--objective"),
+        Case(s + "objective-not-simulated", lambda w: ["scope-calibrate", "--objective", "63x"], "63x"),
+        Case(s + "rig-missing-file", lambda w: _scope(w, "--rig", str(w / "norig.toml")), "norig.toml"),
+        Case(s + "rig-one-camera-without-focus",
+             lambda w: _scope(w, "--rig", str(w.write("scope.toml", ONE_CAMERA_RIG))), "focus"),
+        Case(s + "rig-without-microscope",
+             lambda w: _scope(w, "--rig", str(w.copy("hardware.toml")), "--target", "dotgrid:5x5:10:5"), "microscope"),
+        Case(s + "target-garbage", lambda w: _scope(w, "--target", "dotgrid:many"), "target"),
+        Case(s + "um-per-px-negative", lambda w: _scope(w, "--um-per-px", "-1"), "--um-per-px"),
+        Case(s + "out-is-a-directory", lambda w: _scope(w, out=w.mkdir("outdir", "keep.txt")), "--out"),
+        Case(s + "out-is-a-cameras-json", lambda w: _scope(w, out=w.copy("cameras.json")), "--out"),
+        Case(s + "out-future-version",
+             lambda w: _scope(w, out=w.write("scope.json", '{"format": "microcal.scope/2", "objectives": {}}')),
+             "version"),
+    ]  # fmt: skip
+
+
 def cli_cases() -> list[Case]:
     return [
         Case("cli-unknown-command", lambda w: ["calibrate"], "calibrate"),
@@ -1345,6 +1383,7 @@ CASES: list[Case] = [
     *evaluate_cases(),
     *report_cases(),
     *check_cases(),
+    *scope_cases(),
 ]
 
 

@@ -169,6 +169,11 @@ FRAGMENTS: dict[tuple[str, int], tuple[str, str]] = {
     # m2's board alone: its table goes on with the device's keys
     ("docs/hardware.md", 5): (_HEAD, _MCS2 + "[manipulator]\n" + _MCS2 + _CAMERAS),
     ("docs/hardware.md", 6): (_HEAD + _BOARD, "[manipulator]\n" + _MCS2 + _CAMERAS),
+    # a one-camera microscope: its stage and focus
+    ("docs/microscope.md", 4): (
+        _HEAD + "[manipulator]\n" + _MCS2,
+        '[cameras.scope]\nkind = "micromanager"\ndevice = "Camera"\n',
+    ),
 }
 
 #: Blocks whose commands take more than a few seconds (whole acquisitions and evaluations).
@@ -180,6 +185,7 @@ COSTLY = {
     ("docs/hardware.md", 4),
     ("docs/hardware.md", 8),
     ("docs/hardware.md", 9),
+    ("docs/microscope.md", 0),
 }
 
 

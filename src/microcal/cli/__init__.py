@@ -14,6 +14,7 @@ from . import (
     fit,
     goto,
     measure,
+    scope,
     stereo,
     study,
     tool_centre,
@@ -25,7 +26,8 @@ from ._app import WORKFLOW, app
 __all__ = ["WORKFLOW", "app", "main"]
 # registered on import
 _COMMANDS = (
-    acquire, check, demo, evaluate, fit, goto, measure, stereo, study, tool_centre, twin, ui,
+    acquire, check, demo, evaluate, fit, goto, measure, scope, stereo, study, tool_centre, twin,
+    ui,
 )  # fmt: skip
 
 

@@ -12,8 +12,8 @@ from typer.core import TyperGroup
 from .._version import __version__
 from ..errors import MicrocalError
 
-WORKFLOW = ("demo", "calibrate-cameras", "stereo-calibrate", "acquire", "measure", "fit", "solve",
-            "evaluate", "report", "check")  # fmt: skip
+WORKFLOW = ("demo", "calibrate-cameras", "stereo-calibrate", "scope-calibrate", "acquire",
+            "measure", "fit", "solve", "evaluate", "report", "check")  # fmt: skip
 INTERRUPTED = 130  # the exit code after Ctrl-C (128 + SIGINT, as shells report it)
 Tolerance = Annotated[
     float,

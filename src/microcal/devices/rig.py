@@ -82,6 +82,9 @@ class Rig:
         Every device's target, by name, when devices carry targets of their own (a rig
         file's ``[manipulators.NAME]`` ``board``); :meth:`select` makes it ``board``. Empty
         when every device carries ``board``.
+    microscope : Manipulator, optional
+        The microscope's X-Y stage and focus drive as joints x, y, z (a rig file's
+        ``[microscope]``); None when the rig names none.
     """
 
     manipulator: Manipulator
@@ -100,6 +103,7 @@ class Rig:
     selected: str = "m1"
     temperatures: dict[str, Callable[[], float]] = field(default_factory=dict)
     boards: dict[str, Target] = field(default_factory=dict)
+    microscope: Manipulator | None = None
     _closed: bool = field(default=False, init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -167,6 +171,8 @@ class Rig:
         ]
         if self.target_stage is not None:
             devices.append(("target stage", self.target_stage))
+        if self.microscope is not None:
+            devices.append(("microscope", self.microscope))
         failed = _close_all(devices, self.resources)
         self.resources.clear()
         if failed:
@@ -318,6 +324,10 @@ def _open_hardware(
     if spec.target_stage is not None:
         stage = _open_manipulator(spec.target_stage, core, description, "target_stage")
         opened.append(("target stage", stage))
+    scope = None
+    if spec.microscope is not None:
+        scope = _open_manipulator(spec.microscope, core, description, "microscope")
+        opened.append(("microscope", scope))
     cameras: dict[str, Camera] = {}
     for name, cam_spec in spec.cameras.items():
         cameras[name] = _open_camera(name, cam_spec, core, description)
@@ -334,6 +344,7 @@ def _open_hardware(
         calibration_target=None if stage is None else parse_target(str(spec.calibration_target)),
         manipulators=devices,
         boards=boards,
+        microscope=scope,
     )
 
 

@@ -428,6 +428,10 @@ class HardwareRigSpec:
     manipulators : mapping of str to MCS2Spec or MMStageSpec
         Further devices in the cameras' view (a second manipulator, the sample's
         positioner), by the names calibrations use; ``manipulator`` is ``m1``.
+    microscope : MMStageSpec or None
+        The microscope's X-Y stage and focus drive (Micro-Manager's XY stage and focus
+        devices, joints x, y, z): what ``scope-calibrate`` moves. A rig of one camera needs
+        it with its focus device (depth comes from focus).
     boards : mapping of str to str
         The further devices that carry a target of their own (``[manipulators.NAME]``'s
         ``board``), by name; the others carry ``board``. Targets that can be told apart in
@@ -444,6 +448,7 @@ class HardwareRigSpec:
     calibration_target: str | None = None
     manipulators: Mapping[str, ManipulatorSpec] = field(default_factory=dict)
     boards: Mapping[str, str] = field(default_factory=dict)
+    microscope: MMStageSpec | None = None
 
     def __post_init__(self) -> None:
         from ..vision.targets import parse_target
@@ -472,7 +477,14 @@ class HardwareRigSpec:
                     f"manipulators.{name}: expected a name such as m2 or p1 (letters, digits, "
                     "- and _; not m1, which is [manipulator], nor a camera's name)"
                 )
-        if len(self.cameras) < 2:
+        one_camera = len(self.cameras) == 1
+        if one_camera and (self.microscope is None or self.microscope.focus is None):
+            raise InputError(
+                "cameras: expected two cameras or more (e.g. [cameras.top], [cameras.side]), "
+                "or one camera with the microscope's focus device: add [microscope] with "
+                'focus = "ZStage" (its Micro-Manager label), xy_stage and limits_um'
+            )
+        if len(self.cameras) < 2 and not one_camera:
             raise InputError(
                 f"cameras: expected two cameras or more (e.g. [cameras.top], [cameras.side]), "
                 f"got {len(self.cameras)}"
@@ -491,7 +503,8 @@ class HardwareRigSpec:
     @property
     def uses_micromanager(self) -> bool:
         """True when a device is a Micro-Manager one."""
-        stages = (self.manipulator, self.target_stage, *self.manipulators.values())
+        stages = (self.manipulator, self.target_stage, self.microscope,
+                  *self.manipulators.values())  # fmt: skip
         return any(isinstance(s, MMStageSpec) for s in stages) or any(
             isinstance(c, MMCameraSpec) for c in self.cameras.values()
         )
@@ -514,6 +527,8 @@ class HardwareRigSpec:
                 n: m.to_dict() | ({"board": self.boards[n]} if n in self.boards else {})
                 for n, m in self.manipulators.items()
             }
+        if self.microscope is not None:
+            out["microscope"] = self.microscope.to_dict()
         return out
 
     @property

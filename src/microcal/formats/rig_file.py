@@ -142,6 +142,10 @@ def _unflatten(record: Mapping[str, object]) -> dict[str, object]:
     stages += list(further.values()) if isinstance(further, dict) else []
     for stage in stages:
         _drop_legacy(stage, LEGACY_MM_STAGE_RECORD)
+    scope = out.get("microscope")
+    if isinstance(scope, dict):  # recorded as a Micro-Manager stage; the file's table has no kind
+        _drop_legacy(scope, LEGACY_MM_STAGE_RECORD)
+        scope.pop("kind", None)
     cameras = out.get("cameras")
     for camera in cameras.values() if isinstance(cameras, dict) else ():
         _drop_legacy(camera, LEGACY_MM_CAMERA_RECORD)
@@ -243,6 +247,14 @@ class _MicroManager(_Strict):
     options: dict[str, str | int | float] | None = None
 
 
+class _Microscope(_Strict):
+    """A one-camera microscope's X-Y stage and focus drive (Micro-Manager devices)."""
+
+    xy_stage: str
+    focus: str | None = None
+    limits_um: dict[str, tuple[float, float]]
+
+
 class _Hardware(_Strict):
     driver: str
     board: str | None = None
@@ -252,6 +264,7 @@ class _Hardware(_Strict):
     target_stage: _Manipulator | None = None
     calibration_target: str | None = None
     manipulators: dict[str, _Manipulator] | None = None
+    microscope: _Microscope | None = None
 
 
 _MANIPULATORS: dict[str, type[ManipulatorSpec]] = {
@@ -389,6 +402,7 @@ def _hardware(path: Path, data: Mapping[str, object], from_file: bool = False) -
     cameras = data.get("cameras")
     for name, camera in cameras.items() if isinstance(cameras, dict) else ():
         _check_keys(path, f"cameras.{name}.", camera, _Camera)
+    _check_keys(path, "microscope.", data.get("microscope"), _Microscope)
     further = data.get("manipulators")
     for name, table in further.items() if isinstance(further, dict) else ():
         _check_keys(path, f"manipulators.{name}.", table, _Manipulator)
@@ -443,6 +457,9 @@ def _hardware(path: Path, data: Mapping[str, object], from_file: bool = False) -
             where = f"manipulators.{name}"
             others[name] = _build(path, where, _MANIPULATORS[m.kind], keys)
         given |= {"manipulators": others, "boards": boards}
+    if rig.microscope is not None:
+        scope = {"kind": "micromanager", **_given(rig.microscope)}
+        given["microscope"] = _build(path, "microscope", MMStageSpec, scope)
     try:
         return _spec(HardwareRigSpec, {"manipulator": manipulator, "cameras": cameras,
                                        "micromanager": micromanager, **given})  # fmt: skip
