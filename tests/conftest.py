@@ -18,14 +18,6 @@ settings.register_profile("dev", max_examples=60, deadline=None)
 settings.load_profile("ci" if __import__("os").environ.get("CI") else "dev")
 
 
-@pytest.hookimpl(trylast=True)
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """The slow tests first (in their order, then the others in theirs): the workers hand out
-    the long tests while there is still other work to fill in beside them, and end together
-    instead of one waiting for the other's last long test."""
-    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
-
-
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(20121)

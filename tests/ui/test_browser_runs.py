@@ -84,5 +84,7 @@ def test_an_acquisition_cancelled_and_resumed_from_the_page_then_a_check(served)
     page.wait_for_function(
         "document.querySelector('#run-message').textContent.includes('plain word')"
     )
+    page.wait_for_timeout(2500)  # the page's state comes twice: the refusal stays in words
+    assert "plain word" in page.inner_text("#run-message")
     assert _run(page)["kind"] == "check"
     assert page.inner_text("#error") == ""

@@ -12,7 +12,7 @@ const COLORS = { predicted: "#4cc3ff", measured: "#5fd38d", target: "#ff5fd2",
 
 const station = {
   layout: null, role: "watch", views: {}, overlays: {}, state: null,
-  clicks: {}, std: {}, first: null, curves: {}, target: null, frames: {},
+  clicks: {}, std: {}, first: null, curves: {}, target: null, frames: {}, runRefusal: "",
 };
 window.microcal = station;  // for tests and the benchmark: frame counts, layout, target
 
@@ -321,9 +321,10 @@ function showRun(r) {
   const count = r.total ? ` ${r.done} / ${r.total}` : "";
   $("run-status").textContent = (running ? `${what}: running, ${r.stage}${count}` :
     `${what}: ${r.status}${count ? ` at${count}` : ""}`) + ` (${r.took_s.toFixed(0)} s)`;
-  $("run-message").textContent = r.message || "";
-  $("run-message").className = r.status === "failed" || r.status === "stopped" ? "failed" :
-    r.status === "done" ? "done" : "";
+  // a refused start stays in words until the next start: the last run's state comes after it
+  $("run-message").textContent = station.runRefusal || r.message || "";
+  $("run-message").className = station.runRefusal || r.status === "failed" ||
+    r.status === "stopped" ? "failed" : r.status === "done" ? "done" : "";
   const resumable = r.kind === "acquire" && !running && !!r.resume;
   $("run-resume").hidden = !resumable;
   $("run-resume").disabled = !resumable || station.role !== "control";
@@ -331,7 +332,11 @@ function showRun(r) {
 
 async function startRun(body) {
   say("");
-  try { await api("/api/run", body); } catch (err) { $("run-message").textContent = err.message; $("run-message").className = "failed"; }
+  station.runRefusal = "";
+  try { await api("/api/run", body); } catch (err) {
+    station.runRefusal = err.message;
+    $("run-message").textContent = err.message; $("run-message").className = "failed";
+  }
 }
 
 // The calibration's health: when it was made, its checks as a plot of the offset (µm).
