@@ -62,14 +62,7 @@ def end_offset_px(rig: PatchRig) -> float:
 
 def truth_reading(rig: PatchRig) -> tuple[float, np.ndarray]:
     """The focus reading that puts the tip in focus, and the tip's image there."""
-    tip = rig.manipulator.true_position_um()
-    e = rig.config.focus
-    reading = float(tip[2] / ((1.0 + e.scale) * e.axis[2]))
-    here = rig.focus.position_um()
-    rig.move_focus(reading)
-    px = rig.camera().project(tip[None, :])[0]
-    rig.move_focus(here)
-    return reading, px
+    return rig.in_focus()
 
 
 def box_at(c: np.ndarray) -> tuple[int, int, int, int]:

@@ -18,13 +18,7 @@ SIZE = (256, 256)
 
 def _truth(rig: PatchRig) -> np.ndarray:
     """The tip's image in µm and the focus reading with it in focus."""
-    tip = rig.manipulator.true_position_um()
-    e = rig.config.focus
-    z = float(tip[2] / ((1.0 + e.scale) * e.axis[2]))
-    here = rig.focus.position_um()
-    rig.move_focus(z)
-    px = rig.camera().project(tip[None, :])[0]
-    rig.move_focus(here)
+    z, px = rig.in_focus()
     return np.array([px[0] * rig.config.um_per_px, px[1] * rig.config.um_per_px, z])
 
 

@@ -23,18 +23,6 @@ from microcal.vision.focus_depth import (
 SIZE = (256, 256)
 
 
-def _reading(rig: PatchRig) -> tuple[float, np.ndarray]:
-    """The focus reading with the tip in focus, and the tip's image there (truth)."""
-    tip = rig.manipulator.true_position_um()
-    e = rig.config.focus
-    z = float(tip[2] / ((1.0 + e.scale) * e.axis[2]))
-    here = rig.focus.position_um()
-    rig.move_focus(z)
-    px = rig.camera().project(tip[None, :])[0]
-    rig.move_focus(here)
-    return z, px
-
-
 def _box(c: np.ndarray) -> tuple[int, int, int, int]:
     x, y = round(float(c[0])), round(float(c[1]))
     return x - 40, y - 40, x + 41, y + 41
@@ -50,7 +38,7 @@ def test_the_sweep_finds_the_tips_depth_and_image(seed: int) -> None:
     rig = patch_rig(seed, size_px=SIZE)
     rig.manipulator.move_to_um(10000.0 + np.array([4.0, -3.0, 6.0]))
     rig.clock.sleep(2.0)
-    z, px = _reading(rig)
+    z, px = rig.in_focus()
     prior = z + (0.7 if seed else -0.8)
     t0 = rig.clock.now_s()
     est = depth_by_sweep(rig.grab_at_focus, _box(px + (2.0, -1.0)), (1.0, 0.0), prior,
@@ -66,14 +54,14 @@ def test_the_sweep_finds_the_tips_depth_and_image(seed: int) -> None:
 
 def test_the_stack_interpolates_between_planes_and_the_baseline_rounds_to_one() -> None:
     rig = patch_rig(2, size_px=SIZE)
-    z0, px0 = _reading(rig)
+    z0, px0 = rig.in_focus()
     stack = grab_stack(rig.grab_at_focus, z0, px0, step_um=0.5, tip_focus_var_um2=0.003)
     coarse = grab_stack(rig.grab_at_focus, z0, px0, step_um=1.0)
     assert stack.planes.shape == (17, 49, 49)
     assert stack.step_um == 0.5
     rig.manipulator.move_to_um(10000.0 + np.array([6.0, 5.0, -4.0]))
     rig.clock.sleep(2.0)
-    z, px = _reading(rig)
+    z, px = rig.in_focus()
     focus = z + 0.62  # above the tip, where the rising shank is sharp
     frame = rig.grab_at_focus(focus)
     est = depth_by_stack(frame, focus, stack, px + (-2.0, 2.0))
@@ -94,7 +82,7 @@ def test_the_stack_interpolates_between_planes_and_the_baseline_rounds_to_one() 
 
 def test_a_tip_outside_the_sweep_or_the_stack_or_the_field_is_refused_in_one_line() -> None:
     rig = patch_rig(4, size_px=SIZE)
-    z, px = _reading(rig)
+    z, px = rig.in_focus()
     with pytest.raises(DetectionError, match="not inside the sweep") as info:
         depth_by_sweep(rig.grab_at_focus, _box(px), (1.0, 0.0), z + 9.0, frames=7)
     assert "\n" not in str(info.value)
@@ -119,13 +107,13 @@ def test_the_quadratic_between_three_planes_reads_a_coarse_stack_and_states_its_
     None
 ):
     rig = patch_rig(3, size_px=SIZE)
-    z0, px0 = _reading(rig)
+    z0, px0 = rig.in_focus()
     anchor_cov = np.eye(2) * 0.3
     coarse = grab_stack(rig.grab_at_focus, z0, px0, step_um=1.0, tip_focus_var_um2=0.001,
                         tip_cov_px=anchor_cov)  # fmt: skip
     rig.manipulator.move_to_um(10000.0 + np.array([-5.0, 4.0, 3.0]))
     rig.clock.sleep(2.0)
-    z, px = _reading(rig)
+    z, px = rig.in_focus()
     errors = {"quadratic": [], "linear": []}
     for above in (0.55, 0.8, 1.3):  # between the planes and near one
         frame = rig.grab_at_focus(z + above)

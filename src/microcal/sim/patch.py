@@ -351,6 +351,18 @@ class PatchRig:
         return PatchTruth(tip, cam.project(tip[None, :])[0], obj, self.focus.position_um(),
                           float(tip[2] - obj[2]))  # fmt: skip
 
+    def in_focus(self) -> tuple[float, FloatArray]:
+        """The focus reading that puts the tip in focus, and the tip's image there, (2,) px
+        (ground truth; the focus drive is left where it was)."""
+        tip = self.manipulator.true_position_um()
+        e = self.config.focus
+        reading = float(tip[2] / ((1.0 + e.scale) * e.axis[2]))
+        here = self.focus.position_um()
+        self.move_focus(reading)
+        px: FloatArray = self.camera().project(tip[None, :])[0]
+        self.move_focus(here)
+        return reading, px
+
     # -- devices ---------------------------------------------------------------------------
     def grab(self) -> PatchFrame:
         """A frame now (lazy): the exposure and readout pass on the rig's clock."""
