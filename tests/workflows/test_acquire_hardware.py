@@ -58,6 +58,14 @@ def rig(tmp_path, fake_mcs2, gige_cameras):
     return path, fake_mcs2, top
 
 
+def _stored(line: str) -> bool:
+    """True for a complete journal line of a stored pose (a line being written is not)."""
+    try:
+        return json.loads(line).get("status") == "ok"
+    except ValueError:
+        return False
+
+
 def journal(run: Path) -> list[dict]:
     return [json.loads(line) for line in (run / "journal.jsonl").read_text().splitlines()]
 
@@ -145,8 +153,9 @@ def test_a_camera_that_stops_answering_stops_the_run_cleanly_and_resume_complete
             if done.is_set():
                 return
             path = run / "journal.jsonl"
-            lines = path.read_text().splitlines() if path.exists() else []
-            if any(json.loads(line).get("status") == "ok" for line in lines if line.endswith("}")):
+            if any(
+                _stored(line) for line in (path.read_text() if path.exists() else "").split("\n")
+            ):
                 top.send_signal(signal.SIGSTOP)
                 return
             time.sleep(0.05)
