@@ -8,31 +8,19 @@ an XY stage, a focus stage and a camera that shows the slide of
 from __future__ import annotations
 
 import numpy as np
-from pymmcore_plus.experimental.unicore import SimpleCameraDevice
 
 from microcal.sim.stage_slide import StageSlideScope, random_truth
 
-from .mm_devices import XY, Z
+from .mm_devices import XY, Cam, Z
 
 
-class SlideCam(SimpleCameraDevice):
+class SlideCam(Cam):
+    """The camera of :mod:`.mm_devices` showing the slide where the stages put it."""
+
     def __init__(self, scope: StageSlideScope, xy: XY, z: Z) -> None:
-        super().__init__()
+        w, h = scope.image_size_px
+        super().__init__((h, w))
         self.scope, self.xy, self.z = scope, xy, z
-        self._exposure_ms = 10.0
-
-    def sensor_shape(self) -> tuple[int, int]:
-        w, h = self.scope.image_size_px
-        return (h, w)
-
-    def get_exposure(self) -> float:
-        return self._exposure_ms
-
-    def set_exposure(self, exposure: float) -> None:
-        self._exposure_ms = exposure
-
-    def dtype(self):
-        return np.uint16
 
     def snap(self, buffer):
         self.scope.move_stage(np.array(self.xy.get_position_um()))
