@@ -60,18 +60,13 @@ def end_offset_px(rig: PatchRig) -> float:
     return cfg.tool.end_radius_um * math.sin(math.radians(cfg.approach_deg)) / cfg.um_per_px
 
 
-def truth_reading(rig: PatchRig) -> tuple[float, np.ndarray]:
-    """The focus reading that puts the tip in focus, and the tip's image there."""
-    return rig.in_focus()
-
-
 def box_at(c: np.ndarray) -> tuple[int, int, int, int]:
     x, y = round(float(c[0])), round(float(c[1]))
     return x - HALF_PX, y - HALF_PX, x + HALF_PX + 1, y + HALF_PX + 1
 
 
 def linear(frame: Frame, focus_um: float, stack: ReferenceStack, near: np.ndarray) -> DepthEstimate:
-    """The stack method with the linear interpolation between two planes (round 1's)."""
+    """The stack method with the linear interpolation between two planes (the former default)."""
     return depth_by_stack(frame, focus_um, stack, near, interpolation="linear")
 
 
@@ -81,7 +76,7 @@ def run_seed(seed: int, tips: int, prior_um: float, sweep: bool = True) -> list[
     axis = image_axis(rig)
     offset = end_offset_px(rig)
     # calibration: the tip at the origin, a fine sweep, then the stack around its focus
-    z0, px0 = truth_reading(rig)
+    z0, px0 = rig.in_focus()
     near0 = px0 + rng.uniform(-3, 3, 2)
     t0 = rig.clock.now_s()
     fine = depth_by_sweep(rig.grab_at_focus, box_at(near0), axis, 0.0, frames=15,
@@ -98,7 +93,7 @@ def run_seed(seed: int, tips: int, prior_um: float, sweep: bool = True) -> list[
                                      rng.uniform(-15, 15)])  # fmt: skip
         rig.manipulator.move_to_um(joints)
         rig.clock.sleep(2.0)
-        z_true, px_true = truth_reading(rig)
+        z_true, px_true = rig.in_focus()
         prior = z_true + rng.uniform(-prior_um, prior_um)
         near = px_true + rng.uniform(-3, 3, 2)
         row: dict[str, float] = {"seed": seed, "calib_s": calib_s}
@@ -107,7 +102,7 @@ def run_seed(seed: int, tips: int, prior_um: float, sweep: bool = True) -> list[
             if sweep:
                 est = depth_by_sweep(rig.grab_at_focus, box_at(near), axis, prior,
                                      end_offset_px=offset, clock=rig.clock.now_s)  # fmt: skip
-                _, px_at = truth_reading(rig)
+                _, px_at = rig.in_focus()
                 record(row, "sweep", est, z_true, px_at, rig, time.perf_counter() - wall)
         except MicrocalError as exc:
             row["sweep_fail"] = 1.0
@@ -162,7 +157,7 @@ def table(rows: list[dict[str, float]]) -> str:
     for name, label in (("sweep", "focus sweep (13 frames)"),
                         ("stack", "reference stack 0.5 µm, interpolated"),
                         ("stack1", "reference stack 1 µm, interpolated"),
-                        ("stack1lin", "reference stack 1 µm, linear (round 1)"),
+                        ("stack1lin", "reference stack 1 µm, linear (the former default)"),
                         ("best", "baseline: best plane of the 1 µm stack")):  # fmt: skip
         ok = [r for r in rows if f"{name}_dz" in r]
         if not ok:
