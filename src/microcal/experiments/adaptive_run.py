@@ -115,8 +115,13 @@ def acquire_fast_poses(
     times: PoseTimes | None = None,
     frames: int | None = None,
     directions: FloatArray | None = None,
+    read_sensors: bool = True,
 ) -> Measured:
     """Move to each pose, settle, grab and measure; a pose never reached is NaN.
+
+    Each pose is approached from the side its number draws (or opposite its chosen
+    direction); a move the device refuses or a query it does not answer is tried again up to
+    :data:`RETRIES` times, as acquisition does.
 
     Parameters
     ----------
@@ -128,6 +133,9 @@ def acquire_fast_poses(
         Frames per camera averaged per pose (default: the probe's).
     directions : (b, 3) float, optional
         The approach directions chosen for each pose (NaN or none: drawn from the pose).
+    read_sensors : bool
+        Read the device's own position after each pose (``reported_um``; the query draws the
+        sensor's noise from the device's random stream). Without it ``reported_um`` is NaN.
     """
     k = probe.frames if frames is None else frames
     chosen = np.full((len(d_um), 3), np.nan) if directions is None else directions
@@ -158,7 +166,8 @@ def acquire_fast_poses(
             p[i], cov[i] = probe.measure_with_covariance(d, k)
             signs[i] = current
             temps[i] = m.temperature_at(clock.now_s())
-            reported[i] = m.position_um()
+            if read_sensors:
+                reported[i] = m.position_um()
         else:
             last = m.joints_um(clock.now_s())
         if times is not None:  # the fast path grabs no frame: their time is counted

@@ -58,7 +58,7 @@ from ..kinematics.extra_inputs import APPROACH_INPUTS, extra_input
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..kinematics.models import KinematicModel, fit_model
 from ..kinematics.terms import JOINTS
-from ..procedures.acquisition import AcquisitionConfig, approach_start_um
+from ..procedures.acquisition import AcquisitionConfig
 from ..procedures.adaptive import AdaptiveDesign, AdaptiveResult
 from ..procedures.evaluation import (
     PositionProbe,
@@ -68,7 +68,7 @@ from ..procedures.evaluation import (
 )
 from ..procedures.evaluation_figures import BySource, MultiDirectionalFigures, PoseAccuracyFigures
 from ..procedures.identification import calibrate_manipulator, default_train
-from ..sim import SimPlatform, platform
+from ..sim import platform
 from ..sim.kinematics import TrueKinematics, invert_map
 from ..sim.manipulator import SimManipulator
 from ..sim.platforms import PRESETS
@@ -79,6 +79,7 @@ from .adaptive_run import (
     FRAME_S,
     TIP_TEST_POSES,
     PoseTimes,
+    acquire_fast_poses,
     adaptive_curve,
     coverage_of,
     p95_um,
@@ -257,59 +258,6 @@ def prior_feed_forward(
     return ExactFeedForward(manipulator, clock, position)
 
 
-def _acquire_fast(
-    plat: SimPlatform, d_um: FloatArray, config: AcquisitionConfig, settle_s: float,
-    probe: ProjectedProbe,
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:  # fmt: skip
-    """Move to each pose (approached from a random side), settle, measure through the probe.
-
-    Returns measured (N, 3), their covariances (N, 3, 3), approach signs (N, 3) and
-    temperatures (N,). A move the device refuses or a query it does not answer is tried
-    again up to :data:`RETRIES` times (as acquisition does); a pose still not reached is NaN.
-    """
-    m, clock = plat.manipulator, plat.clock
-    n = d_um.shape[0]
-    p, cov = np.full((n, 3), np.nan), np.full((n, 3, 3), np.nan)
-    signs, temps = np.full((n, 3), np.nan), np.full(n, np.nan)
-    last = m.joints_um(clock.now_s())
-    current = np.ones(3)
-    for i, d in enumerate(d_um):
-        start = approach_start_um(d, i + 1, config, m.limits_um) if config.approach_um else d
-        reached = True
-        for target in (start, d):
-            if not _move_retrying(m, clock, target):
-                reached = False
-                break
-            step = target - last
-            current = np.where(step > 1e-3, 1.0, np.where(step < -1e-3, -1.0, current))
-            last = target
-        if not reached:
-            last = m.joints_um(clock.now_s())
-            continue
-        clock.sleep(settle_s)
-        p[i] = probe.measure(d)
-        cov[i] = probe.last_cov_um2
-        signs[i] = current
-        temps[i] = m.temperature_at(clock.now_s())
-    return p, cov, signs, temps
-
-
-#: Attempts after a device fault, per move.
-RETRIES = 3
-
-
-def _move_retrying(m: SimManipulator, clock: Clock, target: FloatArray) -> bool:
-    """Move and wait, again after a fault, up to :data:`RETRIES` times; whether it arrived."""
-    for _ in range(RETRIES + 1):
-        try:
-            m.move_to_um(target)
-            m.wait_until_stopped(clock)
-            return True
-        except DeviceError:
-            continue
-    return False
-
-
 def _coverage(
     model: KinematicModel,
     ff: FeedForward,
@@ -402,7 +350,10 @@ def run_seed(preset: str, seed: int, config: StudyConfig | None = None) -> SeedR
         rig_time_s = times.total_s + adaptive.fit_s
     else:
         t_acq = plat.clock.now_s()
-        p, cov, signs, temps = _acquire_fast(plat, d, acq, config.settle_s, fast_probe)
+        seen = acquire_fast_poses(plat, d, list(range(1, len(d) + 1)), acq, config.settle_s,
+                                  fast_probe, read_sensors=False)  # fmt: skip
+        assert seen.cov_um2 is not None
+        p, cov, signs, temps = seen.p_um, seen.cov_um2, seen.signs, seen.temperature_c
         rig_time_s = plat.clock.now_s() - t_acq + FRAME_S * fast_probe.frames * len(d)
         ok = np.all(np.isfinite(p), axis=1)
         d, p, cov, signs, temps = d[ok], p[ok], cov[ok], signs[ok], temps[ok]
