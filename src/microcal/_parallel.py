@@ -2,11 +2,11 @@
 
 :func:`fork_map` runs ``fn(item, tick)`` for each item, each in a process forked from this
 one (so ``fn`` may be a closure over anything in memory: frames, callables, paths), and
-gives the results in the items' order. ``tick()`` called inside ``fn`` reaches the
-caller's ``progress`` in this process. The items run here, one after the other, with the
-same results, where forking is not safe (only Linux forks here: macOS's system libraries
-are not fork-safe), when one worker is asked for, or inside a daemonic worker (which may
-not have children).
+gives the results in the items' order. ``tick(*args)`` called inside ``fn`` reaches the
+caller's ``progress(*args)`` in this process (the arguments must pickle). The items run
+here, one after the other, with the same results, where forking is not safe (only Linux
+forks here: macOS's system libraries are not fork-safe), when one worker is asked for, or
+inside a daemonic worker (which may not have children).
 
 Failures end the whole call at once: an exception in a worker is raised here (as a
 ``RuntimeError`` naming it when it cannot be sent back), a worker that dies without a
@@ -35,7 +35,7 @@ __all__ = ["Background", "can_fork", "fork_map", "ignore_interrupts"]
 
 T = TypeVar("T")
 R = TypeVar("R")
-Tick = Callable[[], None]
+Tick = Callable[..., None]
 
 #: How often the caller looks for ticks and results, s.
 POLL_S = 0.02
@@ -52,7 +52,7 @@ def ignore_interrupts() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def _nothing() -> None:
+def _nothing(*_: Any) -> None:
     pass
 
 
@@ -60,7 +60,7 @@ def _child(fn: Callable[[Any, Tick], Any], item: Any, conn: Any, ticks: Any) -> 
     """A worker: ``fn(item)``, its result or its exception sent back through ``conn``."""
     ignore_interrupts()
     try:
-        message: tuple[str, Any] = ("ok", fn(item, lambda: ticks.put(1)))
+        message: tuple[str, Any] = ("ok", fn(item, lambda *args: ticks.put(args)))
     except BaseException as exc:  # everything goes back to the caller, which decides
         message = ("error", _portable(exc))
     try:
@@ -101,13 +101,14 @@ def fork_map(
     Parameters
     ----------
     fn : callable (item, tick) -> result
-        The work on one item; it calls ``tick()`` as it progresses. Its result must pickle.
+        The work on one item; it calls ``tick()`` (or ``tick(*args)``) as it progresses. Its
+        result must pickle.
     items : sequence
     workers : int or None
         Processes at once (None: one per core; 1, or where forking is not safe: all here,
         in order).
-    progress : callable () -> None, optional
-        Called here once per ``tick()`` of any worker.
+    progress : callable (*args) -> None, optional
+        Called here once per ``tick(*args)`` of any worker, with its arguments.
 
     Raises
     ------
@@ -126,8 +127,7 @@ def fork_map(
 
     def drain() -> None:
         while not ticks.empty():
-            ticks.get()
-            tick()
+            tick(*ticks.get())
 
     try:
         while todo or running:

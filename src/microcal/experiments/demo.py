@@ -14,7 +14,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -34,13 +33,7 @@ from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..kinematics.models import held_from_limits
 from ..metrics.error_summary import summarize_errors
 from ..procedures.acquisition import AcquisitionConfig, Store, acquire
-from ..procedures.evaluation import (
-    RunOptions,
-    iso_cube_poses,
-    run_decoupling,
-    run_multi_directional,
-    run_pose_accuracy,
-)
+from ..procedures.evaluation import RunOptions, iso_cube_poses
 from ..procedures.evaluation_figures import Evaluation
 from ..procedures.identification import Identification, calibrate_manipulator, default_train
 from ..procedures.rig_stereo import CALIBRATION_STEPS_UM
@@ -54,6 +47,7 @@ from ..vision.measurement import PoseMeasurement, measure_poses
 from ..vision.probe import VisionProbe
 from ..vision.stereo_calibration import StereoCalibration, calibrate_known_displacements
 from ..vision.targets import Target, parse_target
+from .demo_evaluation import DemoTests, run_demo_tests
 from .stage_clock import StageClock
 
 __all__ = [
@@ -257,6 +251,7 @@ def run_demo(
     cameras: StereoCalibration | None = None,
     fixed_settle_s: float | None = None,
     stages: StageClock | None = None,
+    workers: int | None = None,
 ) -> DemoResult:
     """Run the calibration on the simulated thesis platform (see the module docstring).
 
@@ -282,6 +277,10 @@ def run_demo(
     ``fixed_settle_s``: settle each acquired pose by this fixed wait instead of by vision.
     ``stages``: adds the wall time of each stage (stereo calibration, acquisition,
     measurement, identification, evaluation) to it; the result's ``stages_s`` holds them.
+    ``workers``: processes for the measurement and the evaluation (None: one per core; 1:
+    everything here, in turn). The evaluation's units then run in forked processes that
+    replay the same moves (:mod:`~microcal.experiments.demo_evaluation`): the figures by
+    ground truth are the same, those by vision the same in distribution (other noise).
     """
     clock = stages if stages is not None else StageClock()
 
@@ -391,7 +390,7 @@ def run_demo(
             cal.models(),
             board,
             progress=lambda done, total: tick("measurement", done, total),
-            workers=None,  # one per core
+            workers=workers,
         )
     result = DemoResult(
         seed,
@@ -437,23 +436,20 @@ def run_demo(
             )
             probe = VisionProbe(plat.cameras, cal.models(), board, frames=frames_per_pose)
             options = RunOptions(settle_s=settle_s, truth=m.true_position_um, progress=progress)
-            poses_um = TABLE_5_2_POSES_UM if thesis_sized else iso_cube_poses(*workspace)
-            pa = run_pose_accuracy(
-                m, plat.clock, probe, conditions, poses_um=poses_um, cycles=cycles, **options
+            tests = DemoTests(
+                m,
+                plat.clock,
+                conditions,
+                TABLE_5_2_POSES_UM if thesis_sized else iso_cube_poses(*workspace),
+                cycles,
+                decoupling_samples if thesis_sized else None,
+                options,
             )
-            vap = run_multi_directional(
-                m, plat.clock, None, conditions, poses_um=poses_um, cycles=cycles, **options
-            )
-            for source, by_condition in vap.items():
-                for condition, figures in by_condition.items():
-                    pa[source][condition] = dataclasses.replace(
-                        pa[source][condition], vap_um=figures.vap_um, max_vap_um=figures.max_vap_um
-                    )
+            # the tests' units in forked processes, each replaying the moves (see demo_evaluation)
+            pa, decoupling = run_demo_tests(tests, probe, plat.cameras, workers)
             result.evaluation.pose_accuracy = pa
-            if thesis_sized:
-                result.evaluation.decoupling = run_decoupling(
-                    m, plat.clock, probe, conditions, samples_per_axis=decoupling_samples, **options
-                )
+            if decoupling is not None:
+                result.evaluation.decoupling = decoupling
             result.sim_time_s = plat.clock.now_s()
     result.stages_s = dict(clock.stages_s)
     return result
