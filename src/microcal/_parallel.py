@@ -201,8 +201,16 @@ class Background(Generic[R]):
             # a result never asked for (an error in between): the process ends with this
             self._finalizer = weakref.finalize(self, _end, self._proc, here)
 
+    def done(self) -> bool:
+        """Whether :meth:`result` would return at once (the forked computation has sent its
+        result or ended; not forked: always)."""
+        if self._proc is None:
+            return True
+        return bool(self._conn.poll()) or not self._proc.is_alive()
+
     def result(self) -> R:
-        """The result (computed here if it was not forked).
+        """The result (computed here if it was not forked). Ask for it once: a second call
+        computes it again, here.
 
         Raises
         ------

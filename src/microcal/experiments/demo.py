@@ -14,7 +14,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import contextlib
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -44,6 +45,7 @@ from ..thesis.experiment import TABLE_5_2_POSES_UM, WORKSPACE_MAX_UM, WORKSPACE_
 from ..vision.detect import Detection, detect
 from ..vision.lazy_frame import PastedFrame, pasted_frames
 from ..vision.measurement import PoseMeasurement, measure_poses
+from ..vision.measurement_stream import MeasurementStream
 from ..vision.probe import VisionProbe
 from ..vision.stereo_calibration import StereoCalibration, calibrate_known_displacements
 from ..vision.targets import Target, parse_target
@@ -224,6 +226,17 @@ def calibrate_on_platform(
     )
 
 
+@contextlib.contextmanager
+def _closing(streams: list[MeasurementStream]) -> Iterator[None]:
+    """Ends the measuring processes when the block raises (a stopped run, Ctrl-C)."""
+    try:
+        yield
+    except BaseException:
+        for stream in streams:
+            stream.close()
+        raise
+
+
 def _journaled(records: list[JournalRecord], column: str) -> FloatArray:
     """An extra input's journal column over the records, (N,): NaN where one has none."""
     values = [r.journaled(column) for r in records]
@@ -324,6 +337,36 @@ def run_demo(
     kept: dict[int, tuple[dict[str, list[NDArray[np.generic]]], JournalRecord]] = {}
     truth = np.full((poses, 3), np.nan)
 
+    def load(pose: int, name: str) -> list[NDArray[np.generic]] | list[PastedFrame]:
+        frames, record = kept[pose]
+        if record.status != "ok":
+            raise FormatError(f"acquisition failed: {record.reason or ''}")
+        if name not in frames:
+            raise FormatError("no image")
+        roi = record.roi_px.get(name)
+        if roi is None:
+            return frames[name]
+        return pasted_frames(frames[name], roi[:2], roi[2:])  # made where they are read
+
+    # the poses are measured while the next are acquired, in a forked process per camera, from
+    # when the cameras' calibration is there (with one worker: after the acquisition, here)
+    measuring: list[MeasurementStream] = []
+    calibrated: list[StereoCalibration] = [] if cameras is None else [cameras]
+
+    def measure_from_now() -> None:
+        if workers == 1 or measuring:
+            return
+        if not calibrated and calibration is not None and calibration.done():
+            calibrated.append(calibration.result())
+        if calibrated:
+            stream = MeasurementStream(
+                list(range(1, poses + 1)), d, load, calibrated[0].models(), board,
+                progress=lambda done, total: tick("measurement", done, total),
+            )  # fmt: skip
+            measuring.append(stream)
+            for pose in sorted(kept):
+                stream.add(pose)
+
     def keep(
         pose: int, frames: dict[str, list[NDArray[np.generic]]], record: JournalRecord
     ) -> None:
@@ -331,8 +374,12 @@ def run_demo(
         truth[pose - 1] = m.true_position_um()
         if store is not None:
             store(pose, frames, record)
+        if measuring:
+            measuring[0].add(pose)
+        else:
+            measure_from_now()
 
-    with clock.stage("acquisition"):
+    with clock.stage("acquisition"), _closing(measuring):
         acquire(
             m,
             plat.cameras,
@@ -358,8 +405,11 @@ def run_demo(
             ),
         )
     with clock.stage("stereo calibration"):  # what is left of it once the poses are in
-        cal = calibration.result() if calibration is not None else cameras
-    assert cal is not None  # one of the two is there
+        if not calibrated:
+            got = calibration.result() if calibration is not None else cameras
+            assert got is not None  # one of the two is there
+            calibrated.append(got)
+        cal = calibrated[0]
     truth_px = {
         n: float(
             np.sqrt(
@@ -371,27 +421,20 @@ def run_demo(
         for n, c in cal.cameras.items()
     }
 
-    def load(pose: int, name: str) -> list[NDArray[np.generic]] | list[PastedFrame]:
-        frames, record = kept[pose]
-        if record.status != "ok":
-            raise FormatError(f"acquisition failed: {record.reason or ''}")
-        if name not in frames:
-            raise FormatError("no image")
-        roi = record.roi_px.get(name)
-        if roi is None:
-            return frames[name]
-        return pasted_frames(frames[name], roi[:2], roi[2:])  # made where they are read
-
-    with clock.stage("measurement"):
-        measurements = measure_poses(
-            list(range(1, poses + 1)),
-            d,
-            load,
-            cal.models(),
-            board,
-            progress=lambda done, total: tick("measurement", done, total),
-            workers=workers,
-        )
+    with clock.stage("measurement"), _closing(measuring):
+        measure_from_now()  # (when the calibration came after the last pose)
+        if measuring:
+            measurements = measuring[0].results()
+        else:
+            measurements = measure_poses(
+                list(range(1, poses + 1)),
+                d,
+                load,
+                cal.models(),
+                board,
+                progress=lambda done, total: tick("measurement", done, total),
+                workers=workers,
+            )
     result = DemoResult(
         seed,
         cal,
@@ -435,6 +478,9 @@ def run_demo(
                 clock=plat.clock,
             )
             probe = VisionProbe(plat.cameras, cal.models(), board, frames=frames_per_pose)
+            for d_k, measured in zip(d, measurements, strict=True):  # where the board was
+                if measured.status == "ok":
+                    probe.learn_regions(d_k, measured.corners_px)
             options = RunOptions(settle_s=settle_s, truth=m.true_position_um, progress=progress)
             tests = DemoTests(
                 m,

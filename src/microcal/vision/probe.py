@@ -48,6 +48,14 @@ class VisionProbe:
     frame_cov_px2: dict[str, FloatArray] | None = None
     _predictors: dict[str, RoiPredictor] = field(default_factory=dict)
 
+    def learn_regions(self, d_um: FloatArray, corners_px: Mapping[str, FloatArray]) -> None:
+        """Where the board was at joints ``d_um`` (3,): its corners (k, 2) px per camera, as an
+        acquisition found them; the probe's first measurements then look there rather than
+        over the whole frame (cameras the probe lacks are left out)."""
+        for n, corners in corners_px.items():
+            if n in self.cameras:
+                self._predictors.setdefault(n, RoiPredictor()).add(d_um, corners)
+
     def measure(self, d_um: FloatArray) -> FloatArray:
         """Position in {G} (3,) µm from :attr:`frames` frames; NaN when the board is not found."""
         return self.measure_with_covariance(d_um, self.frames)[0]
