@@ -396,6 +396,7 @@ def run_demo(
                 approach_seed=demo_design_seed(seed),
                 settle="vision" if fixed_settle_s is None else "fixed",
                 fixed_s=fixed_settle_s or 0.0,
+                search_process=workers != 1,
             ),
             sensors=sensors,
             progress=lambda done, total, _record: tick(
