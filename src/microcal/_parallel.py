@@ -56,8 +56,16 @@ def _nothing(*_: Any) -> None:
     pass
 
 
-def _child(fn: Callable[[Any, Tick], Any], item: Any, conn: Any, ticks: Any) -> None:
-    """A worker: ``fn(item)``, its result or its exception sent back through ``conn``."""
+def _child(
+    fn: Callable[[Any, Tick], Any], item: Any, conn: Any, ticks: Any, reader: Any = None
+) -> None:
+    """A worker: ``fn(item)``, its result or its exception sent back through ``conn``.
+
+    ``reader``, the caller's end of ``conn``, is closed here first: should the caller end
+    without reading, a result too large for the pipe then fails to send instead of waiting
+    for a reader that never comes."""
+    if reader is not None:
+        reader.close()
     ignore_interrupts()
     try:
         message: tuple[str, Any] = ("ok", fn(item, lambda *args: ticks.put(args)))
@@ -65,6 +73,8 @@ def _child(fn: Callable[[Any, Tick], Any], item: Any, conn: Any, ticks: Any) -> 
         message = ("error", _portable(exc))
     try:
         conn.send(message)
+    except (BrokenPipeError, ConnectionResetError):  # the caller has ended: nobody to tell
+        return
     except Exception as exc:  # a result that does not pickle
         conn.send(("error", RuntimeError(f"the result does not pickle: {exc}")))
     conn.close()
@@ -134,7 +144,8 @@ def fork_map(
             while todo and len(running) < workers:
                 k = todo.pop(0)
                 here, there = ctx.Pipe(duplex=False)
-                proc = ctx.Process(target=_child, args=(fn, items[k], there, ticks), daemon=True)
+                proc = ctx.Process(target=_child, args=(fn, items[k], there, ticks, here),
+                                   daemon=True)  # fmt: skip
                 proc.start()
                 there.close()
                 running[k] = (proc, here)
@@ -192,7 +203,7 @@ class Background(Generic[R]):
             ctx = get_context("fork")
             here, there = ctx.Pipe(duplex=False)
             self._proc = ctx.Process(
-                target=_child, args=(lambda _item, _tick: fn(), None, there, _NoTicks()),
+                target=_child, args=(lambda _item, _tick: fn(), None, there, _NoTicks(), here),
                 daemon=True,
             )  # fmt: skip
             self._proc.start()

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing
+import os
 import weakref
 from collections.abc import Callable
 from multiprocessing import get_context
@@ -73,13 +74,19 @@ class _CropFrame:
         raise _OutsideCropError
 
 
-def _serve(make_search: Callable[[Box | None], Search], conn: Any) -> None:
-    """The forked process: poses and frames in, corners (or where the chain stopped) out."""
+def _serve(make_search: Callable[[Box | None], Search], conn: Any, other: Any) -> None:
+    """The forked process: poses and frames in, corners (or where the chain stopped) out
+    (``other``, the run's end of the pipe, closed here)."""
+    other.close()
     ignore_interrupts()
+    parent = os.getppid()
     search: Search | None = None
     stopped = False
     while True:
         try:
+            while not conn.poll(1.0):
+                if os.getppid() != parent:  # the run's process ended without a word
+                    return
             message = conn.recv()
         except (EOFError, OSError):
             return
@@ -118,7 +125,7 @@ class ForkedSearcher:
         if can_fork() and not multiprocessing.current_process().daemon:
             ctx = get_context("fork")
             here, there = ctx.Pipe(duplex=True)
-            self._proc = ctx.Process(target=_serve, args=(make_search, there), daemon=True)
+            self._proc = ctx.Process(target=_serve, args=(make_search, there, here), daemon=True)
             self._proc.start()
             there.close()
             self._conn = here

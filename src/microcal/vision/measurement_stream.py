@@ -12,7 +12,10 @@ in turn, when the results are asked for.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
+import os
+import queue
 import weakref
 from collections.abc import Callable, Mapping, Sequence
 from multiprocessing import get_context
@@ -45,13 +48,22 @@ def _track_worker(
     fed: Any,
     conn: Any,
     ticks: Any,
+    reader: Any,
 ) -> None:
     """One camera's track from the frames fed to it, pose after pose; the track (or the
-    error) sent back through ``conn``."""
+    error) sent back through ``conn`` (``reader``, the caller's end, closed here)."""
+    reader.close()
     ignore_interrupts()
+    parent = os.getppid()
 
     def load(pose: int, _name: str) -> AnyFrames:
-        got, (kind, value) = fed.get()
+        while True:
+            try:
+                got, (kind, value) = fed.get(timeout=1.0)
+                break
+            except queue.Empty:
+                if os.getppid() != parent:  # the run's process ended without a word
+                    os._exit(0)
         if got != pose:
             raise RuntimeError(f"measurement stream: pose {got} came where {pose} was due")
         if kind == "error":
@@ -66,7 +78,8 @@ def _track_worker(
         )  # fmt: skip
     except BaseException as exc:  # everything goes back to the caller
         message = ("error", _portable(exc))
-    conn.send(message)
+    with contextlib.suppress(BrokenPipeError, ConnectionResetError):  # the caller has ended
+        conn.send(message)
     conn.close()
 
 
@@ -118,7 +131,17 @@ class MeasurementStream:
                 here, there = ctx.Pipe(duplex=False)
                 proc = ctx.Process(
                     target=_track_worker,
-                    args=(self.poses, commands_um, camera, name, target, fed, there, self._ticks),
+                    args=(
+                        self.poses,
+                        commands_um,
+                        camera,
+                        name,
+                        target,
+                        fed,
+                        there,
+                        self._ticks,
+                        here,
+                    ),
                     daemon=True,
                 )
                 proc.start()
