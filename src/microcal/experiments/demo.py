@@ -237,6 +237,19 @@ def _closing(streams: list[MeasurementStream]) -> Iterator[None]:
         raise
 
 
+@contextlib.contextmanager
+def _written(writer: ThreadPoolExecutor | None, writes: list[Future[None]]) -> Iterator[None]:
+    """Waits, at the block's end, for every write given to ``writer``; raises the first that
+    failed (unless the block raised: its error goes on, the poses written so far stay)."""
+    try:
+        yield
+    finally:
+        if writer is not None:
+            writer.shutdown(wait=True)
+    for write in writes:
+        write.result()
+
+
 def _journaled(records: list[JournalRecord], column: str) -> FloatArray:
     """An extra input's journal column over the records, (N,): NaN where one has none."""
     values = [r.journaled(column) for r in records]
@@ -367,19 +380,29 @@ def run_demo(
             for pose in sorted(kept):
                 stream.add(pose)
 
+    # the run directory's files are written on a thread of their own (compressing and syncing
+    # leave the interpreter to the acquisition), in order; a failed write is raised at the
+    # next pose, and every pose is written before the acquisition's stage ends
+    writer = ThreadPoolExecutor(max_workers=1) if store is not None and workers != 1 else None
+    writes: list[Future[None]] = []
+
     def keep(
         pose: int, frames: dict[str, list[NDArray[np.generic]]], record: JournalRecord
     ) -> None:
         kept[pose] = (frames, record)
         truth[pose - 1] = m.true_position_um()
-        if store is not None:
+        if store is not None and writer is None:
             store(pose, frames, record)
+        elif store is not None and writer is not None:
+            while writes and writes[0].done():
+                writes.pop(0).result()
+            writes.append(writer.submit(store, pose, frames, record))
         if measuring:
             measuring[0].add(pose)
         else:
             measure_from_now()
 
-    with clock.stage("acquisition"), _closing(measuring):
+    with clock.stage("acquisition"), _closing(measuring), _written(writer, writes):
         acquire(
             m,
             plat.cameras,
