@@ -190,6 +190,7 @@ def run_demo_tests(
         mine = set(dealt[k])
         for cam in cameras.values():  # a noise stream of this process's own
             cam.rng = np.random.default_rng([int(cam.rng.integers(2**62)), k])
+        probe.search_threads = False  # every core has a process of the evaluation
         live = {u: u in mine for u in units}
         current: list[Unit] = []
 
