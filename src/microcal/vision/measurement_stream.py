@@ -36,7 +36,10 @@ from .measurement import (
 from .targets import Target
 from .tip_target import TipTarget
 
-__all__ = ["MeasurementStream"]
+__all__ = ["NICE", "MeasurementStream"]
+
+#: How much lower the measuring processes' priority is than the run's (``os.nice``).
+NICE = 5
 
 
 def _track_worker(
@@ -54,6 +57,10 @@ def _track_worker(
     error) sent back through ``conn`` (``reader``, the caller's end, closed here)."""
     reader.close()
     ignore_interrupts()
+    # the poses only need measuring by the end of the run: the acquisition's own processes
+    # (rendering, the settle loop's searches) wait on each other and go first
+    with contextlib.suppress(OSError):
+        os.nice(NICE)
     parent = os.getppid()
 
     def load(pose: int, _name: str) -> AnyFrames:
