@@ -81,3 +81,14 @@ def _nested(n: int) -> list[int]:
 def test_inside_a_daemonic_worker_it_runs_in_order():
     with get_context("fork").Pool(1) as pool:
         assert pool.map(_nested, [10]) == [[11, 12]]
+
+
+def test_a_tick_passes_its_arguments():
+    def work(item: int, tick) -> int:
+        tick(f"item {item}", 1, 2)
+        tick()
+        return item
+
+    got: list[tuple] = []
+    assert fork_map(work, [1, 2], 2, lambda *args: got.append(args)) == [1, 2]
+    assert sorted(got) == [(), (), ("item 1", 1, 2), ("item 2", 1, 2)]

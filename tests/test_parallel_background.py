@@ -27,3 +27,15 @@ def test_a_result_not_wanted_is_cancelled():
     job = Background(lambda: sum(range(10**9)))
     job.cancel()
     job.cancel()  # twice is harmless
+
+
+def test_done_once_the_result_is_there():
+    import time
+
+    job = Background(lambda: 42)
+    for _ in range(500):  # at most 5 s
+        if job.done():
+            break
+        time.sleep(0.01)
+    assert job.done()
+    assert job.result() == 42

@@ -2,11 +2,11 @@
 
 :func:`fork_map` runs ``fn(item, tick)`` for each item, each in a process forked from this
 one (so ``fn`` may be a closure over anything in memory: frames, callables, paths), and
-gives the results in the items' order. ``tick()`` called inside ``fn`` reaches the
-caller's ``progress`` in this process. The items run here, one after the other, with the
-same results, where forking is not safe (only Linux forks here: macOS's system libraries
-are not fork-safe), when one worker is asked for, or inside a daemonic worker (which may
-not have children).
+gives the results in the items' order. ``tick(*args)`` called inside ``fn`` reaches the
+caller's ``progress(*args)`` in this process (the arguments must pickle). The items run
+here, one after the other, with the same results, where forking is not safe (only Linux
+forks here: macOS's system libraries are not fork-safe), when one worker is asked for, or
+inside a daemonic worker (which may not have children).
 
 Failures end the whole call at once: an exception in a worker is raised here (as a
 ``RuntimeError`` naming it when it cannot be sent back), a worker that dies without a
@@ -35,7 +35,7 @@ __all__ = ["Background", "can_fork", "fork_map", "ignore_interrupts"]
 
 T = TypeVar("T")
 R = TypeVar("R")
-Tick = Callable[[], None]
+Tick = Callable[..., None]
 
 #: How often the caller looks for ticks and results, s.
 POLL_S = 0.02
@@ -52,19 +52,29 @@ def ignore_interrupts() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def _nothing() -> None:
+def _nothing(*_: Any) -> None:
     pass
 
 
-def _child(fn: Callable[[Any, Tick], Any], item: Any, conn: Any, ticks: Any) -> None:
-    """A worker: ``fn(item)``, its result or its exception sent back through ``conn``."""
+def _child(
+    fn: Callable[[Any, Tick], Any], item: Any, conn: Any, ticks: Any, reader: Any = None
+) -> None:
+    """A worker: ``fn(item)``, its result or its exception sent back through ``conn``.
+
+    ``reader``, the caller's end of ``conn``, is closed here first: should the caller end
+    without reading, a result too large for the pipe then fails to send instead of waiting
+    for a reader that never comes."""
+    if reader is not None:
+        reader.close()
     ignore_interrupts()
     try:
-        message: tuple[str, Any] = ("ok", fn(item, lambda: ticks.put(1)))
+        message: tuple[str, Any] = ("ok", fn(item, lambda *args: ticks.put(args)))
     except BaseException as exc:  # everything goes back to the caller, which decides
         message = ("error", _portable(exc))
     try:
         conn.send(message)
+    except (BrokenPipeError, ConnectionResetError):  # the caller has ended: nobody to tell
+        return
     except Exception as exc:  # a result that does not pickle
         conn.send(("error", RuntimeError(f"the result does not pickle: {exc}")))
     conn.close()
@@ -101,13 +111,14 @@ def fork_map(
     Parameters
     ----------
     fn : callable (item, tick) -> result
-        The work on one item; it calls ``tick()`` as it progresses. Its result must pickle.
+        The work on one item; it calls ``tick()`` (or ``tick(*args)``) as it progresses. Its
+        result must pickle.
     items : sequence
     workers : int or None
         Processes at once (None: one per core; 1, or where forking is not safe: all here,
         in order).
-    progress : callable () -> None, optional
-        Called here once per ``tick()`` of any worker.
+    progress : callable (*args) -> None, optional
+        Called here once per ``tick(*args)`` of any worker, with its arguments.
 
     Raises
     ------
@@ -126,15 +137,15 @@ def fork_map(
 
     def drain() -> None:
         while not ticks.empty():
-            ticks.get()
-            tick()
+            tick(*ticks.get())
 
     try:
         while todo or running:
             while todo and len(running) < workers:
                 k = todo.pop(0)
                 here, there = ctx.Pipe(duplex=False)
-                proc = ctx.Process(target=_child, args=(fn, items[k], there, ticks), daemon=True)
+                proc = ctx.Process(target=_child, args=(fn, items[k], there, ticks, here),
+                                   daemon=True)  # fmt: skip
                 proc.start()
                 there.close()
                 running[k] = (proc, here)
@@ -192,7 +203,7 @@ class Background(Generic[R]):
             ctx = get_context("fork")
             here, there = ctx.Pipe(duplex=False)
             self._proc = ctx.Process(
-                target=_child, args=(lambda _item, _tick: fn(), None, there, _NoTicks()),
+                target=_child, args=(lambda _item, _tick: fn(), None, there, _NoTicks(), here),
                 daemon=True,
             )  # fmt: skip
             self._proc.start()
@@ -201,8 +212,16 @@ class Background(Generic[R]):
             # a result never asked for (an error in between): the process ends with this
             self._finalizer = weakref.finalize(self, _end, self._proc, here)
 
+    def done(self) -> bool:
+        """Whether :meth:`result` would return at once (the forked computation has sent its
+        result or ended; not forked: always)."""
+        if self._proc is None:
+            return True
+        return bool(self._conn.poll()) or not self._proc.is_alive()
+
     def result(self) -> R:
-        """The result (computed here if it was not forked).
+        """The result (computed here if it was not forked). Ask for it once: a second call
+        computes it again, here.
 
         Raises
         ------

@@ -14,8 +14,8 @@
 
 from __future__ import annotations
 
-import dataclasses
-from collections.abc import Callable
+import contextlib
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -34,13 +34,7 @@ from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..kinematics.models import held_from_limits
 from ..metrics.error_summary import summarize_errors
 from ..procedures.acquisition import AcquisitionConfig, Store, acquire
-from ..procedures.evaluation import (
-    RunOptions,
-    iso_cube_poses,
-    run_decoupling,
-    run_multi_directional,
-    run_pose_accuracy,
-)
+from ..procedures.evaluation import RunOptions, iso_cube_poses
 from ..procedures.evaluation_figures import Evaluation
 from ..procedures.identification import Identification, calibrate_manipulator, default_train
 from ..procedures.rig_stereo import CALIBRATION_STEPS_UM
@@ -51,9 +45,11 @@ from ..thesis.experiment import TABLE_5_2_POSES_UM, WORKSPACE_MAX_UM, WORKSPACE_
 from ..vision.detect import Detection, detect
 from ..vision.lazy_frame import PastedFrame, pasted_frames
 from ..vision.measurement import PoseMeasurement, measure_poses
+from ..vision.measurement_stream import MeasurementStream
 from ..vision.probe import VisionProbe
 from ..vision.stereo_calibration import StereoCalibration, calibrate_known_displacements
 from ..vision.targets import Target, parse_target
+from .demo_evaluation import DemoTests, run_demo_tests
 from .stage_clock import StageClock
 
 __all__ = [
@@ -230,6 +226,30 @@ def calibrate_on_platform(
     )
 
 
+@contextlib.contextmanager
+def _closing(streams: list[MeasurementStream]) -> Iterator[None]:
+    """Ends the measuring processes when the block raises (a stopped run, Ctrl-C)."""
+    try:
+        yield
+    except BaseException:
+        for stream in streams:
+            stream.close()
+        raise
+
+
+@contextlib.contextmanager
+def _written(writer: ThreadPoolExecutor | None, writes: list[Future[None]]) -> Iterator[None]:
+    """Waits, at the block's end, for every write given to ``writer``; raises the first that
+    failed (unless the block raised: its error goes on, the poses written so far stay)."""
+    try:
+        yield
+    finally:
+        if writer is not None:
+            writer.shutdown(wait=True)
+    for write in writes:
+        write.result()
+
+
 def _journaled(records: list[JournalRecord], column: str) -> FloatArray:
     """An extra input's journal column over the records, (N,): NaN where one has none."""
     values = [r.journaled(column) for r in records]
@@ -257,6 +277,7 @@ def run_demo(
     cameras: StereoCalibration | None = None,
     fixed_settle_s: float | None = None,
     stages: StageClock | None = None,
+    workers: int | None = None,
 ) -> DemoResult:
     """Run the calibration on the simulated thesis platform (see the module docstring).
 
@@ -282,6 +303,10 @@ def run_demo(
     ``fixed_settle_s``: settle each acquired pose by this fixed wait instead of by vision.
     ``stages``: adds the wall time of each stage (stereo calibration, acquisition,
     measurement, identification, evaluation) to it; the result's ``stages_s`` holds them.
+    ``workers``: processes for the measurement and the evaluation (None: one per core; 1:
+    everything here, in turn). The evaluation's units then run in forked processes that
+    replay the same moves (:mod:`~microcal.experiments.demo_evaluation`): the figures by
+    ground truth are the same, those by vision the same in distribution (other noise).
     """
     clock = stages if stages is not None else StageClock()
 
@@ -325,15 +350,59 @@ def run_demo(
     kept: dict[int, tuple[dict[str, list[NDArray[np.generic]]], JournalRecord]] = {}
     truth = np.full((poses, 3), np.nan)
 
+    def load(pose: int, name: str) -> list[NDArray[np.generic]] | list[PastedFrame]:
+        frames, record = kept[pose]
+        if record.status != "ok":
+            raise FormatError(f"acquisition failed: {record.reason or ''}")
+        if name not in frames:
+            raise FormatError("no image")
+        roi = record.roi_px.get(name)
+        if roi is None:
+            return frames[name]
+        return pasted_frames(frames[name], roi[:2], roi[2:])  # made where they are read
+
+    # the poses are measured while the next are acquired, in a forked process per camera, from
+    # when the cameras' calibration is there (with one worker: after the acquisition, here)
+    measuring: list[MeasurementStream] = []
+    calibrated: list[StereoCalibration] = [] if cameras is None else [cameras]
+
+    def measure_from_now() -> None:
+        if workers == 1 or measuring:
+            return
+        if not calibrated and calibration is not None and calibration.done():
+            calibrated.append(calibration.result())
+        if calibrated:
+            stream = MeasurementStream(
+                list(range(1, poses + 1)), d, load, calibrated[0].models(), board,
+                progress=lambda done, total: tick("measurement", done, total),
+            )  # fmt: skip
+            measuring.append(stream)
+            for pose in sorted(kept):
+                stream.add(pose)
+
+    # the run directory's files are written on a thread of their own (compressing and syncing
+    # leave the interpreter to the acquisition), in order; a failed write is raised at the
+    # next pose, and every pose is written before the acquisition's stage ends
+    writer = ThreadPoolExecutor(max_workers=1) if store is not None and workers != 1 else None
+    writes: list[Future[None]] = []
+
     def keep(
         pose: int, frames: dict[str, list[NDArray[np.generic]]], record: JournalRecord
     ) -> None:
         kept[pose] = (frames, record)
         truth[pose - 1] = m.true_position_um()
-        if store is not None:
+        if store is not None and writer is None:
             store(pose, frames, record)
+        elif store is not None and writer is not None:
+            while writes and writes[0].done():
+                writes.pop(0).result()
+            writes.append(writer.submit(store, pose, frames, record))
+        if measuring:
+            measuring[0].add(pose)
+        else:
+            measure_from_now()
 
-    with clock.stage("acquisition"):
+    with clock.stage("acquisition"), _closing(measuring), _written(writer, writes):
         acquire(
             m,
             plat.cameras,
@@ -350,6 +419,7 @@ def run_demo(
                 approach_seed=demo_design_seed(seed),
                 settle="vision" if fixed_settle_s is None else "fixed",
                 fixed_s=fixed_settle_s or 0.0,
+                search_process=workers != 1,
             ),
             sensors=sensors,
             progress=lambda done, total, _record: tick(
@@ -359,8 +429,11 @@ def run_demo(
             ),
         )
     with clock.stage("stereo calibration"):  # what is left of it once the poses are in
-        cal = calibration.result() if calibration is not None else cameras
-    assert cal is not None  # one of the two is there
+        if not calibrated:
+            got = calibration.result() if calibration is not None else cameras
+            assert got is not None  # one of the two is there
+            calibrated.append(got)
+        cal = calibrated[0]
     truth_px = {
         n: float(
             np.sqrt(
@@ -372,27 +445,20 @@ def run_demo(
         for n, c in cal.cameras.items()
     }
 
-    def load(pose: int, name: str) -> list[NDArray[np.generic]] | list[PastedFrame]:
-        frames, record = kept[pose]
-        if record.status != "ok":
-            raise FormatError(f"acquisition failed: {record.reason or ''}")
-        if name not in frames:
-            raise FormatError("no image")
-        roi = record.roi_px.get(name)
-        if roi is None:
-            return frames[name]
-        return pasted_frames(frames[name], roi[:2], roi[2:])  # made where they are read
-
-    with clock.stage("measurement"):
-        measurements = measure_poses(
-            list(range(1, poses + 1)),
-            d,
-            load,
-            cal.models(),
-            board,
-            progress=lambda done, total: tick("measurement", done, total),
-            workers=None,  # one per core
-        )
+    with clock.stage("measurement"), _closing(measuring):
+        measure_from_now()  # (when the calibration came after the last pose)
+        if measuring:
+            measurements = measuring[0].results()
+        else:
+            measurements = measure_poses(
+                list(range(1, poses + 1)),
+                d,
+                load,
+                cal.models(),
+                board,
+                progress=lambda done, total: tick("measurement", done, total),
+                workers=workers,
+            )
     result = DemoResult(
         seed,
         cal,
@@ -436,24 +502,24 @@ def run_demo(
                 clock=plat.clock,
             )
             probe = VisionProbe(plat.cameras, cal.models(), board, frames=frames_per_pose)
+            for d_k, measured in zip(d, measurements, strict=True):  # where the board was
+                if measured.status == "ok":
+                    probe.learn_regions(d_k, measured.corners_px)
             options = RunOptions(settle_s=settle_s, truth=m.true_position_um, progress=progress)
-            poses_um = TABLE_5_2_POSES_UM if thesis_sized else iso_cube_poses(*workspace)
-            pa = run_pose_accuracy(
-                m, plat.clock, probe, conditions, poses_um=poses_um, cycles=cycles, **options
+            tests = DemoTests(
+                m,
+                plat.clock,
+                conditions,
+                TABLE_5_2_POSES_UM if thesis_sized else iso_cube_poses(*workspace),
+                cycles,
+                decoupling_samples if thesis_sized else None,
+                options,
             )
-            vap = run_multi_directional(
-                m, plat.clock, None, conditions, poses_um=poses_um, cycles=cycles, **options
-            )
-            for source, by_condition in vap.items():
-                for condition, figures in by_condition.items():
-                    pa[source][condition] = dataclasses.replace(
-                        pa[source][condition], vap_um=figures.vap_um, max_vap_um=figures.max_vap_um
-                    )
+            # the tests' units in forked processes, each replaying the moves (see demo_evaluation)
+            pa, decoupling = run_demo_tests(tests, probe, plat.cameras, workers)
             result.evaluation.pose_accuracy = pa
-            if thesis_sized:
-                result.evaluation.decoupling = run_decoupling(
-                    m, plat.clock, probe, conditions, samples_per_axis=decoupling_samples, **options
-                )
+            if decoupling is not None:
+                result.evaluation.decoupling = decoupling
             result.sim_time_s = plat.clock.now_s()
     result.stages_s = dict(clock.stages_s)
     return result

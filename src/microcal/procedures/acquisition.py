@@ -19,7 +19,7 @@ import functools
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Literal, get_args
 
@@ -37,6 +37,7 @@ from ..vision.target_points import find_target
 from ..vision.targets import Target
 from ..vision.tip_measurement import TIP_BOX_HALF_PX
 from ..vision.tip_target import TipTarget
+from .settle_search import ForkedSearcher, PoseSearch
 
 __all__ = ["AcquisitionConfig", "RunStoppedError", "acquire", "grab_retrying"]
 
@@ -93,6 +94,10 @@ class AcquisitionConfig:
         them, :mod:`~microcal.procedures.adaptive`): pose ``k`` (from 1) arrives moving in
         directions ``approach_directions[k - 1]`` (+1: each joint moving up, so starting
         below the pose); poses beyond them, or given NaN, draw theirs as above.
+    search_process : bool
+        Vision settling of a board: search the frames in a forked process while the next
+        frames are grabbed (:mod:`~microcal.procedures.settle_search`; the same corners, so
+        the same decisions). For a run in a process of its own (the demo); off by default.
     """
 
     settle: Settle = "vision"
@@ -110,6 +115,7 @@ class AcquisitionConfig:
     approach_um: float = 0.0
     approach_seed: int = 0
     approach_directions: tuple[tuple[float, float, float], ...] = ()
+    search_process: bool = False
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.approach_um) and self.approach_um >= 0):
@@ -291,8 +297,12 @@ def _settle_vision(
     roi: tuple[int, int, int, int] | None,
     creep: CreepEstimator,
     step_um: float,
+    searcher: ForkedSearcher | None = None,
 ) -> tuple[float, float, dict[str, list[RegionFrame]]]:
-    """Wait until the board has settled; returns (time, last block change px, frames)."""
+    """Wait until the board has settled; returns (time, last block change px, frames).
+
+    ``searcher``: the searches run in that forked process where the pose's region is
+    predicted (the same corners, :mod:`~microcal.procedures.settle_search`)."""
     first = next(iter(cameras))
     start = clock.now_s()
     if not creep.learning:
@@ -309,22 +319,28 @@ def _settle_vision(
     # frames are searched in order, each in the region the one before found the board in.
     # What the loop decides, and when, is what searching each frame at once decides.
     search = _FrameSearch(target, roi)
-    pending: list[tuple[Future[FloatArray | None], float]] = []
+    pending: list[tuple[Callable[[], FloatArray | None], float]] = []
+    remote: PoseSearch | None = None
 
     def collect() -> None:
         for found, t_s in pending:
-            corners = found.result()
+            corners = found()
             if corners is not None:
                 vps.append(corners.mean(axis=0))
                 times.append(t_s)
         pending.clear()
 
-    with ThreadPoolExecutor(max_workers=1) as searcher:
+    with ThreadPoolExecutor(max_workers=1) as threaded:
         while True:
             frame = _grab_region_frame(cameras[first], config.retries)
             frames.append(frame)
             elapsed = clock.now_s() - start
-            pending.append((searcher.submit(search.corners, frame), elapsed))
+            if remote is None and roi is not None and searcher is not None and searcher.forked:
+                remote = searcher.pose(roi, frame.shape)
+            if remote is not None:
+                pending.append((functools.partial(remote.corners, remote.submit(frame)), elapsed))
+            else:
+                pending.append((threaded.submit(search.corners, frame).result, elapsed))
             if creep.learning:
                 if elapsed >= creep.window_s:
                     collect()
@@ -404,6 +420,9 @@ def acquire(
     signs = np.full(3, np.nan)  # unknown until each joint has moved
     done = 0
     failed_in_a_row = 0
+    searcher = None  # ended when the run returns (or, on an error, when it is collected)
+    if cfg.search_process and cfg.settle == "vision" and isinstance(target, Target):
+        searcher = ForkedSearcher(functools.partial(_FrameSearch, target))
     for k, pose in enumerate(poses):
         if should_stop():
             manipulator.stop()
@@ -442,8 +461,9 @@ def acquire(
             else:
                 step = float(np.abs(d - previous_d).max())
                 settle_s, change, frames = _settle_vision(
-                    cameras, target, clock, cfg, predictors[first].predict(d), creep, step
-                )
+                    cameras, target, clock, cfg, predictors[first].predict(d), creep, step,
+                    searcher,
+                )  # fmt: skip
             reported_um = np.asarray(_retry(manipulator.position_um, cfg.retries)).tolist()
         except DeviceError as exc:
             frames = {}
@@ -517,4 +537,6 @@ def acquire(
                 f"{failed_in_a_row} poses in a row failed, the last ({pose}): "
                 f"{record.reason or ''}; check the devices"
             )
+    if searcher is not None:
+        searcher.close()
     return done

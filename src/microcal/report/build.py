@@ -17,6 +17,7 @@ from urllib.parse import quote
 import jinja2
 import numpy as np
 
+from .._parallel import Background
 from .._validation import FloatArray
 from .._version import __version__
 from ..formats.atomic import write_text_atomic
@@ -596,29 +597,42 @@ def _plain(value: object) -> str:
     return json.dumps(value, sort_keys=True) if isinstance(value, dict | list) else str(value)
 
 
-def build_report(run_dir: str | os.PathLike[str], inputs: ReportInputs | None = None) -> str:
+def build_report(
+    run_dir: str | os.PathLike[str], inputs: ReportInputs | None = None, forked: bool = False
+) -> str:
     """The report of a run directory as one self-contained HTML page.
 
     Sections whose files are missing say so instead of failing, so a report can be made at
     any stage of a calibration (after ``acquire``, after ``fit``, after ``evaluate``).
     The thesis's figures stand beside the run's only for a run on the simulator's thesis
     preset (`compares_with_thesis`); any other run is reported with its own figures alone.
+    ``forked``: the two sections with the most figures (stereo, decoupling) are drawn in
+    forked processes while the others are drawn here (the same page; for a command's own
+    process, not for one serving other threads).
     """
     data = load_run(run_dir, inputs)
     thesis = compares_with_thesis(data)
     results = data.results if data.results is not None else Results()
+    stereo: Background[StereoSection | None] | None = None
+    decoupling: Background[DecouplingSection | None] | None = None
+    if forked:
+        stereo = Background(lambda: _stereo(data, thesis))
+        decoupling = Background(lambda: _decoupling(data, thesis))
+    drawn = {
+        "acquisition": _acquisition(data),
+        "measurement": _measurement(data, thesis),
+        "models": _models(data, thesis),
+        "pose_accuracy": _pose_accuracy(data, thesis),
+    }
     context = {
         "title": f"microcal calibration report: {Path(run_dir).resolve().name}",
         "version": __version__,
         "generated": _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "results": results,
         "summary": _summary(results),
-        "stereo": _stereo(data, thesis),
-        "acquisition": _acquisition(data),
-        "measurement": _measurement(data, thesis),
-        "models": _models(data, thesis),
-        "pose_accuracy": _pose_accuracy(data, thesis),
-        "decoupling": _decoupling(data, thesis),
+        "stereo": _stereo(data, thesis) if stereo is None else stereo.result(),
+        **drawn,
+        "decoupling": _decoupling(data, thesis) if decoupling is None else decoupling.result(),
         "iso": _iso(data),
         "checks": _checks(data),
         "station": _station(data, Path(run_dir)),
@@ -687,8 +701,10 @@ def write_report(
     run_dir: str | os.PathLike[str],
     out: str | os.PathLike[str] | None = None,
     inputs: ReportInputs | None = None,
+    forked: bool = False,
 ) -> Path:
     """Build the report and write it atomically (default: ``RUN_DIR/report.html``);
-    ``inputs`` names files kept outside the run directory."""
+    ``inputs`` names files kept outside the run directory; ``forked`` as for
+    :func:`build_report`."""
     path = Path(out) if out is not None else Path(run_dir) / "report.html"
-    return write_text_atomic(path, build_report(run_dir, inputs))
+    return write_text_atomic(path, build_report(run_dir, inputs, forked))

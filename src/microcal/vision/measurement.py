@@ -38,7 +38,16 @@ from .tip_measurement import tip_of_frames
 from .tip_target import TipTarget
 from .virtual_point import virtual_point
 
-__all__ = ["PoseMeasurement", "Seen", "camera_view", "measure_one", "measure_poses", "measure_seen"]
+__all__ = [
+    "PoseMeasurement",
+    "Seen",
+    "camera_track",
+    "camera_view",
+    "measure_one",
+    "measure_poses",
+    "measure_seen",
+    "measurements_of_tracks",
+]
 
 Frames = Sequence[NDArray[np.generic]]
 #: Frames of one camera, as arrays or as region frames (read where they are searched).
@@ -172,9 +181,18 @@ def measure_poses(
             progress(done, total)
 
     def one_camera(name: str, tick: Callable[[], None]) -> list[Seen]:
-        return _camera_track(poses, commands_um, load_frames, cameras[name], name, target, tick)
+        return camera_track(poses, commands_um, load_frames, cameras[name], name, target, tick)
 
     tracks = dict(zip(names, fork_map(one_camera, names, workers, tick), strict=True))
+    return measurements_of_tracks(poses, tracks, cameras)
+
+
+def measurements_of_tracks(
+    poses: Sequence[int], tracks: Mapping[str, Sequence[Seen]], cameras: Mapping[str, AnyCamera]
+) -> list[PoseMeasurement]:
+    """The poses measured from every camera's track (:func:`camera_track`, one per camera of
+    ``cameras``, in its order): judged and triangulated as :func:`measure_poses` does."""
+    names = _check_cameras(cameras)
     results: list[PoseMeasurement] = []
     for k, pose in enumerate(poses):
         m = PoseMeasurement(pose, "ok")
@@ -196,7 +214,7 @@ def measure_poses(
 Seen = tuple[FloatArray, FloatArray, FloatArray] | str
 
 
-def _camera_track(
+def camera_track(
     poses: Sequence[int],
     commands_um: FloatArray,
     load_frames: Callable[[int, str], AnyFrames],

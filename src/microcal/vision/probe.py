@@ -46,7 +46,16 @@ class VisionProbe:
     target: Target | TipTarget
     frames: int = 5
     frame_cov_px2: dict[str, FloatArray] | None = None
+    search_threads: bool = True  # each camera's frames searched on a thread (False: in turn)
     _predictors: dict[str, RoiPredictor] = field(default_factory=dict)
+
+    def learn_regions(self, d_um: FloatArray, corners_px: Mapping[str, FloatArray]) -> None:
+        """Where the board was at joints ``d_um`` (3,): its corners (k, 2) px per camera, as an
+        acquisition found them; the probe's first measurements then look there rather than
+        over the whole frame (cameras the probe lacks are left out)."""
+        for n, corners in corners_px.items():
+            if n in self.cameras:
+                self._predictors.setdefault(n, RoiPredictor()).add(d_um, corners)
 
     def measure(self, d_um: FloatArray) -> FloatArray:
         """Position in {G} (3,) µm from :attr:`frames` frames; NaN when the board is not found."""
@@ -63,7 +72,10 @@ class VisionProbe:
         # each camera's frames are searched on a thread of their own while the next camera's
         # are grabbed (rendered); what each camera makes of its frames does not depend on
         # the others'
-        with ThreadPoolExecutor(max_workers=len(self.cameras)) as searchers:
+        # (without search_threads each camera's frames are searched once grabbed: the same
+        # views, for a process that has no core to spare)
+        threads = len(self.cameras) if self.search_threads else 1
+        with ThreadPoolExecutor(max_workers=threads) as searchers:
             views = {}
             for n, cam in self.cameras.items():
                 grabbed = [_grab(cam) for _ in range(frames)]
@@ -71,6 +83,8 @@ class VisionProbe:
                     views[n] = searchers.submit(
                         camera_view, grabbed, self.target, self.models[n], rois[n]
                     )
+                    if not self.search_threads:
+                        views[n].result()
             seen = {n: view.result() for n, view in views.items()}
         m = measure_seen(seen, self.models, self.frame_cov_px2)
         if m.status != "ok":

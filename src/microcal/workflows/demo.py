@@ -123,7 +123,7 @@ def write_demo_outputs(out: Path, result: DemoResult, wall_s: float) -> None:
                    "stages_s": dict(result.stages_s)},
         "provenance": prov,
     })  # fmt: skip
-    write_report(out)
+    write_report(out, forked=True)  # a command's own process: figures drawn on both cores
 
 
 def write_station_outputs(out: Path, result: StationDemoResult, wall_s: float) -> None:
