@@ -7,11 +7,11 @@ Run from the repository root (a few minutes; heavy, so under the shared lock):
 Each image is drawn by :func:`microcal.sim.tool_population.draw_tool_image` from its seed (a
 pipette, a needle or a jaw; taper 5-15 degrees; 0-25 degrees off the image plane; plain,
 tissue or debris backgrounds under uneven light; focus 0, 1 or 2 depths of field off). The
-image fit (the default for a pipette) is run on every image, the model fit (the default for
-a needle or a jaw) on the needles and jaws; the reference method on fewer (each needs its own frames:
-the same tool 10 µm away, the focus stepped from -2 to +2 depths of field, the tip located by
-the default method in the frame in focus). ``--images N`` sets the images per row (25 by
-default). "covered" is the share of the found tips whose error ``e`` is within the 95 %
+image fit (the default for a pipette) is run on every image, the model fit (the default
+for a needle or a jaw) on the needles and jaws; the reference method on fewer (each needs its
+own frames: the same tool 10 µm away, the focus stepped from -2 to +2 depths of field, the
+tip located by the default method in the frame in focus). ``--images N`` sets the images per
+row (25 by default). "covered" is the share of the found tips whose error ``e`` is within the 95 %
 ellipse of the reported covariance ``C`` (``e^T C^-1 e <= 5.99``).
 """
 
@@ -131,7 +131,8 @@ def main() -> None:
             else:
                 refusals[f"{case}: {det.reason.split(' (')[0]}"] += 1
     print("| method | tool | focus (DOF) | images | found | bias (px) | along / across (px) | "
-          "scatter (px) | 95 % error (px) | reported sigma (px) | covered | time (ms) |")  # fmt: skip
+          "scatter (px) | 95 % error (px) | reported sigma (px) | covered | "
+          "time (ms) |")  # fmt: skip
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     print("\n".join(rows))
     print()

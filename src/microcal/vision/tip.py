@@ -171,7 +171,8 @@ def detect_tip(
     blob = find_tool(gray)
     if isinstance(blob, str):
         return TipDetection.none(blob, method)
-    fit = fit_tip(gray, blob, target) if method == "model fit" else fit_tip_image(gray, blob, target)
+    fitter = fit_tip if method == "model fit" else fit_tip_image
+    fit = fitter(gray, blob, target)
     if isinstance(fit, str):
         return TipDetection.none(fit, method)
     h, w = gray.shape

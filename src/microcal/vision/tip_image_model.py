@@ -89,11 +89,12 @@ def glass_loss(xi: FloatArray) -> FloatArray:
 
 
 _XI = np.linspace(0.0, 1.5, 3001)
-_LOSS_SUM = np.concatenate([[0.0], np.cumsum(0.5 * np.diff(_XI) * (glass_loss(_XI[1:])
-                                                               + glass_loss(_XI[:-1])))])
+_LOSS_SUM = np.concatenate(
+    [[0.0], np.cumsum(0.5 * np.diff(_XI) * (glass_loss(_XI[1:]) + glass_loss(_XI[:-1])))]
+)
 
 
-def glass_loss_mean(xi: FloatArray, width: FloatArray) -> FloatArray:
+def glass_loss_mean(xi: FloatArray, width: FloatArray | float) -> FloatArray:
     """:func:`glass_loss` averaged over ``[xi - width / 2, xi + width / 2]`` (``xi >= 0``; the
     loss is even in ``xi``), from its running integral: smooth in ``xi`` although the loss
     jumps at the lumen's wall."""
@@ -203,7 +204,7 @@ class ToolImageModel:
         corners = np.array([[0, 0], [w - 1, 0], [0, h - 1], [w - 1, h - 1]], dtype=np.float64)
         tv = (corners[:, 0] - tip[0]) * c + (corners[:, 1] - tip[1]) * s + g.D
         sig_hi = float(np.max(self.sigma(p, tv)))
-        pad = min(int(math.ceil(3.0 * sig_hi)) + 2, 40)
+        pad = min(math.ceil(3.0 * sig_hi) + 2, 40)
         n = _SUB
         off = (np.arange(n) + 0.5) / n - 0.5
         gx = (np.arange(-pad, w + pad)[:, None] + off[None, :]).ravel()
@@ -249,8 +250,12 @@ class ToolImageModel:
         self._last = (p.copy(), out)
         return out
 
-    def jacobian(self, p: FloatArray) -> FloatArray:
-        """The residuals' Jacobian by forward differences of fixed steps, (N, 8)."""
+    def jacobian(self, p: FloatArray, central: bool = False) -> FloatArray:
+        """The residuals' Jacobian by forward (or central) differences of fixed steps, (N, 8).
+
+        The image is drawn on subsamples, so it is smooth in the parameters only at the
+        scale of a subsample's share: the steps are a few hundredths of a pixel.
+        """
         last = self._last
         r0 = last[1] if last is not None and np.array_equal(last[0], p) else self.residuals(p)
         J = np.empty((r0.size, p.size))
@@ -258,7 +263,12 @@ class ToolImageModel:
             h = _STEPS[i]
             q = p.copy()
             q[i] += h
-            J[:, i] = (self.solve(q)[0] - r0) / h
+            if central:
+                q2 = p.copy()
+                q2[i] -= h
+                J[:, i] = (self.solve(q)[0] - self.solve(q2)[0]) / (2 * h)
+            else:
+                J[:, i] = (self.solve(q)[0] - r0) / h
         return J
 
 
@@ -414,12 +424,13 @@ def fit_tip_image(
         shifts = [0.0]
         if settled:
             break
-    assert fit is not None and model is not None
+    assert fit is not None
+    assert model is not None
     p = fit.x
     resid, coef = model.solve(p)
     n_px, m = resid.size, p.size + coef.size
     rss = float(resid @ resid)
-    J = fit.jac
+    J = model.jacobian(p, central=True)
     cov_p = np.linalg.pinv(J.T @ J) * rss / max(n_px - m, 1)
     T = np.zeros((2, p.size))  # d(tip point) / d(parameters)
     for i in range(p.size):
