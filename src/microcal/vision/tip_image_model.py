@@ -298,11 +298,16 @@ def _darkness(
     # end, the ellipse's normalised radius. Each is averaged over the subsample's width, and
     # the two blend over a subsample at their boundary (so that the image is smooth in the
     # parameters).
-    hw = np.maximum((t + g.D) * math.tan(g.beta), 1e-3)
-    wedge = glass_loss_mean(np.minimum(x / hw, 1.5), width / hw)
-    ring_ = glass_loss_mean(np.minimum(re, 1.5), width / min(kr, g.rho) * 0.5 + width / g.rho)
-    share = np.clip(0.5 - (taper - end) / width, 0.0, 1.0)
-    return [cover, cover * (share * wedge + (1.0 - share) * ring_)]
+    # Only where the outline covers the subsample.
+    on = np.nonzero(cover > 0.0)
+    ton, xon, reon = t[on], x[on], re[on]
+    hw = np.maximum((ton + g.D) * math.tan(g.beta), 1e-3)
+    wedge = glass_loss_mean(np.minimum(xon / hw, 1.5), width / hw)
+    ring_ = glass_loss_mean(np.minimum(reon, 1.5), width / min(kr, g.rho) * 0.5 + width / g.rho)
+    share = np.clip(0.5 - (taper[on] - end[on]) / width, 0.0, 1.0)
+    loss = np.zeros_like(cover)
+    loss[on] = cover[on] * (share * wedge + (1.0 - share) * ring_)
+    return [cover, loss]
 
 
 def _blur_levels(image: NDArray[np.float32], sigma: FloatArray) -> NDArray[np.float32]:
