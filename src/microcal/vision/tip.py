@@ -186,7 +186,12 @@ def detect_tip(
             f"no tool in view (the outline's contrast is {fit.contrast:.2f})", method
         )
     moved = float(np.linalg.norm(fit.apex_px - blob.tip_px))
-    if moved > 12.0 + 3 * fit.blur_px or not np.all(np.isfinite(fit.cov_px)):
+    reach = 12.0 + 3 * fit.blur_px
+    step = fit.apex_px - blob.tip_px
+    aside = abs(float(step[0] * blob.axis[1] - step[1] * blob.axis[0]))
+    if method == "image fit" and aside <= reach:
+        reach = 40.0  # it may follow a faint end far along the coarse axis
+    if moved > reach or not np.all(np.isfinite(fit.cov_px)):
         return TipDetection.none(f"the {method} did not settle (it moved {moved:.0f} px)", method)
     ax, ay = fit.apex_px
     if not (0.0 <= ax <= w - 1.0 and 0.0 <= ay <= h - 1.0):

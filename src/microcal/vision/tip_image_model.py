@@ -74,6 +74,8 @@ _STEPS = (0.02, 0.002, 0.005, 0.001, 0.02, 0.01, 0.01, 0.001)
 _QUADRATIC = True
 #: The fit's tolerances (relative change of the cost, of the scaled parameters).
 _FTOL, _XTOL = 1e-5, 1e-5
+#: Windows fitted at most: each is centred on the last fit's tip, until the tip stays.
+_ATTEMPTS = 3
 #: Ratio of neighbouring blur levels (the blur between them interpolated).
 _LEVEL_RATIO = 1.15
 
@@ -137,11 +139,14 @@ class ToolImageModel:
         A point near the middle of the window, whole-image pixels.
     normal : (2,) float
         Unit direction across the first axis.
+    light : (H, W) float, optional
+        The background's light over the whole image (uneven illumination), which scales the
+        tool's darkness; uniform when not given.
     """
 
     def __init__(self, gray: NDArray[np.float32], target: TipTarget,
                  box: tuple[int, int, int, int], mask: NDArray[np.bool_], ref: FloatArray,
-                 normal: FloatArray) -> None:  # fmt: skip
+                 normal: FloatArray, light: NDArray[np.float32] | None = None) -> None:  # fmt: skip
         x0, y0, x1, y1 = box
         self.box, self.target, self.mask = box, target, mask
         self._sharp: tuple[tuple[bytes, int], list[FloatArray]] | None = None
@@ -155,6 +160,12 @@ class ToolImageModel:
         h, w = self.shape
         yy, xx = np.nonzero(mask)
         self.rows, self.cols = yy, xx
+        # The tool takes away a share of the light that falls there: its darkness is scaled by
+        # the background's light (uneven illumination), when it is known.
+        self.light = np.ones(yy.size)
+        if light is not None:
+            lit = np.asarray(light, dtype=np.float64)[y0:y1, x0:x1][mask]
+            self.light = lit / max(float(np.mean(lit)), 1e-12)
         cx, cy = (w - 1) / 2, (h - 1) / 2
         gx, gy = (xx - cx) / max(w, 1), (yy - cy) / max(h, 1)
         cols = [np.ones(yy.size), gx, gy]
@@ -233,7 +244,9 @@ class ToolImageModel:
 
     def design(self, p: FloatArray) -> FloatArray:
         """The design matrix over the fitted pixels: the plane and the darkness layers."""
-        cols = [self.plane] + [-lay[self.rows, self.cols][:, None] for lay in self.layers(p)]
+        cols = [self.plane] + [
+            -(lay[self.rows, self.cols] * self.light)[:, None] for lay in self.layers(p)
+        ]
         return np.hstack(cols)
 
     def solve(self, p: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -378,6 +391,7 @@ def fit_tip_image(
     TipFit or str
         The fitted tip (whole-image pixels) or why the fit failed.
     """
+    light = None if isinstance(start, TipFit) else start.background
     if isinstance(start, TipFit):
         tip, axis = start.apex_px.copy(), start.axis.copy()
         beta0, blur0, rho0 = start.half_angle_rad, start.blur_px, max(start.end_radius_px, 0.2)
@@ -389,14 +403,15 @@ def fit_tip_image(
     fit = None
     model = None
     scale = np.array([0.1, 0.01, 0.05, 0.01, 0.2, 0.2, 0.2, 0.01])
-    for _attempt in range(2):
+    for _attempt in range(_ATTEMPTS):
         win = _window(gray.shape, tip, axis, beta0, blur0, 4.0 + 3.0 * blur0,
                       back_px + 2.0 * blur0)  # fmt: skip
         if win is None:
             return "the tip is at the edge of the field"
         box, mask = win
         ref = tip + axis * (0.5 * back_px)
-        model = ToolImageModel(gray, target, box, mask, ref, np.array([-axis[1], axis[0]]))
+        model = ToolImageModel(gray, target, box, mask, ref, np.array([-axis[1], axis[0]]),
+                               light)  # fmt: skip
         blur = np.array([math.log(max(blur0 - 0.25, 0.05)), 0.0, 0.02])
         p0 = model.parameters(tip - box[:2], axis, beta0, rho0, blur)
         starts = [p0]
