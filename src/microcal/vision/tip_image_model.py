@@ -323,6 +323,24 @@ def _darkness(
     return [cover, loss]
 
 
+def _correlation_factor(model: ToolImageModel, resid: FloatArray) -> float:
+    """How much neighbouring residuals agree, as the factor by which they inflate the variance
+    of what is fitted to them: ``prod (1 + r) / (1 - r)`` over the rows and the columns, ``r``
+    the correlation of neighbours (1 for white noise; the model's own mismatch is smooth)."""
+    field = np.full(model.shape, np.nan)
+    field[model.rows, model.cols] = resid
+    factor = 1.0
+    for a, b in ((field[:, 1:], field[:, :-1]), (field[1:, :], field[:-1, :])):
+        ok = np.isfinite(a) & np.isfinite(b)
+        if ok.sum() < 10:
+            continue
+        x, y = a[ok], b[ok]
+        r = float(np.clip(np.mean(x * y) / max(math.sqrt(np.mean(x * x) * np.mean(y * y)), 1e-12),
+                          0.0, 0.9))  # fmt: skip
+        factor *= (1.0 + r) / (1.0 - r)
+    return factor
+
+
 def _blur_levels(image: NDArray[np.float32], sigma: FloatArray) -> NDArray[np.float32]:
     """Gaussian blur whose sigma varies per sample, interpolated between levels."""
     lo, hi = float(sigma.min()), float(sigma.max())
@@ -457,7 +475,7 @@ def fit_tip_image(
         step = np.zeros(p.size)
         step[i] = 1e-6
         T[:, i] = (model.outline(p + step)[0] - model.outline(p - step)[0]) / 2e-6
-    cov = T @ cov_p @ T.T
+    cov = T @ cov_p @ T.T * _correlation_factor(model, resid)
     if not np.all(np.isfinite(cov)) or min(np.linalg.eigvalsh(cov)) <= 0:
         return "the model fit is degenerate (the tool's outline is not seen)"
     _, u, g = model.outline(p)
