@@ -149,7 +149,7 @@ class ToolImageModel:
                  normal: FloatArray, light: NDArray[np.float32] | None = None) -> None:  # fmt: skip
         x0, y0, x1, y1 = box
         self.box, self.target, self.mask = box, target, mask
-        self._sharp: tuple[tuple[bytes, int], list[FloatArray]] | None = None
+        self._sharp: tuple[tuple[bytes, int], list[NDArray[np.float32]]] | None = None
         self._last: tuple[FloatArray, FloatArray] | None = None
         self.ref = np.asarray(ref, dtype=np.float64) - (x0, y0)
         self.normal = np.asarray(normal, dtype=np.float64)
@@ -217,29 +217,47 @@ class ToolImageModel:
         sig_hi = float(np.max(self.sigma(p, tv)))
         pad = min(math.ceil(3.0 * sig_hi) + 2, 40)
         n = _SUB
-        off = (np.arange(n) + 0.5) / n - 0.5
-        gx = (np.arange(-pad, w + pad)[:, None] + off[None, :]).ravel()
-        gy = (np.arange(-pad, h + pad)[:, None] + off[None, :]).ravel()
         key = (p[:5].tobytes(), pad)
         if self._sharp is not None and self._sharp[0] == key:
-            dark = self._sharp[1]  # only the blur changed
+            pixels = self._sharp[1]  # only the blur changed
         else:
-            dx = gx[None, :] - tip[0]
-            dy = gy[:, None] - tip[1]
-            t = dx * c + dy * s  # along the axis from the tip point, towards the shank
-            x = np.abs(dy * c - dx * s)  # across
-            dark = _darkness(t, x, g, 1.0 / n, self.ring, self.glass)
-            self._sharp = (key, dark)
-        hp, wp = h + 2 * pad, w + 2 * pad
+            pixels = self._sharp_layers(tip, c, s, g, pad, n)
+            self._sharp = (key, pixels)
         # the blur's sigma at each pixel, from its distance behind the vertex
         px = np.arange(-pad, w + pad) - tip[0]
         py = np.arange(-pad, h + pad)[:, None] - tip[1]
         sig = self.sigma(p, px * c + py * s + g.D)
         out = []
-        for layer in dark:
-            pixels = layer.reshape(hp, n, wp, n).mean(axis=(1, 3)).astype(np.float32)
-            blurred = _blur_levels(pixels, sig)
+        for layer in pixels:
+            blurred = _blur_levels(layer, sig)
             out.append(blurred[pad : pad + h, pad : pad + w].astype(np.float64))
+        return out
+
+    def _sharp_layers(self, tip: FloatArray, c: float, s: float, g: _Geometry, pad: int,
+                      n: int) -> list[NDArray[np.float32]]:  # fmt: skip
+        """The outline's darkness layers averaged over each pixel of the padded box (not
+        blurred): only the pixels within reach of the outline are taken in subsamples."""
+        h, w = self.shape
+        hp, wp = h + 2 * pad, w + 2 * pad
+        px = np.arange(-pad, w + pad) - tip[0]
+        py = np.arange(-pad, h + pad)[:, None] - tip[1]
+        t = px * c + py * s
+        x = py * c - px * s
+        # a pixel's subsamples are within 0.71 px of its centre: beyond 1 px from the
+        # outline (the taper's distance, a circle around the end) none is covered
+        taper = np.maximum(np.abs(x) * math.cos(g.beta) - (t + g.D) * math.sin(g.beta), g.tc - t)
+        near = (taper < 1.0) | (np.hypot(t, x) < g.rho + 1.0)
+        iy, ix = np.nonzero(near)
+        off = (np.arange(n) + 0.5) / n - 0.5
+        ox, oy = (a.ravel() for a in np.meshgrid(off, off))
+        ts = t[iy, ix][:, None] + (ox * c + oy * s)[None, :]
+        xs = np.abs(x[iy, ix][:, None] + (oy * c - ox * s)[None, :])
+        dark = _darkness(ts, xs, g, 1.0 / n, self.ring, self.glass)
+        out = []
+        for layer in dark:
+            full = np.zeros((hp, wp), dtype=np.float32)
+            full[iy, ix] = layer.mean(axis=1)
+            out.append(full)
         return out
 
     def design(self, p: FloatArray) -> FloatArray:
@@ -421,6 +439,7 @@ def fit_tip_image(
     fit = None
     model = None
     scale = np.array([0.1, 0.01, 0.05, 0.01, 0.2, 0.2, 0.2, 0.01])
+    blur = np.array([math.log(max(blur0 - 0.25, 0.05)), 0.0, 0.02])
     for _attempt in range(_ATTEMPTS):
         win = _window(gray.shape, tip, axis, beta0, blur0, 4.0 + 3.0 * blur0,
                       back_px + 2.0 * blur0)  # fmt: skip
@@ -430,7 +449,6 @@ def fit_tip_image(
         ref = tip + axis * (0.5 * back_px)
         model = ToolImageModel(gray, target, box, mask, ref, np.array([-axis[1], axis[0]]),
                                light)  # fmt: skip
-        blur = np.array([math.log(max(blur0 - 0.25, 0.05)), 0.0, 0.02])
         p0 = model.parameters(tip - box[:2], axis, beta0, rho0, blur)
         starts = [p0]
         if len(shifts) > 1:  # the tip's place along the axis: the best of a scan
@@ -459,6 +477,7 @@ def fit_tip_image(
         settled = (np.hypot(*(new_tip - tip)) < 1.0 and abs(new_blur - blur0) < 0.5 * blur0
                    and abs(g.beta - beta0) < 0.3 * beta0)  # fmt: skip
         tip, axis, beta0, blur0, rho0 = new_tip, new_axis, g.beta, new_blur, g.rho
+        blur = p[5:8].copy()  # the blur's terms do not depend on the window
         shifts = [0.0]
         if settled:
             break
