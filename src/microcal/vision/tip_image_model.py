@@ -24,20 +24,28 @@ The model, from the geometry of a taper seen by a telecentric (or nearly) micros
   and what is bent beyond the objective's aperture is lost: the darkness is
   ``d0 + d1 (1 - exp(-|slope| / s0))``, dark walls around a lighter lumen. ``xi`` is the
   distance from the axis over the wedge's half-width behind the end, the ellipse's
-  normalised radius within it.
+  normalised radius within it; the loss is averaged over each subsample's width (from its
+  running integral), so that the image is smooth in the parameters although the loss jumps
+  at the lumen's wall.
 - **Blur.** The outline's darkness is drawn on a grid of ``S x S`` subsamples per pixel
   (each box-filtered over its width), blurred by a Gaussian whose sigma is
   ``hypot(floor, a + g t)`` at ``t`` px behind the vertex (diffraction, and a defocus that
   changes along a tool held at an angle to the focal plane; interpolated between a few
   levels), and averaged over each pixel.
-- **Image.** A plane (the background's level and gradient) minus the blurred darkness times
-  the tool's contrast (for glass, two layers: its uniform and its refractive darkness): the
-  linear coefficients are solved for every trial outline (variable projection); the eight
-  outline and blur parameters ``(cx, cy, angle, beta, log rho, log floor, a, g)`` are fitted
-  by Levenberg-Marquardt.
+- **Image.** A quadratic background (level, gradient, curvature) minus the blurred darkness
+  times the tool's contrast (for glass, two layers: its uniform and its refractive
+  darkness), the darkness scaled by the background's light where the coarse search measured
+  it (uneven illumination): the linear coefficients are solved for every trial outline
+  (variable projection); the eight outline and blur parameters (:class:`ToolImageModel`) are
+  fitted by Levenberg-Marquardt with a Jacobian of forward differences, from the best of a
+  scan along the coarse axis; the window is drawn again around the fitted tip (at most
+  three times) until the tip stays, so that a faint end the coarse search missed is
+  followed.
 
-The tip point's covariance is ``(J^T J)^-1 s^2`` from the fit's Jacobian ``J`` and residual
-variance ``s^2``.
+The tip point's covariance is ``(J^T J)^-1 s^2`` from the Jacobian ``J`` at the solution
+(central differences) and the residual variance ``s^2``, times how much neighbouring
+residuals agree (``(1 + r) / (1 - r)`` along rows and columns, ``r`` their correlation: the
+model's own mismatch is smooth, so it counts fewer times than white noise would).
 
 Where it holds: this is the image of a tool under bright field as
 :mod:`microcal.sim.tools` renders it (its glass loss with ``wall = 0.3`` and ``s0 = 1.2``):
