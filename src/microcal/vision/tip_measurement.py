@@ -33,7 +33,7 @@ from ..geometry import AnyCamera
 from .tip import TipDetection, detect_tip
 from .tip_target import TipTarget
 
-__all__ = ["TIP_BOX_HALF_PX", "tip_of_frames"]
+__all__ = ["TIP_BOX_HALF_PX", "takes_vertex_path", "tip_of_frames"]
 
 #: Half the side of the box the tip is searched in after the first frame, px.
 TIP_BOX_HALF_PX = 64
@@ -48,7 +48,7 @@ def tip_of_frames(
     """Apexes (k, 2) in ideal pixels, their mean covariance (2, 2), and the first frame's apex
     (1, 2) in the image (for the next search box); or the reason the tip was not found."""
     apexes, covs, first = [], [], None
-    method = "model fit" if _vertex_path(target) else None
+    method = "model fit" if takes_vertex_path(target) else None
     for image in frames:
         if first is not None:
             c = np.round(first[0]).astype(int)
@@ -67,8 +67,9 @@ def tip_of_frames(
     return np.array(apexes), np.mean(covs, axis=0), first
 
 
-def _vertex_path(target: TipTarget) -> bool:
-    """Whether the tip point is taken from the vertex (a needle or pipette of known size)."""
+def takes_vertex_path(target: TipTarget) -> bool:
+    """Whether the tip point is taken from the model fit's vertex (a needle or a pipette whose
+    spec gives its taper and size)."""
     return target.kind in ("needle", "pipette") and target.taper_deg > 0 and target.tip_um > 0
 
 
@@ -78,7 +79,7 @@ def tip_point_px(det: TipDetection, target: TipTarget, model: AnyCamera) -> Floa
     the module docstring)."""
     beta = math.radians(det.half_angle_deg)
     usable = np.all(np.isfinite(det.vertex_px)) and 0 < beta < math.pi / 2
-    if not _vertex_path(target) or not usable:
+    if not takes_vertex_path(target) or not usable:
         return det.apex_px
     J = np.asarray(model.project_jacobian(np.zeros(3), distort=False), dtype=np.float64)
     s = np.linalg.svd(J.reshape(2, 3), compute_uv=False)
