@@ -485,7 +485,7 @@ def fit_tip_image(
         settled = (np.hypot(*(new_tip - tip)) < 1.0 and abs(new_blur - blur0) < 0.5 * blur0
                    and abs(g.beta - beta0) < 0.3 * beta0)  # fmt: skip
         tip, axis, beta0, blur0, rho0 = new_tip, new_axis, g.beta, new_blur, g.rho
-        blur = p[5:8].copy()  # the blur's terms do not depend on the window
+        blur = np.array([math.log(max(blur0 - 0.25, 0.05)), 0.0, 0.02])
         shifts = [0.0]
         if settled:
             break
