@@ -20,6 +20,7 @@ from .._validation import FloatArray
 from .lazy_frame import RegionFrame, detect_in, pixels_of
 from .targets import Target
 from .tip import detect_tip
+from .tip_measurement import takes_vertex_path
 from .tip_target import TipTarget
 
 __all__ = ["TIP_REGION_HALF_PX", "TargetInFrame", "find_target"]
@@ -61,7 +62,13 @@ def find_target(
     h, w = frame.shape[:2]
     if isinstance(target, TipTarget):
         image = pixels_of(frame)
-        tip = detect_tip(image, target, roi=roi) if roi else detect_tip(image, target)
+        # the method the measurement uses for this tool (its vertex path, the model fit)
+        method = "model fit" if takes_vertex_path(target) else None
+        tip = (
+            detect_tip(image, target, roi=roi, method=method)
+            if roi
+            else detect_tip(image, target, method=method)
+        )
         if not tip.found:
             return None
         spread = math.tan(math.radians(tip.half_angle_deg))

@@ -1,10 +1,15 @@
 """Detection of a tool's tip: the apex in pixels with its covariance, the axis, or the reason.
 
-Two methods, chosen per tool and named in the answer (``method``):
+Three methods, chosen per tool and named in the answer (``method``):
 
 - ``"model fit"`` (:mod:`~microcal.vision.tip_fit`): the tool found coarsely
   (:mod:`~microcal.vision.tip_find`), then its outline fitted to sub-pixel precision: the
-  edges of the taper, their meeting point corrected for the rounded end;
+  edges of the taper, their meeting point corrected for the rounded end (the default for a
+  needle, a jaw or a tool of any kind);
+- ``"image fit"`` (:mod:`~microcal.vision.tip_image_model`): the tool found coarsely, then
+  the image of a tapered tool (outline, glass or opaque, blur growing along it) drawn and
+  fitted to the pixels around its end (the default for a glass pipette, whose dark walls
+  and lighter lumen defeat the outline's edges);
 - ``"reference"`` (:mod:`~microcal.vision.tip_reference`): images of this very tool grabbed
   at known focus offsets, matched by normalised cross-correlation with a sub-pixel peak.
 
@@ -27,12 +32,21 @@ from ..errors import InputError
 from .detect import to_gray
 from .tip_find import find_tool
 from .tip_fit import fit_tip
+from .tip_image_model import fit_tip_image
 from .tip_target import TipTarget
 
-__all__ = ["MAX_BLUR_PX", "TipDetection", "detect_tip"]
+__all__ = ["MAX_BLUR_PX", "TIP_METHODS", "TipDetection", "default_method", "detect_tip"]
 
 #: Beyond this blur at the tip (Gaussian sigma, px) a tool is too defocused to locate.
 MAX_BLUR_PX = 6.0
+#: The methods of :func:`detect_tip`.
+TIP_METHODS = ("model fit", "image fit")
+
+
+def default_method(target: TipTarget) -> str:
+    """The method :func:`detect_tip` uses for a tool: the image fit for a glass pipette,
+    the model fit otherwise."""
+    return "image fit" if target.kind == "pipette" else "model fit"
 
 
 def _nan2() -> FloatArray:
@@ -59,7 +73,7 @@ class TipDetection:
     blur_px : float
         Gaussian sigma of the blur at the tip, px.
     method : str
-        ``"model fit"`` or ``"reference"``.
+        ``"model fit"``, ``"image fit"`` or ``"reference"``.
     reason : str
         Why nothing was found ("" when found).
     score : float
@@ -126,8 +140,9 @@ def detect_tip(
     *,
     roi: tuple[int, int, int, int] | None = None,
     max_blur_px: float = MAX_BLUR_PX,
+    method: str | None = None,
 ) -> TipDetection:
-    """Find a tool's tip in an image by the model fit.
+    """Find a tool's tip in an image by the model fit or the image fit.
 
     Parameters
     ----------
@@ -138,37 +153,51 @@ def detect_tip(
         Search only this box (end exclusive); positions are still in whole-image pixels.
     max_blur_px : float
         A tip blurred more than this (Gaussian sigma, px) is too defocused.
+    method : {"model fit", "image fit"}, optional
+        By default :func:`default_method` of the target.
 
     Returns
     -------
     TipDetection
         ``found=False`` with a reason when there is no tip to be located.
     """
+    method = default_method(target) if method is None else method
+    if method not in TIP_METHODS:
+        raise InputError(f"method: expected one of {', '.join(TIP_METHODS)}, got {method!r}")
     cropped = _crop(image, roi)
     if isinstance(cropped, str):
-        return TipDetection.none(cropped)
+        return TipDetection.none(cropped, method)
     gray, x0, y0 = cropped
     blob = find_tool(gray)
     if isinstance(blob, str):
-        return TipDetection.none(blob)
-    fit = fit_tip(gray, blob, target)
+        return TipDetection.none(blob, method)
+    fitter = fit_tip if method == "model fit" else fit_tip_image
+    fit = fitter(gray, blob, target)
     if isinstance(fit, str):
-        return TipDetection.none(fit)
+        return TipDetection.none(fit, method)
     h, w = gray.shape
     if fit.blur_px > max_blur_px:
         return TipDetection.none(
-            f"too defocused: the tip is blurred by {fit.blur_px:.1f} px (at most {max_blur_px:g})"
+            f"too defocused: the tip is blurred by {fit.blur_px:.1f} px (at most {max_blur_px:g})",
+            method,
         )
     if fit.contrast < 0.05:
-        return TipDetection.none(f"no tool in view (the outline's contrast is {fit.contrast:.2f})")
+        return TipDetection.none(
+            f"no tool in view (the outline's contrast is {fit.contrast:.2f})", method
+        )
     moved = float(np.linalg.norm(fit.apex_px - blob.tip_px))
-    if moved > 12.0 + 3 * fit.blur_px or not np.all(np.isfinite(fit.cov_px)):
-        return TipDetection.none(f"the model fit did not settle (it moved {moved:.0f} px)")
+    reach = 12.0 + 3 * fit.blur_px
+    step = fit.apex_px - blob.tip_px
+    aside = abs(float(step[0] * blob.axis[1] - step[1] * blob.axis[0]))
+    if method == "image fit" and aside <= reach:
+        reach = 40.0  # it may follow a faint end far along the coarse axis
+    if moved > reach or not np.all(np.isfinite(fit.cov_px)):
+        return TipDetection.none(f"the {method} did not settle (it moved {moved:.0f} px)", method)
     ax, ay = fit.apex_px
     if not (0.0 <= ax <= w - 1.0 and 0.0 <= ay <= h - 1.0):
-        return TipDetection.none("the tip is out of the field")
+        return TipDetection.none("the tip is out of the field", method)
     det = TipDetection(
         True, fit.apex_px, fit.cov_px, fit.axis, fit.vertex_px,
-        math.degrees(fit.half_angle_rad), fit.blur_px, "model fit",
+        math.degrees(fit.half_angle_rad), fit.blur_px, method,
     )  # fmt: skip
     return det.shifted(x0, y0) if (x0 or y0) else det
