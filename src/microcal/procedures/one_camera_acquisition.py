@@ -37,7 +37,7 @@ from numpy.typing import ArrayLike
 from .._validation import FloatArray, as_array
 from ..devices.base import Clock, Manipulator
 from ..errors import DetectionError, InputError, LimitError
-from ..journal_record import JournalRecord
+from ..journal_record import JournalRecord, PoseStatus
 from ..json_value import JsonValue
 from ..kinematics.extra_inputs import APPROACH_INPUTS, extra_input
 from ..vision.focus_depth import Frame, ReferenceStack
@@ -338,7 +338,8 @@ def acquire_one_camera(
         clock.sleep(settle_s)
         side_list.append(sides.copy())
         commands.append(d.copy())
-        status, reason = "ok", None
+        status: PoseStatus = "ok"
+        reason: str | None = None
         try:
             p, cov, n, secs = finder.measure(move_focus, grab, expected_um, clock.now_s)
         except (DetectionError, InputError, LimitError) as exc:
