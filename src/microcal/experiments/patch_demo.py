@@ -86,6 +86,7 @@ class PatchDemoResult:
     rig_s: dict[str, float] = field(default_factory=dict)  # simulated seconds per stage
     stages_s: dict[str, float] = field(default_factory=dict)  # wall seconds per stage
     sim_time_s: float = 0.0
+    joint_origin_um: FloatArray = field(default_factory=lambda: np.zeros(3))  # joints' zero
 
     @property
     def records(self) -> list[JournalRecord]:
@@ -183,6 +184,7 @@ def run_patch_demo(
         )  # fmt: skip
     result = PatchDemoResult(seed, scope, _scope_errors(frame, truth_frame), run,
                              np.array(truths))  # fmt: skip
+    result.joint_origin_um = device.origin_um.copy()
     ok = run.ok
     d, p = run.d_um[ok], run.p_um[ok]
     n_fit = default_train(len(d))

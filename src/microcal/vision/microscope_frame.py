@@ -62,7 +62,7 @@ class MicroscopeFrame:
         its stage map and drift (the calibration may have seen a smaller region of the
         same sensor; the linear map is the same)."""
         w, h = image_size_px
-        m: FloatArray = -np.linalg.inv(np.asarray(scope.affine_um, dtype=np.float64)[:, :2])
+        m = np.asarray(-np.linalg.inv(np.asarray(scope.affine_um, dtype=np.float64)[:, :2]), float)
         centre = np.array([(w - 1) / 2, (h - 1) / 2])
         return cls(m, np.asarray(scope.drift_px_per_um, float), centre)
 
