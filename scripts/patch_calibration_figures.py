@@ -44,7 +44,7 @@ def main() -> None:
             "tip y": r.measurement_rms_axis_um[1],
             "tip z": r.measurement_rms_axis_um[2],
             "chi2/3": r.mahalanobis_mean_sq / 3,
-            "poly held-out": float(r.models["polynomial"].validation["mean_um"]),
+            "poly held-out": float(np.asarray(r.models["polynomial"].validation["mean_um"])),
             **{
                 f"AP truth {c}": pa["truth"][c].mean_ap_p_um for c in CONDITIONS if c in pa["truth"]
             },
