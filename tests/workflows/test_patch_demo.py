@@ -1,0 +1,31 @@
+"""``microcal demo --preset patch``: its directory is checked before anything runs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from microcal.cli import app
+from microcal.errors import InputError
+from microcal.workflows.patch_demo import PATCH_FILES, patch_demo
+
+runner = CliRunner()
+
+
+def test_a_directory_with_other_files_is_refused_in_one_line_and_left_alone(tmp_path: Path) -> None:
+    (tmp_path / "notes.txt").write_text("mine", encoding="utf-8")
+    (tmp_path / "results.json").write_text("{}", encoding="utf-8")
+    with pytest.raises(InputError, match=r"notes\.txt") as info:
+        patch_demo(tmp_path, poses=5)
+    assert "\n" not in str(info.value)
+    assert (tmp_path / "results.json").read_text(encoding="utf-8") == "{}"
+    result = runner.invoke(app, ["demo", "--preset", "patch", "--out", str(tmp_path)])
+    assert result.exit_code != 0
+    assert "earlier patch demo did not write" in result.output
+    assert (tmp_path / "notes.txt").exists()
+
+
+def test_the_files_it_writes() -> None:
+    assert {"journal.jsonl", "scope.json", "calibration.json", "results.json"} == PATCH_FILES
