@@ -58,7 +58,7 @@ def demo(
     if preset == "thesis-platform":
         return _station(out, seed, n_poses, frames, quick, camera_model, console, wall0)
     if preset == "patch":
-        return _patch(out, seed, 80 if poses == 170 else n_poses, quick, console)
+        return _patch(out, seed, 80 if poses == 170 and not quick else n_poses, quick, console)
     request = DemoRequest(out, seed, n_poses, frames, quick, preset, camera_model)
     with staged_progress(console) as progress:
         result = run(request, progress, lambda: console.print(demo_intro(out, n_poses)), wall0)
