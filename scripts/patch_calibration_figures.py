@@ -8,6 +8,7 @@ held-out error, ISO 9283 AP at the cube P1-P5 by truth and by the one-camera pro
 working volume, and the rig's simulated time per stage.
 
     PYTHONPATH=src python scripts/patch_calibration_figures.py --seeds 5 [--first 0] [--poses 80]
+        [--method sweep|stack]
 """
 
 from __future__ import annotations
@@ -28,11 +29,12 @@ def main() -> None:
     ap.add_argument("--first", type=int, default=0)
     ap.add_argument("--poses", type=int, default=80)
     ap.add_argument("--cycles", type=int, default=3)
+    ap.add_argument("--method", choices=("sweep", "stack"), default="sweep")
     args = ap.parse_args()
     rows = []
     for seed in range(args.first, args.first + args.seeds):
         t0 = time.perf_counter()
-        r = run_patch_demo(seed, args.poses, cycles=args.cycles)
+        r = run_patch_demo(seed, args.poses, cycles=args.cycles, method=args.method)
         pa = r.evaluation.pose_accuracy or {}
         vol = (r.volume_accuracy or {}).get("truth", {})
         row = {

@@ -23,6 +23,7 @@ The rig's simulated time is counted per stage (``rig_s``), apart from the wall t
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -33,6 +34,7 @@ from ..control.conditions import closed_loop_condition, open_loop_conditions
 from ..control.feedforward import extra_inputs_reader
 from ..control.visual_servo import ServoConfig
 from ..devices.shifted_joints import ShiftedJoints
+from ..errors import InputError
 from ..journal_record import JournalRecord
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..metrics.error_summary import summarize_errors
@@ -46,9 +48,10 @@ from ..procedures.one_camera_acquisition import (
     WorkingVolume,
     acquire_one_camera,
 )
+from ..procedures.one_camera_pose import measure_tip_one_camera
 from ..procedures.one_camera_probe import OneCameraTipProbe
 from ..procedures.scope_calibration import ScopeRun, calibrate_scope, depth_for, scope_plan
-from ..sim.patch import patch_rig
+from ..sim.patch import PatchRig, patch_rig
 from ..sim.patch_scope import (
     end_offset_px,
     image_axis,
@@ -57,6 +60,7 @@ from ..sim.patch_scope import (
     true_frame,
     truth_in_frame,
 )
+from ..vision.focus_depth import grab_stack
 from ..vision.microscope_frame import MicroscopeFrame
 from .stage_clock import StageClock
 
@@ -87,6 +91,7 @@ class PatchDemoResult:
     stages_s: dict[str, float] = field(default_factory=dict)  # wall seconds per stage
     sim_time_s: float = 0.0
     joint_origin_um: FloatArray = field(default_factory=lambda: np.zeros(3))  # joints' zero
+    method: str = "sweep"  # how the tips' depth was measured
 
     @property
     def records(self) -> list[JournalRecord]:
@@ -129,6 +134,20 @@ def _scope_errors(frame: MicroscopeFrame, truth: MicroscopeFrame) -> dict[str, f
             "rotation_error_deg": float(abs(rot)), "drift_error_px_per_um": drift}  # fmt: skip
 
 
+def _stack_finder(rig: PatchRig, sweep: TipFinder) -> TipFinder:
+    """The finder by the tool's reference stack (0.5 µm planes over ±4 µm), grabbed where a
+    fine sweep (15 frames 0.4 µm apart) finds the tip at the start."""
+    frame = sweep.frame
+    tip = measure_tip_one_camera(
+        rig.move_focus, rig.grab, frame.centre_px, 0.0, frame.um_per_px, axis_px=sweep.axis_px,
+        frames=15, step_um=0.4, end_offset_px=sweep.end_offset_px, clock=rig.clock.now_s,
+    )  # fmt: skip
+    est = tip.depth
+    stack = grab_stack(rig.grab_at_focus, est.z_um, est.apex_px, step_um=0.5,
+                       tip_focus_var_um2=est.var_um2, tip_cov_px=est.cov_px)  # fmt: skip
+    return dataclasses.replace(sweep, method="stack", stack=stack)
+
+
 def run_patch_demo(
     seed: int = 0,
     poses: int = 80,
@@ -137,6 +156,7 @@ def run_patch_demo(
     volume_poses: int = 20,
     settle_s: float = 1.0,
     closed_loop: bool = True,
+    method: str = "sweep",
     progress: Callable[[str, int, int], None] | None = None,
     store: Callable[[JournalRecord, OneCameraPose], None] | None = None,
     stages: StageClock | None = None,
@@ -146,7 +166,9 @@ def run_patch_demo(
     ``poses`` are acquired (the start, three steps, the design); ``cycles`` ISO cycles at
     the cube's poses; ``volume_poses`` random points of the working volume are visited once
     per condition by truth (0: not); ``settle_s`` the wait after the manipulator reports
-    stopped; ``store(record, tip)`` receives each pose as it is measured.
+    stopped; ``store(record, tip)`` receives each pose as it is measured; ``method``: the
+    tip's depth by a focus sweep at every pose, or by one frame against the tool's reference
+    stack grabbed at the start (``stack``).
     """
     wall = stages if stages is not None else StageClock()
     rig = patch_rig(seed)
@@ -168,6 +190,14 @@ def run_patch_demo(
     truth = truth_in_frame(rig, truth_frame)
     device = ShiftedJoints(rig.manipulator, rig.manipulator.position_um().round(0))
     finder = TipFinder(frame, image_axis(cfg), end_offset_px(cfg))
+    if method == "stack":  # the tool's reference stack, grabbed once at the start
+        with (
+            wall.stage("acquisition and measurement"),
+            rig_clock.stage("acquisition and measurement"),
+        ):
+            finder = _stack_finder(rig, finder)
+    elif method != "sweep":
+        raise InputError(f"method: expected sweep or stack, got {method!r}")
     volume = WorkingVolume(np.zeros(3), np.array(PATCH_VOLUME_HALF_UM))
     truths: list[FloatArray] = []
 
@@ -185,6 +215,7 @@ def run_patch_demo(
     result = PatchDemoResult(seed, scope, _scope_errors(frame, truth_frame), run,
                              np.array(truths))  # fmt: skip
     result.joint_origin_um = device.origin_um.copy()
+    result.method = method
     ok = run.ok
     d, p = run.d_um[ok], run.p_um[ok]
     n_fit = default_train(len(d))
