@@ -30,13 +30,15 @@ def patch_demo_lines(result: PatchDemoResult) -> list[str]:
     ok = r.run.ok
     frames = sum(t.frames for t in r.run.tips)
     axis = "/".join(f"{v:.3f}" for v in r.measurement_rms_axis_um)
+    how = "focus sweeps" if r.method == "sweep" else "the reference stack"
+    acq_min = rig.get("acquisition and measurement", 0.0) / 60
     out = [
         f"1. Slide: pixel size {cal.pixel_size_um:.6f} µm, focus axis {cal.focus_angle_deg:.3f}° "
         f"from the optical axis; against the truth: scale {r.scope_errors['scale_error_pct']:.4f} "
         f"%, rotation {r.scope_errors['rotation_error_deg']:.5f}° ({cal.views} views, "
         f"{rig.get('slide', 0.0):.0f} s of rig time)",
         f"2. Acquired and measured {int(ok.sum())} of {len(ok)} poses ({frames} frames, "
-        f"{'focus sweeps' if r.method == 'sweep' else 'the reference stack'}; {rig.get('acquisition and measurement', 0.0) / 60:.1f} min of rig time): "
+        f"{how}; {acq_min:.1f} min of rig time): "
         f"error vs ground truth {r.measurement_rms_um:.3f} µm RMS, x/y/z {axis}; errors over "
         f"the stated covariance: mean square {r.mahalanobis_mean_sq:.2f} (3 when it matches)",
     ]
