@@ -64,11 +64,14 @@ from ..vision.focus_depth import grab_stack
 from ..vision.microscope_frame import MicroscopeFrame
 from .stage_clock import StageClock
 
-__all__ = ["PATCH_VOLUME_HALF_UM", "PatchDemoResult", "run_patch_demo"]
+__all__ = ["MIN_POSES", "PATCH_VOLUME_HALF_UM", "PatchDemoResult", "run_patch_demo"]
 
 #: The working volume's half sizes around the field's centre in {M}, µm: 200 x 200 µm of the
 #: 333 µm field, 50 µm of depth (a slice's working depth).
 PATCH_VOLUME_HALF_UM = (100.0, 100.0, 25.0)
+#: The fewest poses the demo takes: with fewer than about 20 poses to fit (two thirds of
+#: them), the quadratic model's stepwise selection may leave an axis without its terms.
+MIN_POSES = 30
 #: The slide's frames: a central region of the sensor, px.
 SLIDE_ROI_PX = 512
 
@@ -157,6 +160,7 @@ def run_patch_demo(
     settle_s: float = 1.0,
     closed_loop: bool = True,
     method: str = "sweep",
+    slide_roi_px: int = SLIDE_ROI_PX,
     progress: Callable[[str, int, int], None] | None = None,
     store: Callable[[JournalRecord, OneCameraPose], None] | None = None,
     stages: StageClock | None = None,
@@ -168,8 +172,14 @@ def run_patch_demo(
     per condition by truth (0: not); ``settle_s`` the wait after the manipulator reports
     stopped; ``store(record, tip)`` receives each pose as it is measured; ``method``: the
     tip's depth by a focus sweep at every pose, or by one frame against the tool's reference
-    stack grabbed at the start (``stack``).
+    stack grabbed at the start (``stack``); ``slide_roi_px``: the square region of the sensor
+    the slide is seen in.
     """
+    if poses < MIN_POSES:
+        raise InputError(
+            f"poses: the patch demo needs {MIN_POSES} or more (its models are fitted on the "
+            f"first two thirds of them), got {poses}"
+        )
     wall = stages if stages is not None else StageClock()
     rig = patch_rig(seed)
     cfg = rig.config
@@ -180,8 +190,8 @@ def run_patch_demo(
             progress(stage, done, total)
 
     with wall.stage("slide"), rig_clock.stage("slide"):
-        slide = slide_scope(rig, SLIDE_ROI_PX, seed)
-        field = SLIDE_ROI_PX * cfg.um_per_px
+        slide = slide_scope(rig, slide_roi_px, seed)
+        field = slide_roi_px * cfg.um_per_px
         plan = scope_plan(field, depth_for(cfg.numerical_aperture))
         scope = calibrate_scope(slide.move_stage, slide.move_focus, slide.grab, slide.target,
                                 plan, progress=lambda k, n: tick("slide", k, n))  # fmt: skip
@@ -219,7 +229,9 @@ def run_patch_demo(
     ok = run.ok
     d, p = run.d_um[ok], run.p_um[ok]
     n_fit = default_train(len(d))
-    extra = {k: v[ok] for k, v in run.approach().items()}
+    extra: dict[str, FloatArray] | None = {k: v[ok] for k, v in run.approach().items()}
+    if extra and min(min(np.sum(v > 0), np.sum(v < 0)) for v in extra.values()) < 3:
+        extra = None  # too few poses from each side for the approach terms (a short run)
     with wall.stage("identification"), rig_clock.stage("identification"):
         result.manipulator, result.models = calibrate_manipulator(
             "m1", d, p, "polynomial", train=n_fit, extra_inputs=extra, family="quadratic",

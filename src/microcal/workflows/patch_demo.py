@@ -66,9 +66,11 @@ def patch_demo(
     quick: bool = False,
     progress: Callable[[str, int, int], None] | None = None,
     started: Callable[[], None] | None = None,
+    method: str = "sweep",
 ) -> PatchDemoRun:
     """Run the ``patch`` demo (:func:`~microcal.experiments.patch_demo.run_patch_demo`) and
-    write its files; ``quick``: one ISO cycle, 10 points of the volume."""
+    write its files; ``quick``: one ISO cycle, 5 points of the volume, the slide on 384 px;
+    ``method``: the tips' depth by focus sweeps or by the tool's reference stack."""
     from ..experiments.patch_demo import run_patch_demo
     from ..experiments.stage_clock import StageClock
     from ..formats.calibration_file import Calibration, write_calibration
@@ -84,8 +86,9 @@ def patch_demo(
     journal = PoseJournal(out / "journal.jsonl")
     stages = StageClock()
     result = run_patch_demo(
-        seed, poses, cycles=1 if quick else 3, volume_poses=10 if quick else 20,
-        progress=progress, stages=stages,
+        seed, poses, cycles=1 if quick else 3, volume_poses=5 if quick else 20,
+        slide_roi_px=384 if quick else 512,
+        progress=progress, stages=stages, method=method,
         store=lambda record, tip: journal.append(record.to_json() | tip.to_json()),
     )  # fmt: skip
     with stages.stage("files"):
