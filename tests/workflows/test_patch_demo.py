@@ -27,6 +27,12 @@ def test_a_directory_with_other_files_is_refused_in_one_line_and_left_alone(tmp_
     assert (tmp_path / "notes.txt").exists()
 
 
+def test_too_few_poses_are_refused_before_the_directory_is_made(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match="30 or more"):
+        patch_demo(tmp_path / "new", poses=25)
+    assert not (tmp_path / "new").exists()
+
+
 def test_the_files_it_writes() -> None:
     assert {"journal.jsonl", "scope.json", "calibration.json", "results.json"} == PATCH_FILES
 

@@ -71,7 +71,7 @@ def patch_demo(
     """Run the ``patch`` demo (:func:`~microcal.experiments.patch_demo.run_patch_demo`) and
     write its files; ``quick``: one ISO cycle, 5 points of the volume, the slide on 384 px;
     ``method``: the tips' depth by focus sweeps or by the tool's reference stack."""
-    from ..experiments.patch_demo import run_patch_demo
+    from ..experiments.patch_demo import MIN_POSES, run_patch_demo
     from ..experiments.stage_clock import StageClock
     from ..formats.calibration_file import Calibration, write_calibration
     from ..formats.pose_journal import PoseJournal
@@ -80,6 +80,8 @@ def patch_demo(
     from ..formats.scope_file import write_objective
 
     wall0 = time.monotonic()
+    if poses < MIN_POSES:
+        raise InputError(f"--poses: the patch demo needs {MIN_POSES} or more, got {poses}")
     _check_dir(out)
     if started is not None:
         started()
