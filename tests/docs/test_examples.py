@@ -186,6 +186,7 @@ COSTLY = {
     ("docs/hardware.md", 8),
     ("docs/hardware.md", 9),
     ("docs/microscope.md", 0),
+    ("docs/microscope.md", 5),
 }
 
 

@@ -23,7 +23,8 @@ _Preset = Annotated[
     Option(
         help="Simulated platform: thesis, telecentric, thesis-3cam, population, "
         "thesis-platform (two manipulators and a positioner), thesis-real (motion noise), "
-        "thesis-tip (a glass pipette instead of the board)."
+        "thesis-tip (a glass pipette instead of the board), patch (one camera on a focus "
+        "drive, a tilted pipette)."
     ),
 ]
 _Model = Annotated[str, Option(help="Camera model: pinhole, affine or auto (by held-out error).")]
@@ -56,6 +57,8 @@ def demo(
     check_camera_model(camera_model)
     if preset == "thesis-platform":
         return _station(out, seed, n_poses, frames, quick, camera_model, console, wall0)
+    if preset == "patch":
+        return _patch(out, seed, 80 if poses == 170 and not quick else n_poses, quick, console)
     request = DemoRequest(out, seed, n_poses, frames, quick, preset, camera_model)
     with staged_progress(console) as progress:
         result = run(request, progress, lambda: console.print(demo_intro(out, n_poses)), wall0)
@@ -81,3 +84,21 @@ def _station(out: Path, seed: int, poses: int, frames: int, quick: bool, camera_
     print_parts(console, [*station_summary(result), f"wrote {out}/: {names} (each a demo run "
                           "with its report), calibration.json (every device), cameras.json, results"
                           f".json, report.html ({time.monotonic() - wall0:.0f} s)"])  # fmt: skip
+
+
+def _patch(out: Path, seed: int, poses: int, quick: bool, console: Console) -> None:
+    from ..report.patch_lines import patch_demo_lines
+    from ..workflows.patch_demo import patch_demo
+
+    intro = (f"microcal demo on the simulated one-camera patch rig ({poses} poses, focus "
+             f"sweeps), writing {out}/")  # fmt: skip
+    with staged_progress(console) as progress:
+        run = patch_demo(out, seed, poses, quick, progress, lambda: console.print(intro))
+    print_parts(
+        console,
+        [
+            *patch_demo_lines(run.result),
+            f"wrote {out}/: journal.jsonl, "
+            f"scope.json, calibration.json, results.json ({run.wall_s:.0f} s)",
+        ],
+    )

@@ -220,6 +220,10 @@ class PlatformConfig:
     """The sample's positioner (preset ``thesis-platform``); None: none."""
 
 
+#: The one-camera microscope's preset (``microcal.sim.patch.patch_rig``): a rig of its own
+#: kind, not one of :data:`PRESETS`; ``microcal demo --preset patch`` runs it.
+ONE_CAMERA_PRESET = "patch"
+
 #: The simulator's presets (see the module docstring).
 PRESETS = (
     "thesis", "telecentric", "thesis-3cam", "population", "thesis-platform", "thesis-real",
@@ -265,6 +269,12 @@ def preset_config(preset: str) -> PlatformConfig:
     InputError
         An unknown preset, naming the nearest.
     """
+    if preset == ONE_CAMERA_PRESET:
+        raise InputError(
+            "preset 'patch' is the one-camera microscope, not a platform of cameras around the "
+            "manipulator: build it with microcal.sim.patch.patch_rig(seed), or run microcal "
+            "demo --preset patch"
+        )
     if preset not in PRESETS:
         hint = did_you_mean(preset, PRESETS).strip()
         raise InputError(
