@@ -143,7 +143,9 @@ def check_calibration(
         done = None
         if update is not None:
             done = _update(cal, m.name, result, calibration, update, rig_, measure, cfg)
-    flag = record_check(calibration, out_path, name, result, history, history_sigma, done)
+        target = rig_.board.spec
+    flag = record_check(calibration, out_path, name, result, history, history_sigma, done,
+                        target=target)  # fmt: skip
     return CheckOutcome(result, flag, done, Path(out_path))
 
 
@@ -161,11 +163,16 @@ def record_check(
     history: list[dict[str, Any]],
     history_sigma: float = 3.0,
     update: CheckUpdate | None = None,
+    *,
+    target: str | None = None,
 ) -> str:
     """Write check.json and add the check to the calibration's history; returns its flag
-    (why its offset stands out from the history's, empty when it does not)."""
+    (why its offset stands out from the history's, empty when it does not). ``target``: the
+    spec of what the cameras measured (a board or a tool's tip), recorded in both."""
     flag = _far_from_history(result, history, history_sigma)
     data: dict[str, JsonValue] = {"format": CHECK_FORMAT, **result.as_dict(), "flag": flag}
+    if target is not None:
+        data["target"] = target
     data["provenance"] = provenance({"calibration": calibration}, command="check")
     if update is not None:
         data["update"] = update.to_json()
