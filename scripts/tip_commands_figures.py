@@ -66,7 +66,7 @@ def goto_figures(rig: Path, cal: Path, args: argparse.Namespace) -> list[dict[st
             for mode in ("open", "closed"):
                 t0 = time.perf_counter()
                 try:
-                    a = station.move_to_um(target, mode)  # type: ignore[arg-type]
+                    a = station.move_to_um(target, mode)
                 except MicrocalError as exc:
                     rows.append({"target_um": target, "mode": mode, "error": str(exc)})
                     continue
@@ -124,11 +124,11 @@ def main() -> None:
             cfg = CheckConfig(frames=args.check_frames, settle_s=1.0)
             done = check_calibration(str(rig), str(cal), d / "check.json", config=cfg)
             saved = json.loads((d / "check.json").read_text())
-            r = done.result
-            out["check"] = {"verdict": r.verdict, "target": saved.get("target"),
-                            "offset_um": [round(float(v), 2) for v in r.offset_um],
-                            "offset_std_um": [round(float(v), 2) for v in r.offset_std_um],
-                            "p_value": r.p_value, "offset_p_value": r.offset_p_value,
+            res = done.result
+            out["check"] = {"verdict": res.verdict, "target": saved.get("target"),
+                            "offset_um": [round(float(v), 2) for v in res.offset_um],
+                            "offset_std_um": [round(float(v), 2) for v in res.offset_std_um],
+                            "p_value": res.p_value, "offset_p_value": res.offset_p_value,
                             "s": round(time.perf_counter() - t0, 1)}  # fmt: skip
             print(f"check ({args.check_frames} frames): {out['check']}")
         if "evaluate" in args.commands:
