@@ -15,11 +15,15 @@ import numpy as np
 import pytest
 
 from microcal import sim
+from microcal.errors import DetectionError
 from microcal.formats.cameras_file import write_cameras
+from microcal.formats.check_file import read_history
 from microcal.sim.platforms import Scene
 from microcal.sim.tools import ToolPlacement
+from microcal.workflows.station import open_station
 from support.cli import invoke_microcal
 from support.runs import fails_cleanly, file_hashes, journal_records
+from support.station_files import write_truth_calibration
 
 NEEDLE = "tip:needle:20:5"
 #: Joint commands (a CSV design): the tool leaves the field at the second, a second tool
@@ -106,3 +110,62 @@ def test_a_tool_leaving_the_field_and_a_second_tool_fail_their_poses_only(
     resumed = invoke_microcal("acquire", "--out", run, "--resume")
     assert resumed.returncode == 0, resumed.stderr
     assert [r["pose"] for r in journal_records(run)] == [1, 2, 3, 4]
+
+
+def _scene_where(monkeypatch, change) -> None:
+    """The scene's tool, changed by ``change(joints, tool)`` -> the placements seen."""
+    seen = Scene.__call__
+
+    def call(self, t_s):
+        out = seen(self, t_s)
+        tools = [o for o in out if isinstance(o, ToolPlacement)]
+        return change(self.visible().joints_um(t_s), tools[-1]) if tools else out
+
+    monkeypatch.setattr(Scene, "__call__", call)
+
+
+@pytest.fixture
+def calibration(tmp_path) -> Path:
+    return write_truth_calibration(tmp_path / "calibration.json", preset="thesis-tip")
+
+
+def test_goto_with_the_tool_out_of_the_field_is_one_line(needle_rig, calibration, monkeypatch):
+    away = np.array([0.0, 40000.0, 0.0])
+    _scene_where(
+        monkeypatch, lambda joints, tool: [dataclasses.replace(tool, tip_um=tool.tip_um + away)]
+    )
+    out = invoke_microcal(
+        "goto", "--rig", needle_rig, "--calibration", calibration, 3000, 2000, 1500
+    )
+    fails_cleanly(out, "station: the cameras do not find the end-effector's target (is it in view?): "
+                       "top: no tool in view", "side: no tool in view")  # fmt: skip
+
+
+def test_goto_with_two_tools_in_view_refuses_their_mixed_tips(needle_rig, calibration, monkeypatch):
+    # at this target the two cones merge in both views: the top camera takes the first tool's
+    # tip, the side camera the second's; triangulated, they are 38 px from the side's apex
+    _scene_where(monkeypatch, lambda joints, tool: [
+        tool, dataclasses.replace(tool, tip_um=tool.tip_um + SECOND_UM)])  # fmt: skip
+    with (
+        open_station(needle_rig, calibration, frames=1, settle_s=0.5) as station,
+        pytest.raises(DetectionError, match=r"in view\?\): the cameras' tips are not one point "
+                                            r"\(side's is \d+ px from where the cameras put it\): "
+                                            r"two tools in view"),
+    ):  # fmt: skip
+        station.move_to_um([3000.0, 2000.0, 1500.0])
+
+
+def test_a_tool_leaving_the_field_during_a_check_is_one_line(
+    needle_rig, calibration, tmp_path, monkeypatch
+):
+    centre = np.array([4000.0, 4000.0, 2400.0])  # check pose 1 (the cube's centre)
+    away = np.array([0.0, 40000.0, 0.0])
+    _scene_where(monkeypatch, lambda joints, tool: [tool] if np.allclose(joints, centre, atol=1.0)
+                 else [dataclasses.replace(tool, tip_um=tool.tip_um + away)])  # fmt: skip
+    out = tmp_path / "check.json"
+    ran = invoke_microcal("check", "--rig", needle_rig, "--calibration", calibration, "--out", out,
+                          "--frames", 1, "--settle-s", 0.5)  # fmt: skip
+    fails_cleanly(ran, "check: the cameras did not see the tool's tip at check pose 2",
+                  "top: no tool in view", "is it in view and lit?")  # fmt: skip
+    assert not out.exists()
+    assert read_history(calibration) == []  # nothing recorded of a check not made

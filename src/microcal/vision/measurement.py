@@ -36,6 +36,7 @@ from .roi import RoiPredictor, box_around
 from .targets import Target
 from .tip_measurement import tip_of_frames
 from .tip_target import TipTarget
+from .view_agreement import refuse_disagreeing
 from .virtual_point import virtual_point
 
 __all__ = ["PoseMeasurement", "Seen", "camera_view", "measure_one", "measure_poses", "measure_seen"]
@@ -188,6 +189,8 @@ def measure_poses(
         _judge(m, lost)
         results.append(m)
     _triangulate(results, cameras, names)
+    if isinstance(target, TipTarget):  # one tip each camera, maybe each another tool's
+        refuse_disagreeing(results, cameras)
     return results
 
 
@@ -303,7 +306,10 @@ def measure_one(
         name: camera_view(frames.get(name) or [], target, cameras[name], (rois or {}).get(name))
         for name in names
     }
-    return measure_seen(seen, cameras, frame_cov_px2)
+    m = measure_seen(seen, cameras, frame_cov_px2)
+    if isinstance(target, TipTarget):
+        refuse_disagreeing([m], cameras)
+    return m
 
 
 def camera_view(

@@ -18,6 +18,7 @@ from .measurement import camera_view, measure_seen
 from .roi import RoiPredictor
 from .targets import Target
 from .tip_target import TipTarget
+from .view_agreement import refuse_disagreeing
 
 __all__ = ["FrameSource", "VisionProbe"]
 
@@ -47,6 +48,9 @@ class VisionProbe:
     frames: int = 5
     frame_cov_px2: dict[str, FloatArray] | None = None
     _predictors: dict[str, RoiPredictor] = field(default_factory=dict)
+    #: Why the last measurement found nothing, camera by camera (``top: tip out of the
+    #: field``); empty after one that found the target.
+    last_reason: str = field(default="", init=False)
 
     def measure(self, d_um: FloatArray) -> FloatArray:
         """Position in {G} (3,) µm from :attr:`frames` frames; NaN when the board is not found."""
@@ -73,6 +77,9 @@ class VisionProbe:
                     )
             seen = {n: view.result() for n, view in views.items()}
         m = measure_seen(seen, self.models, self.frame_cov_px2)
+        if isinstance(self.target, TipTarget):  # one tip each camera, maybe each another tool's
+            refuse_disagreeing([m], self.models)
+        self.last_reason = "" if m.status == "ok" else m.reason
         if m.status != "ok":
             return np.full(3, np.nan), np.full((3, 3), np.nan)
         for n in self.cameras:

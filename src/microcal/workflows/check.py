@@ -48,6 +48,7 @@ from ..procedures.check import (
     run_check,
 )
 from ..vision.probe import VisionProbe
+from ..vision.tip_target import TipTarget
 from .calibration_update import camera_models
 from .station import open_station
 
@@ -138,8 +139,12 @@ def check_calibration(
         rig_ = station.rig
         m = station.calibration
         measure = station.probe.measure_with_covariance
+        seen_as = "the tool's tip" if isinstance(rig_.board, TipTarget) else "the board"
+        probe = station.probe
+        why = lambda: str(getattr(probe, "last_reason", ""))  # noqa: E731
         result = run_check(rig_.manipulator, rig_.clock, measure, m, config=cfg,
-                           reference=reference, progress=progress)  # fmt: skip
+                           reference=reference, progress=progress, seen_as=seen_as,
+                           why_unseen=why)  # fmt: skip
         done = None
         if update is not None:
             done = _update(cal, m.name, result, calibration, update, rig_, measure, cfg)
