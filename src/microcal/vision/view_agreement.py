@@ -16,16 +16,14 @@ triangulated point's image: a tool's tip is fixed to within a pixel or two along
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
+from .._validation import FloatArray
 from ..geometry import AnyCamera
 
-if TYPE_CHECKING:
-    from .measurement import PoseMeasurement
-
-__all__ = ["DISAGREE_PX", "disagreement", "refuse_disagreeing"]
+__all__ = ["DISAGREE_PX", "Measured", "disagreement", "refuse_disagreeing"]
 
 #: Views further than this from their triangulation (px) do not show one tip.
 DISAGREE_PX = 8.0
@@ -61,9 +59,17 @@ def disagreement(
     )
 
 
-def refuse_disagreeing(
-    results: Iterable[PoseMeasurement], cameras: Mapping[str, AnyCamera]
-) -> None:
+class Measured(Protocol):
+    """A pose's measurement (:class:`~microcal.vision.measurement.PoseMeasurement`)."""
+
+    status: str
+    reason: str
+    p_um: FloatArray
+    cov_um2: FloatArray
+    vp_px: dict[str, FloatArray]
+
+
+def refuse_disagreeing(results: Iterable[Measured], cameras: Mapping[str, AnyCamera]) -> None:
     """Fail every measured pose whose views do not show one tip (:func:`disagreement`),
     with the reason; in place."""
     for m in results:
