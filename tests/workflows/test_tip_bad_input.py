@@ -8,6 +8,7 @@ set in its scene at chosen poses (in this process)."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import shutil
 from pathlib import Path
 
@@ -169,3 +170,38 @@ def test_a_tool_leaving_the_field_during_a_check_is_one_line(
                   "top: no tool in view", "is it in view and lit?")  # fmt: skip
     assert not out.exists()
     assert read_history(calibration) == []  # nothing recorded of a check not made
+
+
+def test_evaluate_names_the_measurements_a_tool_out_of_the_field_left_out(
+    needle_rig, calibration, tmp_path, monkeypatch
+):
+    import microcal.procedures.evaluation as evaluation
+
+    cube, conditions = evaluation.iso_cube_poses, evaluation.open_loop_conditions
+    monkeypatch.setattr(evaluation, "iso_cube_poses", lambda lo, hi: cube(lo, hi)[:2])  # P1, P2
+    monkeypatch.setattr(evaluation, "open_loop_conditions",
+                        lambda *a, **k: {"optimal": conditions(*a, **k)["optimal"]})  # fmt: skip
+    seen = (np.zeros(3), np.array([4000.0, 4000.0, 2400.0]))  # home, P1 (joints); not P2
+    away = np.array([0.0, 40000.0, 0.0])
+
+    def field(joints, tool):
+        if any(np.linalg.norm(joints - d) < 50 for d in seen):
+            return [tool]
+        return [dataclasses.replace(tool, tip_um=tool.tip_um + away)]
+
+    _scene_where(monkeypatch, field)
+    out = tmp_path / "results.json"
+    ran = invoke_microcal("evaluate", "--rig", needle_rig, "--calibration", calibration,
+                          "--test", "pose-accuracy", "--poses", "iso-cube", "--cycles", 1,
+                          "--frames", 1, "--settle-s", 0.5, "--out", out)  # fmt: skip
+    assert ran.returncode == 0, ran.stderr
+    text = " ".join(ran.stdout.split())
+    assert "1 measurement(s) not made by the cameras; the figures by vision leave them out" in text
+    assert "top: no tool in view" in text
+    saved = json.loads(out.read_text())
+    assert saved["target"] == NEEDLE
+    [unseen] = saved["unseen"]
+    assert "top: no tool in view" in unseen["reason"]
+    assert np.linalg.norm(np.array(unseen["d_um"]) - [1680.0, 1680.0, 80.0]) < 50  # P2
+    assert len(saved["pose_accuracy"]["vision"]["optimal"]["poses"]) == 1  # P1 alone
+    assert len(saved["pose_accuracy"]["truth"]["optimal"]["poses"]) == 2

@@ -51,6 +51,8 @@ class VisionProbe:
     #: Why the last measurement found nothing, camera by camera (``top: tip out of the
     #: field``); empty after one that found the target.
     last_reason: str = field(default="", init=False)
+    #: Every measurement that found nothing: its joints (3,) µm and the cameras' reasons.
+    failures: list[tuple[FloatArray, str]] = field(default_factory=list, init=False)
 
     def measure(self, d_um: FloatArray) -> FloatArray:
         """Position in {G} (3,) µm from :attr:`frames` frames; NaN when the board is not found."""
@@ -81,6 +83,7 @@ class VisionProbe:
             refuse_disagreeing([m], self.models)
         self.last_reason = "" if m.status == "ok" else m.reason
         if m.status != "ok":
+            self.failures.append((np.array(d_um, dtype=np.float64), m.reason))
             return np.full(3, np.nan), np.full((3, 3), np.nan)
         for n in self.cameras:
             if n in m.corners_px:
