@@ -17,7 +17,7 @@ _Seed = Annotated[int | None, Option(min=0, help="Seed of the design. [default: 
 _Resume = Annotated[bool, Option(help="Continue a run that stopped (as it was begun).")]
 _Settle = Annotated[str | None, Option(help="'vision' or 'fixed:SECONDS'. [default: vision]")]
 _Frames = Annotated[int | None, Option(min=1, help="Frames per camera and pose. [default: 5]")]
-_Store = Annotated[str | None, Option(help="'full' frames or 'roi' (around the board). [full]")]
+_Store = Annotated[str | None, Option(help="'full' frames or 'roi' (around the target). [full]")]
 _Manip = Annotated[str | None, Option(help="The rig's device to move (m1, m2, p1 ...). [m1]")]
 _CheckCal = Annotated[str | None, Option(help="Check this calibration during this run.")]
 _Every = Annotated[str | None, Option(help="Its check every N poses or Mmin minutes. [20]")]

@@ -51,7 +51,7 @@ def evaluate(
 
     Example: microcal evaluate --rig sim --calibration calibration.json --control all
     """
-    from ..report.text_tables import evaluation_tables, is_thesis_rig
+    from ..report.text_tables import evaluation_tables, is_thesis_rig, unseen_lines
     from ..workflows.evaluate import EvaluateRequest
     from ..workflows.evaluate import evaluate as run
 
@@ -63,4 +63,4 @@ def evaluate(
         done = run(request, progress)
     thesis = is_thesis_rig(done.rig_record) and poses == PoseChoice.table
     tables = evaluation_tables(done.evaluation, poses.value, thesis=thesis)
-    print_parts(Console(), [*tables, f"wrote {done.out}"])
+    print_parts(Console(), [*tables, *unseen_lines(done.evaluation.unseen), f"wrote {done.out}"])

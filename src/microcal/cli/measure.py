@@ -13,7 +13,8 @@ from ._app import app
 
 _RunDir = Annotated[Path, Argument(help="Run directory (commands.csv and images/).")]
 _Cameras = Annotated[Path, Option(help="cameras.json (or a calibration.json with cameras).")]
-_Target = Annotated[str | None, Option(help="End-effector board (default: run.json's).")]
+_TARGET_HELP = "End-effector board or tool's tip (tip:needle:20:5); default: run.json's."
+_Target = Annotated[str | None, Option(help=_TARGET_HELP)]
 
 
 _Force = Annotated[bool, Option(help="Replace a measurements.csv that measured more poses.")]
@@ -28,6 +29,7 @@ def measure(
     Every image is measured only if it is the one the journal recorded (its SHA-256).
 
     Example: microcal measure runs/a --cameras cameras.json
+    (a tool's tip instead of the run's target: --target tip:needle:20:5)
     """
     from ..report.text_tables import measurement_lines
     from ..workflows.measure import measure_run

@@ -17,6 +17,7 @@ from typing import Any
 
 from .._validation import FloatArray
 from ..errors import DeviceError, InputError
+from ..vision.effector_target import parse_effector_target
 from ..vision.targets import Target, parse_target
 from ..vision.tip_target import TipTarget
 from .base import Camera, Clock, Device, Manipulator, RealClock
@@ -78,7 +79,7 @@ class Rig:
     temperatures : dict of str to callable
         Each device's ambient temperature sensor, where devices have their own (the
         simulator's); :meth:`select` makes it ``temperature``.
-    boards : dict of str to Target
+    boards : dict of str to Target or TipTarget
         Every device's target, by name, when devices carry targets of their own (a rig
         file's ``[manipulators.NAME]`` ``board``); :meth:`select` makes it ``board``. Empty
         when every device carries ``board``.
@@ -102,7 +103,7 @@ class Rig:
     show: Callable[[str], None] | None = None
     selected: str = "m1"
     temperatures: dict[str, Callable[[], float]] = field(default_factory=dict)
-    boards: dict[str, Target] = field(default_factory=dict)
+    boards: dict[str, Target | TipTarget] = field(default_factory=dict)
     microscope: Manipulator | None = None
     _closed: bool = field(default=False, init=False, repr=False)
 
@@ -332,12 +333,12 @@ def _open_hardware(
     for name, cam_spec in spec.cameras.items():
         cameras[name] = _open_camera(name, cam_spec, core, description)
         opened.append((name, cameras[name]))
-    boards = {n: parse_target(spec.board_of(n)) for n in devices} if spec.boards else {}
+    boards = {n: parse_effector_target(spec.board_of(n)) for n in devices} if spec.boards else {}
     return Rig(
         manipulator,
         cameras,
         RealClock(),
-        parse_target(spec.board),
+        parse_effector_target(spec.board),
         description=description,
         resources=resources,
         target_stage=stage,

@@ -417,7 +417,8 @@ class HardwareRigSpec:
     cameras : mapping of name to AravisCameraSpec or MMCameraSpec
         Two or more cameras, by the names the run uses (``top``, ``side`` ...), in order.
     board : str
-        The end-effector's target (``microcal.vision.targets.parse_target``).
+        The end-effector's target: a board or a tool's tip (``tip:needle:20:5``;
+        ``microcal.vision.effector_target.parse_effector_target``).
     micromanager : MicroManagerSpec or None
         Needed when a device is a Micro-Manager one.
     target_stage : MCS2Spec or MMStageSpec or None
@@ -451,7 +452,7 @@ class HardwareRigSpec:
     microscope: MMStageSpec | None = None
 
     def __post_init__(self) -> None:
-        from ..vision.targets import parse_target
+        from ..vision.effector_target import parse_effector_target
 
         object.__setattr__(self, "cameras", dict(self.cameras))
         object.__setattr__(self, "manipulators", dict(self.manipulators))
@@ -463,7 +464,7 @@ class HardwareRigSpec:
                 )
             if not isinstance(spec, str):
                 raise InputError(f"boards.{name}: expected a target spec string, got {spec!r}")
-            parse_target(spec)
+            parse_effector_target(spec)
         for name in self.cameras:
             problem = name_problem(name)
             if problem is not None:  # it becomes a file name (images/NAME_0001.tiff)

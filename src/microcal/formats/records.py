@@ -376,6 +376,8 @@ class DeviceResults(FileSchema):
     drift: dict[str, dict[str, DriftResult]] | None = None
     closed_loop: dict[str, AnyJson] | None = None
     timing: dict[str, AnyJson] | None = None
+    target: str | None = None  # what the cameras measured (evaluate): a board or a tool's tip
+    unseen: list[dict[str, AnyJson]] | None = None  # measurements not made: d_um, reason
 
 
 class MeetFigures(FileSchema):

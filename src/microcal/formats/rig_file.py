@@ -19,7 +19,7 @@ camera (``docs/hardware.md``, ``examples/rigs/``):
 
 ```toml
 driver = "hardware"
-board = "chessboard:4x3:400"           # the end-effector's board
+board = "chessboard:4x3:400"           # the end-effector's board (or a tool's tip: "tip:needle")
 [manipulator]
 kind = "smaract-mcs2"                  # or "micromanager"
 address = "192.168.1.200"
@@ -347,6 +347,9 @@ def _sim(path: Path, data: Mapping[str, object]) -> SimRigSpec:
         raise FormatError(
             f"{path}: preset: expected one of {list(PRESETS)}, got {excerpt(preset)}{hint}"
         )
+    board = overrides.get("board")
+    if isinstance(board, str):  # a board or a tool's tip, refused with the fix of a near miss
+        _check_target(path, "overrides.board", board)
     try:
         check_overrides(overrides, preset)
         return _spec(SimRigSpec, {**given, "overrides": overrides})
@@ -355,10 +358,13 @@ def _sim(path: Path, data: Mapping[str, object]) -> SimRigSpec:
 
 
 def _check_target(path: Path, key: str, spec: str) -> None:
+    """A board key takes a board or a tool's tip (``tip:needle:20:5``); the calibration
+    target is a board."""
+    from ..vision.effector_target import parse_effector_target
     from ..vision.targets import parse_target
 
     try:
-        parse_target(spec)
+        parse_target(spec) if key == "calibration_target" else parse_effector_target(spec)
     except InputError as exc:
         raise FormatError(f"{path}: {key}: {exc}") from None
 

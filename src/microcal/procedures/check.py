@@ -368,8 +368,13 @@ def run_check(
     config: CheckConfig | None = None,
     reference: tuple[FloatArray, FloatArray] | None = None,
     progress: Callable[[int, int], None] | None = None,
+    seen_as: str = "the board",
+    why_unseen: Callable[[], str] | None = None,
 ) -> CheckResult:
     """Measure the check poses and test them against the calibration (module docstring).
+
+    ``seen_as`` names the target in the refusal of a pose the cameras did not see (``the
+    tool's tip``), ``why_unseen`` gives their reasons (the probe's, camera by camera).
 
     Each pose is approached as the calibration was made: from :data:`APPROACH_UM` below on
     every joint when the model has approach-direction terms. All poses are checked against
@@ -397,9 +402,11 @@ def run_check(
         clock.sleep(cfg.settle_s)
         p, c = measure(d, cfg.frames)
         if not np.all(np.isfinite(p)):
+            why = why_unseen() if why_unseen is not None else ""
             raise DetectionError(
-                f"check: the cameras did not see the board at check pose {i + 1} "
-                f"(joints {np.round(d, 1).tolist()} µm); is it in view and lit?"
+                f"check: the cameras did not see {seen_as} at check pose {i + 1} "
+                f"(joints {np.round(d, 1).tolist()} µm{f'; {why}' if why else ''}); is it in "
+                f"view and lit?"
             )
         measured.append(p)
         covs.append(c)

@@ -439,4 +439,5 @@ def run_evaluation(
                drift_interval_s, band_um, parts)  # fmt: skip
     if loop is not None:
         parts.closed_loop = loop.summary()
+    parts.unseen = [{"d_um": d.tolist(), "reason": why} for d, why in probe.failures]
     return parts

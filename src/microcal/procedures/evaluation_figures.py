@@ -175,6 +175,9 @@ class Evaluation:
     stabilisation: BySource[StabilisationFigures] | None = None
     drift: BySource[DriftFigures] | None = None
     closed_loop: ClosedLoopSummary | None = None
+    #: The measurements the cameras could not make (their poses are left out of the figures
+    #: by vision): ``{"d_um": [3], "reason": str}`` each, in the order they were tried.
+    unseen: list[dict[str, JsonValue]] = field(default_factory=list)
 
     def to_json(self) -> dict[str, JsonValue]:
         """The sections of results.json the tests give (those that ran)."""
@@ -191,4 +194,6 @@ class Evaluation:
             out["drift"] = _section(self.drift, DriftFigures.to_json)
         if self.closed_loop is not None:
             out["closed_loop"] = self.closed_loop.to_json()
+        if self.unseen:
+            out["unseen"] = list(self.unseen)
         return out

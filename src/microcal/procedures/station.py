@@ -174,8 +174,10 @@ class Station:
         self.rig.look_at()
         p, cov = self.probe.measure_with_covariance(self._d, frames or self.frames)
         if not np.all(np.isfinite(p)):
+            why = getattr(self.probe, "last_reason", "")
             raise DetectionError(
                 "station: the cameras do not find the end-effector's target (is it in view?)"
+                + (f": {why}" if why else "")
             )
         return p, cov
 

@@ -10,7 +10,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -375,6 +375,21 @@ def iso_lines(parts: Evaluation) -> list[str]:
                 out.append(f"drift {c} ({source}): dAP {f.drift_ap_um:.3f} µm over "
                            f"{span / 3600:.2f} h, AP {f.ap_p_um[0]:.3f} -> "
                            f"{f.ap_p_um[-1]:.3f} µm (ISO 9283 7.7)")  # fmt: skip
+    return out
+
+
+def unseen_lines(unseen: Sequence[Mapping[str, Any]], shown: int = 3) -> list[str]:
+    """What ``evaluate`` says of the measurements the cameras could not make: how many, and
+    the first ``shown`` with their joints and reasons (results.json's ``unseen`` has all)."""
+    if not unseen:
+        return []
+    out = [f"{len(unseen)} measurement(s) not made by the cameras; the figures by vision "
+           f"leave them out (results.json: unseen):"]  # fmt: skip
+    for u in unseen[:shown]:
+        joints = ", ".join(f"{float(v):.1f}" for v in u["d_um"])
+        out.append(f"  joints ({joints}) µm: {u['reason']}")
+    if len(unseen) > shown:
+        out.append(f"  and {len(unseen) - shown} more")
     return out
 
 

@@ -36,6 +36,7 @@ from .roi import RoiPredictor, box_around
 from .targets import Target
 from .tip_measurement import tip_of_frames
 from .tip_target import TipTarget
+from .view_agreement import refuse_disagreeing
 from .virtual_point import virtual_point
 
 __all__ = [
@@ -206,6 +207,8 @@ def measurements_of_tracks(
         _judge(m, lost)
         results.append(m)
     _triangulate(results, cameras, names)
+    if isinstance(target, TipTarget):  # one tip each camera, maybe each another tool's
+        refuse_disagreeing(results, cameras)
     return results
 
 
@@ -321,7 +324,10 @@ def measure_one(
         name: camera_view(frames.get(name) or [], target, cameras[name], (rois or {}).get(name))
         for name in names
     }
-    return measure_seen(seen, cameras, frame_cov_px2)
+    m = measure_seen(seen, cameras, frame_cov_px2)
+    if isinstance(target, TipTarget):
+        refuse_disagreeing([m], cameras)
+    return m
 
 
 def camera_view(

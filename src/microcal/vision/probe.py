@@ -18,6 +18,7 @@ from .measurement import camera_view, measure_seen
 from .roi import RoiPredictor
 from .targets import Target
 from .tip_target import TipTarget
+from .view_agreement import refuse_disagreeing
 
 __all__ = ["FrameSource", "VisionProbe"]
 
@@ -48,6 +49,11 @@ class VisionProbe:
     frame_cov_px2: dict[str, FloatArray] | None = None
     search_threads: bool = True  # each camera's frames searched on a thread (False: in turn)
     _predictors: dict[str, RoiPredictor] = field(default_factory=dict)
+    #: Why the last measurement found nothing, camera by camera (``top: tip out of the
+    #: field``); empty after one that found the target.
+    last_reason: str = field(default="", init=False)
+    #: Every measurement that found nothing: its joints (3,) µm and the cameras' reasons.
+    failures: list[tuple[FloatArray, str]] = field(default_factory=list, init=False)
 
     def learn_regions(self, d_um: FloatArray, corners_px: Mapping[str, FloatArray]) -> None:
         """Where the board was at joints ``d_um`` (3,): its corners (k, 2) px per camera, as an
@@ -87,7 +93,11 @@ class VisionProbe:
                         views[n].result()
             seen = {n: view.result() for n, view in views.items()}
         m = measure_seen(seen, self.models, self.frame_cov_px2)
+        if isinstance(self.target, TipTarget):  # one tip each camera, maybe each another tool's
+            refuse_disagreeing([m], self.models)
+        self.last_reason = "" if m.status == "ok" else m.reason
         if m.status != "ok":
+            self.failures.append((np.array(d_um, dtype=np.float64), m.reason))
             return np.full(3, np.nan), np.full((3, 3), np.nan)
         for n in self.cameras:
             if n in m.corners_px:

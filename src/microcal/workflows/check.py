@@ -48,6 +48,7 @@ from ..procedures.check import (
     run_check,
 )
 from ..vision.probe import VisionProbe
+from ..vision.tip_target import TipTarget
 from .calibration_update import camera_models
 from .station import open_station
 
@@ -138,12 +139,18 @@ def check_calibration(
         rig_ = station.rig
         m = station.calibration
         measure = station.probe.measure_with_covariance
+        seen_as = "the tool's tip" if isinstance(rig_.board, TipTarget) else "the board"
+        probe = station.probe
+        why = lambda: str(getattr(probe, "last_reason", ""))  # noqa: E731
         result = run_check(rig_.manipulator, rig_.clock, measure, m, config=cfg,
-                           reference=reference, progress=progress)  # fmt: skip
+                           reference=reference, progress=progress, seen_as=seen_as,
+                           why_unseen=why)  # fmt: skip
         done = None
         if update is not None:
             done = _update(cal, m.name, result, calibration, update, rig_, measure, cfg)
-    flag = record_check(calibration, out_path, name, result, history, history_sigma, done)
+        target = rig_.board.spec
+    flag = record_check(calibration, out_path, name, result, history, history_sigma, done,
+                        target=target)  # fmt: skip
     return CheckOutcome(result, flag, done, Path(out_path))
 
 
@@ -161,11 +168,16 @@ def record_check(
     history: list[dict[str, Any]],
     history_sigma: float = 3.0,
     update: CheckUpdate | None = None,
+    *,
+    target: str | None = None,
 ) -> str:
     """Write check.json and add the check to the calibration's history; returns its flag
-    (why its offset stands out from the history's, empty when it does not)."""
+    (why its offset stands out from the history's, empty when it does not). ``target``: the
+    spec of what the cameras measured (a board or a tool's tip), recorded in both."""
     flag = _far_from_history(result, history, history_sigma)
     data: dict[str, JsonValue] = {"format": CHECK_FORMAT, **result.as_dict(), "flag": flag}
+    if target is not None:
+        data["target"] = target
     data["provenance"] = provenance({"calibration": calibration}, command="check")
     if update is not None:
         data["update"] = update.to_json()

@@ -81,5 +81,5 @@ def evaluate(
             control=r.control, tolerance_um=r.tolerance_um, drift_s=r.drift_h * 3600.0,
             band_um=r.band_um,
         )  # fmt: skip
-    update_results(r.out, parts)
+    update_results(r.out, {**parts.to_json(), "target": d.board.spec})
     return EvaluateResult(parts, c.spec.to_dict(), r.out)

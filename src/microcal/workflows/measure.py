@@ -102,8 +102,8 @@ def measure_run(
         measured than the measurements.csv it would replace (kept; ``force`` replaces it).
     """
     from ..formats.cameras_file import load_cameras
+    from ..vision.effector_target import parse_effector_target
     from ..vision.measurement import measure_poses
-    from ..vision.targets import parse_spec
 
     run = RunDirectory.open(run_dir, require_commands=False)
     models = load_cameras(cameras)
@@ -114,7 +114,7 @@ def measure_run(
             f"verified (restore it, or acquire the run again)"
         )
     try:
-        board = parse_spec(target or run.target_spec or DEFAULT_TARGET)
+        board = parse_effector_target(target or run.target_spec or DEFAULT_TARGET)
     except InputError as exc:
         where = "--target" if target else f"{run.path / 'run.json'}: target"
         raise InputError(f"{where}: {exc}") from None
