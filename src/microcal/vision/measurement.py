@@ -185,14 +185,18 @@ def measure_poses(
         return camera_track(poses, commands_um, load_frames, cameras[name], name, target, tick)
 
     tracks = dict(zip(names, fork_map(one_camera, names, workers, tick), strict=True))
-    return measurements_of_tracks(poses, tracks, cameras)
+    return measurements_of_tracks(poses, tracks, cameras, target)
 
 
 def measurements_of_tracks(
-    poses: Sequence[int], tracks: Mapping[str, Sequence[Seen]], cameras: Mapping[str, AnyCamera]
+    poses: Sequence[int],
+    tracks: Mapping[str, Sequence[Seen]],
+    cameras: Mapping[str, AnyCamera],
+    target: Target | TipTarget,
 ) -> list[PoseMeasurement]:
     """The poses measured from every camera's track (:func:`camera_track`, one per camera of
-    ``cameras``, in its order): judged and triangulated as :func:`measure_poses` does."""
+    ``cameras``, in its order) of ``target``: judged and triangulated as :func:`measure_poses`
+    does (a tool's tip that the views do not agree on fails its pose)."""
     names = _check_cameras(cameras)
     results: list[PoseMeasurement] = []
     for k, pose in enumerate(poses):

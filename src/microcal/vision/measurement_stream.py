@@ -207,7 +207,7 @@ class MeasurementStream:
             self._drain()
         finally:
             self.close()
-        return measurements_of_tracks(self.poses, tracks, self.cameras)
+        return measurements_of_tracks(self.poses, tracks, self.cameras, self.target)
 
     def close(self) -> None:
         """End every camera's process still running (the results are no longer wanted)."""
