@@ -317,6 +317,7 @@ class PeriodicCheck:
         self.rig, self.path, self.run_dir, self.say = rig, Path(calibration), str(run_dir), say
         probe = VisionProbe(rig.cameras, camera_models(cal), rig.board, self.config.frames)
         self.measure = probe.measure_with_covariance
+        self.probe = probe
         self.last_s = rig.clock.now_s()
         self.results: list[CheckResult] = []
 
@@ -329,8 +330,11 @@ class PeriodicCheck:
             return None
         history = of_device(read_history(self.path), self.entry.name, self.single)
         try:
+            seen_as = "the tool's tip" if isinstance(self.rig.board, TipTarget) else "the board"
             result = run_check(self.rig.manipulator, self.rig.clock, self.measure, self.entry,
-                               config=self.config, reference=_reference(history))  # fmt: skip
+                               config=self.config, reference=_reference(history),
+                               seen_as=seen_as,
+                               why_unseen=lambda: self.probe.last_reason)  # fmt: skip
         except DetectionError as exc:
             self.say(f"check after {done} poses not made: {exc}")
             here = np.asarray(self.rig.manipulator.position_um(), dtype=np.float64)
