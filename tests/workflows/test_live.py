@@ -116,7 +116,7 @@ def test_the_closed_loop_brings_the_tip_to_the_clicked_point_by_truth(live):
 
 def test_stop_halts_at_once_and_nothing_moves_after_it(live):
     moves: list[float] = []
-    inner = live.manipulator.inner
+    inner = live.manipulator.device
     real_move = inner._move
     stopped = threading.Event()
 

@@ -13,6 +13,7 @@ import threading
 from .._validation import FloatArray
 from ..errors import DeviceError
 from .base import Manipulator
+from .wrapped_manipulator import WrappedManipulator
 
 __all__ = ["HALTED", "GuardedManipulator"]
 
@@ -20,7 +21,7 @@ __all__ = ["HALTED", "GuardedManipulator"]
 HALTED = "stopped: the stop control was pressed; nothing moves until the next go"
 
 
-class GuardedManipulator(Manipulator):
+class GuardedManipulator(WrappedManipulator):
     """``inner`` with a stop that holds (see the module docstring).
 
     Parameters
@@ -31,13 +32,8 @@ class GuardedManipulator(Manipulator):
     """
 
     def __init__(self, inner: Manipulator) -> None:
-        super().__init__(inner.name, inner.axes, inner.limits_um)
-        self.inner = inner
+        super().__init__(inner, inner.axes, inner.limits_um)
         self._halted = threading.Event()
-
-    @property
-    def identity(self) -> str:
-        return self.inner.identity
 
     @property
     def halted(self) -> bool:
@@ -47,7 +43,7 @@ class GuardedManipulator(Manipulator):
     def halt(self) -> None:
         """Refuse every further move, then stop the device now."""
         self._halted.set()
-        self.inner.stop()
+        self.device.stop()
 
     def resume(self) -> None:
         """Accept moves again."""
@@ -56,16 +52,7 @@ class GuardedManipulator(Manipulator):
     def _move(self, d_um: FloatArray) -> None:
         if self._halted.is_set():
             raise DeviceError(f"{self.name}: {HALTED}")
-        self.inner.move_to_um(d_um)
+        self.device.move_to_um(d_um)
 
     def _position_um(self) -> FloatArray:
-        return self.inner.position_um()
-
-    def _is_moving(self) -> bool:
-        return self.inner.is_moving()
-
-    def _stop(self) -> None:
-        self.inner.stop()
-
-    def _close(self) -> None:
-        self.inner.close()
+        return self.device.position_um()

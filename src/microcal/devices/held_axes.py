@@ -17,6 +17,7 @@ import numpy as np
 from .._validation import FloatArray
 from ..errors import InputError
 from .base import Manipulator
+from .wrapped_manipulator import WrappedManipulator
 
 __all__ = ["AXES", "HeldAxes", "axes_in_order", "with_three_joints"]
 
@@ -29,7 +30,7 @@ def axes_in_order(axes: Sequence[str]) -> bool:
     return bool(axes) and list(axes) == [a for a in AXES if a in axes]
 
 
-class HeldAxes(Manipulator):
+class HeldAxes(WrappedManipulator):
     """A manipulator of some of the axes x, y, z as one of all three, the others held at 0.
 
     Parameters
@@ -48,16 +49,10 @@ class HeldAxes(Manipulator):
             raise InputError(
                 f"{device.name}: expected axes among x, y, z in that order, got {list(device.axes)}"
             )
-        self.device = device
         self._index = [AXES.index(a) for a in device.axes]
         limits = np.zeros((3, 2))
         limits[self._index] = device.limits_um
-        super().__init__(device.name, AXES, limits)
-
-    @property
-    def identity(self) -> str:
-        """The wrapped device's identity."""
-        return self.device.identity
+        super().__init__(device, AXES, limits)
 
     def _move(self, d_um: FloatArray) -> None:
         self.device.move_to_um(d_um[self._index])
@@ -66,15 +61,6 @@ class HeldAxes(Manipulator):
         out = np.zeros(3)
         out[self._index] = self.device.position_um()
         return out
-
-    def _is_moving(self) -> bool:
-        return self.device.is_moving()
-
-    def _stop(self) -> None:
-        self.device.stop()
-
-    def _close(self) -> None:
-        self.device.close()
 
 
 def with_three_joints(device: Manipulator) -> Manipulator:

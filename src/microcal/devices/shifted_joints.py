@@ -14,22 +14,17 @@ from numpy.typing import ArrayLike
 
 from .._validation import FloatArray, as_array
 from .base import Manipulator
+from .wrapped_manipulator import WrappedManipulator
 
 __all__ = ["ShiftedJoints"]
 
 
-class ShiftedJoints(Manipulator):
+class ShiftedJoints(WrappedManipulator):
     """``device`` with its joints counted from ``origin_um`` (n_axes,), µm."""
 
     def __init__(self, device: Manipulator, origin_um: ArrayLike) -> None:
-        self.device = device
         self.origin_um: FloatArray = as_array(origin_um, "origin_um", (device.n_axes,))
-        super().__init__(device.name, device.axes, device.limits_um - self.origin_um[:, None])
-
-    @property
-    def identity(self) -> str:
-        """The wrapped device's identity."""
-        return self.device.identity
+        super().__init__(device, device.axes, device.limits_um - self.origin_um[:, None])
 
     def _move(self, d_um: FloatArray) -> None:
         self.device.move_to_um(np.asarray(d_um, dtype=np.float64) + self.origin_um)
@@ -37,12 +32,3 @@ class ShiftedJoints(Manipulator):
     def _position_um(self) -> FloatArray:
         out: FloatArray = self.device.position_um() - self.origin_um
         return out
-
-    def _is_moving(self) -> bool:
-        return self.device.is_moving()
-
-    def _stop(self) -> None:
-        self.device.stop()
-
-    def _close(self) -> None:
-        self.device.close()
