@@ -26,6 +26,7 @@ from ..formats.outputs import check_writable
 from ..formats.run_directory import RUN_FILE_NAMES, RunDirectory, RunWriter
 from ..formats.run_lock import LOCK_NAME
 from ..formats.run_manifest import new_manifest
+from .demo_results import fit_sections
 
 if TYPE_CHECKING:
     from ..experiments.demo import DemoResult
@@ -99,22 +100,11 @@ def write_demo_outputs(out: Path, result: DemoResult, wall_s: float) -> None:
     results_path = out / "results.json"
     results_path.unlink(missing_ok=True)
     records = result.records
-    axis_rms = result.measurement_rms_axis_um.tolist()
     update_results(results_path, {
         "stereo": {n: {"rms_px": c.rms_px, "model": c.model.kind}
                    for n, c in result.calibration.cameras.items()},
-        "measurement": {"rms_error_um": result.measurement_rms_um,
-                        "rms_error_axis_um": dict(zip("xyz", axis_rms, strict=True)),
-                        "mahalanobis_mean_sq": result.mahalanobis_mean_sq},
-        "models": {k: {"validation": v.validation} for k, v in result.models.items()},
-        "oracle": {f"{k}_um": v for k, v in result.oracle.items()},
-        "acquisition": {
-            "poses": len(records),
-            "stored": sum(r.status == "ok" for r in records),
-            "mean_settle_s": float(np.mean([r.settle_s for r in records])),
-            "failed": [{"pose": r.pose, "reason": r.reason or ""}
-                       for r in records if r.status != "ok"],
-        },
+        **fit_sections(result, records,
+                       {"mean_settle_s": float(np.mean([r.settle_s for r in records]))}),
         **result.evaluation.to_json(),
         "rig_time": RigTime.of_records([r.sim_time_s for r in records],
                                        [r.move_s for r in records],

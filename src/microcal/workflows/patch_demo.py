@@ -21,6 +21,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..formats.outputs import check_writable
+from .demo_results import fit_sections
 
 if TYPE_CHECKING:
     from ..experiments.patch_demo import PatchDemoResult
@@ -114,23 +115,11 @@ def _results(result: PatchDemoResult, prov: Mapping[str, object]) -> dict[str, o
     from ..procedures.evaluation_figures import Evaluation
 
     records = result.records
-    axis_rms = result.measurement_rms_axis_um.tolist()
     volume = Evaluation(pose_accuracy=result.volume_accuracy).to_json()
     return {
         "preset": "patch",
         "scope": result.scope.calibration.to_json() | {"errors": result.scope_errors},
-        "measurement": {"rms_error_um": result.measurement_rms_um,
-                        "rms_error_axis_um": dict(zip("xyz", axis_rms, strict=True)),
-                        "mahalanobis_mean_sq": result.mahalanobis_mean_sq},
-        "models": {k: {"validation": v.validation} for k, v in result.models.items()},
-        "oracle": {f"{k}_um": v for k, v in result.oracle.items()},
-        "acquisition": {
-            "poses": len(records),
-            "stored": sum(r.status == "ok" for r in records),
-            "frames": int(sum(t.frames for t in result.run.tips)),
-            "failed": [{"pose": r.pose, "reason": r.reason or ""}
-                       for r in records if r.status != "ok"],
-        },
+        **fit_sections(result, records, {"frames": int(sum(t.frames for t in result.run.tips))}),
         "joint_origin_um": np.asarray(result.joint_origin_um).tolist(),
         **result.evaluation.to_json(),
         "volume_accuracy": volume.get("pose_accuracy"),
