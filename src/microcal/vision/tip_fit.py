@@ -29,19 +29,21 @@ corrected for the rounded end.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
+from scipy.optimize import OptimizeResult, least_squares
 from scipy.special import ndtr
 
 from .._validation import FloatArray
 from .tip_find import ToolBlob
 from .tip_target import TipTarget
 
-__all__ = ["TipFit", "fit_tip"]
+__all__ = ["TipFit", "fit_tip", "lowest_cost_fit"]
 
 
 def _blur_at(p: FloatArray, t: float) -> float:
@@ -231,6 +233,23 @@ def _cover(
     return cover, taper, end, re
 
 
+def lowest_cost_fit(
+    residuals: Callable[[FloatArray], FloatArray], starts: Sequence[FloatArray], **options: Any
+) -> OptimizeResult | None:
+    """The least-squares fit of ``residuals`` of lowest cost over the ``starts`` (each (k,)),
+    with scipy's ``least_squares`` ``options``; a start the solver fails on is passed over.
+    None when it fails on every start."""
+    fit = None
+    for start in starts:
+        try:
+            trial = least_squares(residuals, start, **options)
+        except (ValueError, np.linalg.LinAlgError):
+            continue
+        if fit is None or trial.cost < fit.cost:
+            fit = trial
+    return fit
+
+
 def _noise(gray: NDArray[np.float32]) -> float:
     """The image's pixel noise, from the differences of neighbours (robust), grey levels."""
     d = np.diff(gray.astype(np.float64), axis=1)
@@ -276,15 +295,8 @@ def fit_tip(
                 if all(abs(q[3] - o[3]) > 0.1 * beta0 or np.hypot(*(q[:2] - o[:2])) > 2.0
                        for o in starts):  # fmt: skip
                     starts.append(q)
-        fit = None
-        for start in starts:
-            try:
-                trial = least_squares(model.residuals, start, method="lm", x_scale="jac",
-                                      diff_step=1e-4, max_nfev=400)  # fmt: skip
-            except (ValueError, np.linalg.LinAlgError):
-                continue
-            if fit is None or trial.cost < fit.cost:
-                fit = trial
+        fit = lowest_cost_fit(model.residuals, starts, method="lm", x_scale="jac",
+                              diff_step=1e-4, max_nfev=400)  # fmt: skip
         if fit is None:
             return "the model fit failed on this image"
         # The tip's place along the axis may lie in a neighbouring dip of the cost: scan
@@ -299,12 +311,9 @@ def fit_tip(
         if sft != 0.0 and cost < 2 * fit.cost:
             q = fit.x.copy()
             q[:2] += u * sft
-            try:
-                trial = least_squares(model.residuals, q, method="lm", x_scale="jac",
-                                      diff_step=1e-4, max_nfev=400)  # fmt: skip
-                fit = trial if trial.cost < fit.cost else fit
-            except (ValueError, np.linalg.LinAlgError):
-                pass
+            trial = lowest_cost_fit(model.residuals, [q], method="lm", x_scale="jac",
+                                    diff_step=1e-4, max_nfev=400)  # fmt: skip
+            fit = trial if trial is not None and trial.cost < fit.cost else fit
         p = fit.x
         blur = _blur_at(p, 0.0)
         tip = np.array([p[0] + x0, p[1] + y0])

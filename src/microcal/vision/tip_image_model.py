@@ -61,11 +61,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
 
 from .._validation import FloatArray
 from .tip_find import ToolBlob
-from .tip_fit import TipFit, _end_ratio, _noise
+from .tip_fit import TipFit, _end_ratio, _noise, lowest_cost_fit
 from .tip_target import TipTarget
 
 __all__ = ["GLASS_SLOPE", "GLASS_WALL", "ToolImageModel", "fit_tip_image"]
@@ -466,16 +465,16 @@ def fit_tip_image(
                 scan.append((float(np.sum(model.residuals(q) ** 2)), sft, q))
             scan.sort(key=lambda v: v[0])
             starts = [scan[0][2]]
-        fit = None
-        for q in starts:
-            try:
-                trial = least_squares(model.residuals, q, jac=model.jacobian, method="lm",
-                                      x_scale=scale, max_nfev=100, ftol=_FTOL,
-                                      xtol=_XTOL)  # fmt: skip
-            except (ValueError, np.linalg.LinAlgError):
-                continue
-            if fit is None or trial.cost < fit.cost:
-                fit = trial
+        fit = lowest_cost_fit(
+            model.residuals,
+            starts,
+            jac=model.jacobian,
+            method="lm",
+            x_scale=scale,
+            max_nfev=100,
+            ftol=_FTOL,
+            xtol=_XTOL,
+        )
         if fit is None:
             return "the model fit failed on this image"
         p = fit.x
