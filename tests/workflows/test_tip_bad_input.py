@@ -23,10 +23,10 @@ from microcal.sim.platforms import Scene
 from microcal.sim.tools import ToolPlacement
 from microcal.workflows.station import open_station
 from support.cli import invoke_microcal
+from support.needle_rig import NEEDLE, write_needle_rig
 from support.runs import fails_cleanly, file_hashes, journal_records
 from support.station_files import write_truth_calibration
 
-NEEDLE = "tip:needle:20:5"
 #: Joint commands (a CSV design): the tool leaves the field at the second, a second tool
 #: is parked beside it at the third.
 DESIGN = ((3000.0, 2000.0, 2500.0), (5000.0, 4000.0, 1500.0), (6000.0, 2500.0, 3000.0),
@@ -52,10 +52,7 @@ def test_a_tip_spec_on_a_boards_images_is_one_line_and_loses_nothing(acquired_ru
 
 @pytest.fixture
 def needle_rig(tmp_path) -> Path:
-    path = tmp_path / "needle.toml"
-    path.write_text(f'driver = "sim"\npreset = "thesis-tip"\nseed = 0\n'
-                    f'[overrides]\nboard = "{NEEDLE}"\n')  # fmt: skip
-    return path
+    return write_needle_rig(tmp_path)
 
 
 def _scene_with_surprises(monkeypatch) -> None:

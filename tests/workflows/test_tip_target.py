@@ -21,10 +21,10 @@ from microcal.workflows.check import check_calibration
 from microcal.workflows.evaluate import EvaluateRequest, evaluate
 from microcal.workflows.station import open_station
 from support.cli import invoke_microcal
+from support.needle_rig import NEEDLE, write_needle_rig
 from support.runs import fails_cleanly
 from support.station_files import write_truth_calibration
 
-NEEDLE = "tip:needle:20:5"
 TARGET_UM = (3000.0, 2000.0, 1500.0)
 #: What a needle's tip costs on the thesis's cameras in one frame, 3D, µm: 3-5 µm RMS over
 #: poses from five frames, up to ~25 µm in one frame at the travel's corners (its detection's
@@ -34,10 +34,7 @@ TIP_UM = 30.0
 
 @pytest.fixture
 def rig(tmp_path) -> Path:
-    path = tmp_path / "needle.toml"
-    path.write_text(f'driver = "sim"\npreset = "thesis-tip"\nseed = 0\n'
-                    f'[overrides]\nboard = "{NEEDLE}"\n')  # fmt: skip
-    return path
+    return write_needle_rig(tmp_path)
 
 
 @pytest.fixture
