@@ -24,7 +24,7 @@ def _frames(n: int) -> tuple[sim.SimPlatform, list]:
 
 
 def _in_turn(target, roi, frames) -> list:
-    search = _FrameSearch(target, roi)
+    search = _FrameSearch(target, (roi, None))
     return [search.corners(f) for f in frames]
 
 
@@ -32,7 +32,7 @@ def _in_turn(target, roi, frames) -> list:
 def test_forked_searches_find_the_corners_found_here(grow_px):
     plat, frames = _frames(4)
     target = plat.scene.board
-    first = _FrameSearch(target, None).corners(frames[0])  # where the board is
+    first = _FrameSearch(target).corners(frames[0])  # where the board is
     assert first is not None
     lo, hi = first.min(axis=0), first.max(axis=0)
     roi = (int(lo[0]) - 40 - grow_px, int(lo[1]) - 40 - grow_px,

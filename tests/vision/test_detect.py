@@ -223,3 +223,44 @@ def test_the_same_image_gives_the_same_corners_whatever_came_before():
         detect(stored, board)
         detect(plat.cameras["top"].grab(), board)
     np.testing.assert_array_equal(detect(stored, board).q_px, first.q_px)
+
+
+@pytest.mark.parametrize("shift_px", [(0.0, 0.0), (0.6, -0.4), (-1.5, 1.2)])
+def test_a_board_followed_from_the_frame_before_gives_the_corners_a_search_gives(shift_px):
+    """Corners of the frame before, off by a fraction of a square: refined from there to where
+    a full search puts them (within the refinement's own convergence), numbered alike."""
+    target, image, truth = view("chessboard:9x7:500", t=(2000.0, 2000.0, 1500.0))
+    searched = detect(image, target)
+    followed = detect(image, target, previous_px=searched.q_px + np.asarray(shift_px))
+    assert followed.found
+    assert followed.method == "followed"
+    np.testing.assert_array_equal(followed.ids, searched.ids)
+    assert np.abs(followed.q_px - searched.q_px).max() < 0.03
+    assert np.sqrt(np.mean(np.sum((followed.q_px - truth) ** 2, axis=1))) < 0.1
+
+
+@pytest.mark.parametrize(
+    "why", ["moved a square", "numbered one corner off", "wrong count", "half the board hidden"]
+)
+def test_corners_that_no_longer_fit_are_searched_for(why):
+    target, image, _ = view("chessboard:9x7:500")
+    searched = detect(image, target)
+    q = searched.q_px.copy()
+    square = float(np.median(np.linalg.norm(np.diff(q[:9], axis=0), axis=1)))
+    if why == "moved a square":
+        previous = q + (square, 0.0)
+    elif why == "numbered one corner off":
+        previous = np.roll(q, 1, axis=0)
+    elif why == "wrong count":
+        previous = q[:-1]
+    else:
+        previous = q
+        image = image.copy()
+        lo = q.min(axis=0).astype(int)
+        image[lo[1] - 20 : int(q[:, 1].mean()), lo[0] - 20 : int(q[:, 0].max()) + 20] = 0.0
+    followed = detect(image, target, previous_px=previous)
+    assert followed.method != "followed"
+    if why != "half the board hidden":
+        np.testing.assert_allclose(followed.q_px, searched.q_px, atol=1e-9)
+    else:
+        assert not followed.found

@@ -39,6 +39,7 @@ from ..procedures.evaluation_figures import Evaluation
 from ..procedures.identification import Identification, calibrate_manipulator, default_train
 from ..procedures.rig_stereo import CALIBRATION_STEPS_UM
 from ..sim import SimPlatform, platform
+from ..sim.paint_process import painting_elsewhere
 from ..sim.platforms import CALIBRATION_TARGET
 from ..sim.render import Placement
 from ..thesis.experiment import TABLE_5_2_POSES_UM, WORKSPACE_MAX_UM, WORKSPACE_MIN_UM
@@ -402,7 +403,11 @@ def run_demo(
         else:
             measure_from_now()
 
-    with clock.stage("acquisition"), _closing(measuring), _written(writer, writes):
+    # the frames painted on the other core while this one plans, settles and stores
+    painting = (
+        painting_elsewhere(plat.cameras.values()) if workers != 1 else contextlib.nullcontext()
+    )
+    with clock.stage("acquisition"), _closing(measuring), _written(writer, writes), painting:
         acquire(
             m,
             plat.cameras,

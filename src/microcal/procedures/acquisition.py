@@ -194,11 +194,14 @@ def _grab_region_frame(camera: Camera, retries: int) -> RegionFrame:
 
 
 def _board_corners(
-    frame: RegionFrame, target: Target | TipTarget, roi: tuple[int, int, int, int] | None
+    frame: RegionFrame,
+    target: Target | TipTarget,
+    roi: tuple[int, int, int, int] | None,
+    previous_px: FloatArray | None = None,
 ) -> FloatArray | None:
     """The board's corners (a tool's apex); with a region, only there (a hidden board has not
-    jumped away)."""
-    found = find_target(frame, target, roi)
+    jumped away); ``previous_px``: its corners in the frame before, followed from there."""
+    found = find_target(frame, target, roi, previous_px=previous_px)
     if found is None or not found.complete:
         return None
     return found.points_px
@@ -274,18 +277,28 @@ class CreepEstimator:
 
 class _FrameSearch:
     """The board's corners in a pose's frames, one after the other: each frame is searched
-    in the region around the corners found last (the board barely moves while it settles)."""
+    in the region around the corners found last, from those corners (the board barely moves
+    while it settles). ``state`` is where the chain stands: the region and the corners."""
 
-    def __init__(self, target: Target | TipTarget, roi: tuple[int, int, int, int] | None) -> None:
+    def __init__(
+        self,
+        target: Target | TipTarget,
+        state: tuple[tuple[int, int, int, int] | None, FloatArray | None] = (None, None),
+    ) -> None:
         self.target = target
-        self.roi = roi
+        self.roi, self.previous_px = state
         # a tool's box holds enough of its shank
         self.margin_px = 30.0 if isinstance(target, Target) else float(TIP_BOX_HALF_PX)
 
+    @property
+    def state(self) -> tuple[tuple[int, int, int, int] | None, FloatArray | None]:
+        return self.roi, self.previous_px
+
     def corners(self, frame: RegionFrame) -> FloatArray | None:
-        found = _board_corners(frame, self.target, self.roi)
+        found = _board_corners(frame, self.target, self.roi, self.previous_px)
         if found is not None:
             self.roi = box_around(found, self.margin_px)
+            self.previous_px = found
         return found
 
 
@@ -298,8 +311,9 @@ def _settle_vision(
     creep: CreepEstimator,
     step_um: float,
     searcher: ForkedSearcher | None = None,
-) -> tuple[float, float, dict[str, list[RegionFrame]]]:
-    """Wait until the board has settled; returns (time, last block change px, frames).
+) -> tuple[float, float, dict[str, list[RegionFrame]], FloatArray | None]:
+    """Wait until the board has settled; returns (time, last block change px, frames, the
+    corners found last in the first camera's frames).
 
     ``searcher``: the searches run in that forked process where the pose's region is
     predicted (the same corners, :mod:`~microcal.procedures.settle_search`)."""
@@ -311,6 +325,7 @@ def _settle_vision(
         clock.sleep(max(0.0, creep.wait_s(step_um) - check_s))
     times: list[float] = []
     vps: list[FloatArray] = []
+    last: list[FloatArray] = []
     frames: list[RegionFrame] = []
     change = float("nan")
     b = config.block
@@ -318,7 +333,7 @@ def _settle_vision(
     # grabs do not depend on what is found until the block check may end the wait, and the
     # frames are searched in order, each in the region the one before found the board in.
     # What the loop decides, and when, is what searching each frame at once decides.
-    search = _FrameSearch(target, roi)
+    search = _FrameSearch(target, (roi, None))
     pending: list[tuple[Callable[[], FloatArray | None], float]] = []
     remote: PoseSearch | None = None
 
@@ -328,6 +343,7 @@ def _settle_vision(
             if corners is not None:
                 vps.append(corners.mean(axis=0))
                 times.append(t_s)
+                last[:] = [corners]
         pending.clear()
 
     with ThreadPoolExecutor(max_workers=1) as threaded:
@@ -368,7 +384,7 @@ def _settle_vision(
         got[first] += [
             _grab_region_frame(cameras[first], config.retries) for _ in range(n - len(got[first]))
         ]
-    return clock.now_s() - start, change, got
+    return clock.now_s() - start, change, got, (last[0] if last else None)
 
 
 def acquire(
@@ -450,6 +466,7 @@ def acquire(
         status: PoseStatus = "ok"
         reported_um: list[float] | None = None
         reason: str | None = None
+        settled_px: FloatArray | None = None  # the first camera's corners, settling
         try:
             if cfg.settle == "fixed":
                 clock.sleep(cfg.fixed_s)
@@ -460,7 +477,7 @@ def acquire(
                 }
             else:
                 step = float(np.abs(d - previous_d).max())
-                settle_s, change, frames = _settle_vision(
+                settle_s, change, frames, settled_px = _settle_vision(
                     cameras, target, clock, cfg, predictors[first].predict(d), creep, step,
                     searcher,
                 )  # fmt: skip
@@ -473,7 +490,8 @@ def acquire(
         stored: dict[str, list[Frame]] = {}
         for name, cam_frames in frames.items():
             seen = find_target(cam_frames[-1], target, predictors[name].predict(d),
-                               margin_squares=cfg.roi_margin_squares)  # fmt: skip
+                               margin_squares=cfg.roi_margin_squares,
+                               previous_px=settled_px if name == first else None)  # fmt: skip
             if seen is None:
                 stored[name] = [pixels_of(f) for f in cam_frames]
                 continue

@@ -1,8 +1,9 @@
 """The settle loop's searches on another core: a forked process that finds the board in each
 frame while the next frame is rendered.
 
-The settle loop searches every frame in the box around the corners the frame before gave
-(:class:`~microcal.procedures.acquisition._FrameSearch`), so the searches form a chain. A
+The settle loop searches every frame in the box around the corners the frame before gave,
+from those corners (:class:`~microcal.procedures.acquisition._FrameSearch`), so the searches
+form a chain. A
 :class:`ForkedSearcher` runs that chain in a process forked at the start of the run: for each
 frame it is sent a crop of the frame (the pose's predicted region, grown by
 :data:`CROP_MARGIN_PX`), which holds the box searched whenever the board is near where it
@@ -37,12 +38,15 @@ __all__ = ["CROP_MARGIN_PX", "ForkedSearcher", "Search"]
 CROP_MARGIN_PX = 16
 
 Box = tuple[int, int, int, int]
+#: Where a chain of searches stands: the region searched next and the corners found last.
+State = tuple[Box | None, FloatArray | None]
 
 
 class Search(Protocol):
     """One pose's chain of searches: each frame searched where the one before found the board."""
 
-    roi: Box | None
+    @property
+    def state(self) -> State: ...
 
     def corners(self, frame: RegionFrame) -> FloatArray | None: ...
 
@@ -74,7 +78,7 @@ class _CropFrame:
         raise _OutsideCropError
 
 
-def _serve(make_search: Callable[[Box | None], Search], conn: Any, other: Any) -> None:
+def _serve(make_search: Callable[[State], Search], conn: Any, other: Any) -> None:
     """The forked process: poses and frames in, corners (or where the chain stopped) out
     (``other``, the run's end of the pipe, closed here)."""
     other.close()
@@ -94,18 +98,18 @@ def _serve(make_search: Callable[[Box | None], Search], conn: Any, other: Any) -
         if kind == "end":
             return
         if kind == "pose":
-            search, stopped = make_search(message[1]), False
+            search, stopped = make_search((message[1], None)), False
             continue
         _, crop, box, shape = message
         if stopped or search is None:
             conn.send(("skipped", None))
             continue
-        roi = search.roi
+        state = search.state
         try:
             conn.send(("found", search.corners(_CropFrame(crop, box, shape))))
         except Exception:  # outside the crop, or an error: searched there again, in turn
             stopped = True
-            conn.send(("here", roi))
+            conn.send(("here", state))
 
 
 class ForkedSearcher:
@@ -113,11 +117,12 @@ class ForkedSearcher:
 
     Parameters
     ----------
-    make_search : callable (roi) -> Search
-        A pose's chain of searches, starting in ``roi`` (the same here and there).
+    make_search : callable ((roi, corners)) -> Search
+        A pose's chain of searches, starting in ``roi`` from ``corners`` (None at a pose's
+        start; the same here and there).
     """
 
-    def __init__(self, make_search: Callable[[Box | None], Search]) -> None:
+    def __init__(self, make_search: Callable[[State], Search]) -> None:
         self.make_search = make_search
         self.searched_here = 0  # frames the forked process left to this one
         self._proc: Any = None
@@ -152,8 +157,10 @@ class ForkedSearcher:
 
 
 class PoseSearch:
-    """One pose's frames, each sent to the process as it is grabbed; :meth:`corners` gives
-    their corners in order (searched here from where the process stopped, if it did)."""
+    """One pose's frames, each sent to the process one grab later (so that a frame still
+    being painted elsewhere, :mod:`microcal.sim.paint_process`, is read once the next one is
+    under way); :meth:`corners` gives their corners in order (searched here from where the
+    process stopped, if it did)."""
 
     def __init__(self, owner: ForkedSearcher, roi: Box, box: Box) -> None:
         self._owner = owner
@@ -161,23 +168,33 @@ class PoseSearch:
         self._here: Search | None = None  # the chain, once it continues here
         self._roi = roi
         self._sent: list[RegionFrame] = []
+        self._posted = 0  # frames sent to the process so far
         self._read = 0
 
     def submit(self, frame: RegionFrame) -> int:
-        """Send a frame; returns its number for :meth:`corners`."""
-        x0, y0, x1, y1 = self._box
-        if self._here is None:
-            crop = frame.region(x0, y0, x1, y1)
-            self._owner._conn.send(("frame", crop, self._box, frame.shape))
-        else:  # the process stopped: nothing more is sent for this pose
-            self._owner._conn.send(("frame", None, self._box, frame.shape))
+        """Take a frame (the one before is sent now); returns its number for
+        :meth:`corners`."""
+        self._post(len(self._sent))
         self._sent.append(frame)
         return len(self._sent) - 1
+
+    def _post(self, upto: int) -> None:
+        """Send the frames before number ``upto`` not sent yet."""
+        x0, y0, x1, y1 = self._box
+        while self._posted < upto:
+            frame = self._sent[self._posted]
+            if self._here is None:
+                crop = frame.region(x0, y0, x1, y1)
+                self._owner._conn.send(("frame", crop, self._box, frame.shape))
+            else:  # the process stopped: nothing more is sent for this pose
+                self._owner._conn.send(("frame", None, self._box, frame.shape))
+            self._posted += 1
 
     def corners(self, k: int) -> FloatArray | None:
         """The corners of frame ``k`` (frames are asked for in order)."""
         if k != self._read:
             raise RuntimeError(f"settle search: frame {k} asked for before frame {self._read}")
+        self._post(k + 1)
         self._read += 1
         if not self._owner._conn.poll(None):  # pragma: no cover - poll(None) waits
             raise RuntimeError("settle search: no answer")

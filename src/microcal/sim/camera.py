@@ -37,7 +37,10 @@ from .slide_render import render_slide
 from .tool_render import render_tool_region, tool_roi
 from .tools import ToolPlacement
 
-__all__ = ["CameraFaults", "ExposedFrame", "ImageFormation", "SimCamera"]
+__all__ = [
+    "CameraFaults", "ExposedFrame", "ImageFormation", "PaintJob", "Painted", "SimCamera",
+    "paint", "paint_here",
+]  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -174,6 +177,10 @@ class SimCamera(Camera):
         # the targets cover get freshly drawn noise (see grab).
         self._pool = self.rng.standard_normal(2 * w * h, dtype=np.float32)
         self._rois: list[tuple[int, int, int, int]] = []
+        #: Paints each frame's targets (:func:`paint`): here, at the grab, by default; a
+        #: painter of another process (:class:`~microcal.sim.paint_process.PaintProcess`)
+        #: paints while this one goes on, the frame's noise drawn at the grab all the same.
+        self.painter: Callable[[PaintJob], Painted] = paint_here
         # The background's mean DN and noise level (h, w) by (level, gain, DN per e-, read
         # noise^2): the same for every frame at one exposure.
         self._background: dict[tuple[float, ...], tuple[FloatArray32, FloatArray32]] = {}
@@ -209,55 +216,38 @@ class SimCamera(Camera):
         placement's region (None when no target is in view), the reflectance image over that
         box (blurred, no vignetting), and the frame's truth. Sets ``_rois``.
         """
+        job, truth = self._plan(t_s, offset_px)
+        box, patch = paint(job)
+        return job.level, box, patch, truth
+
+    def _plan(self, t_s: float, offset_px: FloatArray) -> tuple[PaintJob, FrameTruth]:
+        """What a frame at ``t_s`` shows, to be painted (:func:`paint`), and its truth.
+        Sets ``_rois``."""
         placements = self.scene(t_s)
         # A dot grid's glass plate (25 mm in the thesis) fills the view: glass is the background.
         plate = any(isinstance(p, Placement) and p.target.kind == "dotgrid" for p in placements)
         level = self.reflectance.glass if plate else self.reflectance.background
         truth = FrameTruth(t_s, offset_px)
         self._rois = []
-        rendered: list[tuple[Box, float, NDArray[np.floating[Any]], NDArray[np.floating[Any]]]] = []
+        items: list[tuple[Placement | ToolPlacement, Box, float]] = []
         for placement in placements:
             sigma = self._blur_sigma(placement)
             truth.placements.append(placement)
             if isinstance(placement, ToolPlacement):  # a tool on the end-effector: its tip
                 roi = tool_roi(self.model, placement, 4.0 * sigma + 3.0, offset_px)
                 truth.features_px.append(self.model.project(placement.tip_um[None]) + offset_px)
-                if roi is None:
-                    continue
-                shade = render_tool_region(
-                    self.model, placement, roi, supersample=self.formation.supersample,
-                    offset_px=offset_px,
-                )  # fmt: skip
-                self._rois.append(roi)
-                rendered.append((roi, sigma, *shade))
-                continue
-            roi = roi_of(self.model, placement, 4.0 * sigma + 3.0, offset_px)
-            truth.features_px.append(self.model.project(placement.points_world_um()) + offset_px)
+            else:
+                roi = roi_of(self.model, placement, 4.0 * sigma + 3.0, offset_px)
+                truth.features_px.append(
+                    self.model.project(placement.points_world_um()) + offset_px
+                )
             if roi is None:
                 continue
-            render = render_slide if placement.target.markers else render_region
-            value, alpha = render(
-                self.model,
-                placement,
-                roi,
-                supersample=self.formation.supersample,
-                offset_px=offset_px,
-                reflectance=self.reflectance,
-            )
             self._rois.append(roi)
-            rendered.append((roi, sigma, value, alpha))
-        if not rendered:
-            return level, None, None, truth
-        box = _bounding_box(self._rois)
-        bx, by = box[0], box[1]
-        patch = np.full((box[3] - by, box[2] - bx), level, dtype=np.float32)
-        for (x0, y0, x1, y1), sigma, value, alpha in rendered:
-            region = patch[y0 - by : y1 - by, x0 - bx : x1 - bx]
-            blend = value - region
-            blend *= alpha
-            blend += region
-            region[...] = cv2.GaussianBlur(blend, (0, 0), sigma)
-        return level, box, patch, truth
+            items.append((placement, roi, sigma))
+        job = PaintJob(self.model, self.formation.supersample, self.reflectance,
+                       np.asarray(offset_px, dtype=np.float64), level, tuple(items))  # fmt: skip
+        return job, truth
 
     def _spoil(self, image: NDArray[np.float32], truth: FrameTruth) -> None:
         f = self.faults
@@ -312,12 +302,13 @@ class SimCamera(Camera):
         if f.occlusion_rate or f.glare_rate:  # a fault may paint anywhere: the whole image
             image, truth = self.render_reflectance(t, offset)
             self._spoil(image, truth)
-            frame = self._expose(image, None, (0, 0, image.shape[1], image.shape[0]),
-                                 gain, k, read2, top)  # fmt: skip
+            whole = (0, 0, image.shape[1], image.shape[0])
+            frame = self._expose(lambda: (whole, image), None, whole, gain, k, read2, top)
         else:
-            level, box, patch, truth = self._render_box(t, offset)
-            frame = self._expose(patch, self._background_of(level, gain, k, read2), box,
-                                 gain, k, read2, top)  # fmt: skip
+            job, truth = self._plan(t, offset)
+            painted = self.painter(job)
+            frame = self._expose(painted, self._background_of(job.level, gain, k, read2),
+                                 job.box, gain, k, read2, top)  # fmt: skip
         self.clock.sleep(self.exposure_s + fm.readout_s)
         self.last_truth = truth
         return frame
@@ -339,7 +330,7 @@ class SimCamera(Camera):
 
     def _expose(
         self,
-        patch: NDArray[np.float32] | None,
+        painted: Callable[[], tuple[Box | None, NDArray[np.float32] | None]],
         background: tuple[FloatArray32, FloatArray32] | None,
         box: Box | None,
         gain: np.float32,
@@ -349,32 +340,46 @@ class SimCamera(Camera):
     ) -> ExposedFrame:
         """The frame: vignetting, electrons, shot and read noise, quantisation.
 
-        ``patch`` is the reflectance over ``box`` (the whole image when ``background`` is
-        None); elsewhere the image is the background, whose mean DN and noise level are
-        ``background``. Mean DN, then noise of std ``sqrt(DN * k + (read_noise * k)^2)`` DN:
-        the pool's at a random offset, fresh over every rendered region. The box is
-        exposed now; the background where the frame is read (:class:`ExposedFrame`).
+        ``painted()`` gives the box and the reflectance over it (the whole image when
+        ``background`` is None); elsewhere the image is the background, whose mean DN and
+        noise level are ``background``. Mean DN, then noise of std ``sqrt(DN * k +
+        (read_noise * k)^2)`` DN: the pool's at a random offset, fresh over every rendered
+        region. The noise is drawn now; the box is exposed when the frame is first read (the
+        reflectance may still be being painted in another process, :func:`paint_process`),
+        the background where the frame is read (:class:`ExposedFrame`).
         """
         h, w = self._vignette.shape
         start = int(self.rng.integers(0, h * w))
         pool = self._pool[start : start + h * w].reshape(h, w)
-        inner = None
-        if box is not None and patch is not None:
+        if box is None:
+            return ExposedFrame((h, w), self.dtype, top, pool, background, None, None)
+        fresh = [
+            (roi, self.rng.standard_normal((roi[3] - roi[1], roi[2] - roi[0]), dtype=np.float32))
+            for roi in self._rois
+        ]
+        vignette = self._vignette
+        dtype = self.dtype
+
+        def inner() -> NDArray[np.unsignedinteger]:
+            _, patch = painted()
+            assert box is not None
+            assert patch is not None
             x0, y0, x1, y1 = box
-            dn, spread = _dn_and_spread(patch, self._vignette[y0:y1, x0:x1], gain, k, read2)
+            dn, spread = _dn_and_spread(patch, vignette[y0:y1, x0:x1], gain, k, read2)
             noisy = spread * pool[y0:y1, x0:x1]
-            for rx0, ry0, rx1, ry1 in self._rois:
-                fresh = self.rng.standard_normal((ry1 - ry0, rx1 - rx0), dtype=np.float32)
+            for (rx0, ry0, rx1, ry1), noise in fresh:
                 region = (slice(ry0 - y0, ry1 - y0), slice(rx0 - x0, rx1 - x0))
-                noisy[region] = spread[region] * fresh
-            inner = _quantise(dn, noisy, top, self.dtype)
+                noisy[region] = spread[region] * noise
+            return _quantise(dn, noisy, top, dtype)
+
         return ExposedFrame((h, w), self.dtype, top, pool, background, box, inner)
 
 
 class ExposedFrame:
     """A simulated frame whose background is exposed where it is read.
 
-    The box the targets cover is exposed when the frame is grabbed (``inner``); the rest is
+    The box the targets cover is exposed when the frame is first read (``inner``: an array,
+    or a function giving it once the reflectance is painted); the rest is
     the background's mean DN plus its noise level times the frame's slice of the noise pool,
     quantised when a region of it is asked for: pixel for pixel what exposing the whole frame
     at once gives (every operation is per pixel); a
@@ -389,7 +394,7 @@ class ExposedFrame:
         pool: FloatArray32,
         background: tuple[FloatArray32, FloatArray32] | None,
         box: Box | None,
-        inner: NDArray[np.unsignedinteger] | None,
+        inner: NDArray[np.unsignedinteger] | Callable[[], NDArray[np.unsignedinteger]] | None,
     ) -> None:
         self._shape = shape
         self._dtype = dtype
@@ -417,6 +422,8 @@ class ExposedFrame:
         else:
             out = np.empty((y1 - y0, x1 - x0), dtype=self._dtype)
         if self._box is not None and self._inner is not None:
+            if callable(self._inner):
+                self._inner = self._inner()
             bx0, by0, bx1, by1 = self._box
             ox0, oy0, ox1, oy1 = max(x0, bx0), max(y0, by0), min(x1, bx1), min(y1, by1)
             if ox0 < ox1 and oy0 < oy1:
@@ -435,6 +442,75 @@ class ExposedFrame:
 
 FloatArray32 = NDArray[np.float32]
 Box = tuple[int, int, int, int]
+#: A painted frame, asked for when it is read: the box and the reflectance over it.
+Painted = Callable[[], tuple[Box | None, NDArray[np.float32] | None]]
+
+
+@dataclass(frozen=True)
+class PaintJob:
+    """What one frame shows, to be painted by :func:`paint` (here or in another process).
+
+    Attributes
+    ----------
+    model : CameraModel or AffineCamera
+    supersample : int
+    reflectance : Reflectance
+    offset_px : (2,) float
+        The frame's vibration shift.
+    level : float
+        The background's reflectance.
+    items : tuple of (placement, roi, sigma)
+        Each target in view: its placement, its region (x0, y0, x1, y1) and its blur, px.
+    """
+
+    model: AnyCamera
+    supersample: int
+    reflectance: Reflectance
+    offset_px: FloatArray
+    level: float
+    items: tuple[tuple[Placement | ToolPlacement, Box, float], ...]
+
+    @property
+    def box(self) -> Box | None:
+        """The box holding every target's region (None when none is in view)."""
+        return _bounding_box([roi for _, roi, _ in self.items]) if self.items else None
+
+
+def paint(job: PaintJob) -> tuple[Box | None, NDArray[np.float32] | None]:
+    """The reflectance over the job's box (blurred, no vignetting): every target rendered in
+    its region over the background level, each blurred by its own defocus; (None, None)
+    when no target is in view."""
+    box = job.box
+    if box is None:
+        return None, None
+    bx, by = box[0], box[1]
+    patch = np.full((box[3] - by, box[2] - bx), job.level, dtype=np.float32)
+    for placement, (x0, y0, x1, y1), sigma in job.items:
+        value: NDArray[np.floating[Any]]
+        alpha: NDArray[np.floating[Any]]
+        if isinstance(placement, ToolPlacement):
+            value, alpha = render_tool_region(
+                job.model, placement, (x0, y0, x1, y1), supersample=job.supersample,
+                offset_px=job.offset_px,
+            )  # fmt: skip
+        else:
+            render = render_slide if placement.target.markers else render_region
+            value, alpha = render(
+                job.model, placement, (x0, y0, x1, y1), supersample=job.supersample,
+                offset_px=job.offset_px, reflectance=job.reflectance,
+            )  # fmt: skip
+        region = patch[y0 - by : y1 - by, x0 - bx : x1 - bx]
+        blend = value - region
+        blend *= alpha
+        blend += region
+        region[...] = cv2.GaussianBlur(blend, (0, 0), sigma)
+    return box, patch
+
+
+def paint_here(job: PaintJob) -> Painted:
+    """Paint a frame now, in this process (a :class:`SimCamera`'s default painter)."""
+    done = paint(job)
+    return lambda: done
 
 
 def _bounding_box(boxes: list[Box]) -> Box:

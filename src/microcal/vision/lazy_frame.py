@@ -21,6 +21,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
+from .._validation import FloatArray
 from .detect import Detection, detect
 from .targets import Target
 
@@ -96,24 +97,29 @@ def pixels_of(frame: RegionFrame | NDArray[np.generic]) -> NDArray[np.generic]:
 
 
 def detect_in(
-    frame: RegionFrame | NDArray[np.generic], target: Target, roi: Box | None = None
+    frame: RegionFrame | NDArray[np.generic],
+    target: Target,
+    roi: Box | None = None,
+    previous_px: FloatArray | None = None,
 ) -> Detection:
-    """``detect(image, target, roi=roi)`` on a region frame or an array.
+    """``detect(image, target, roi=roi, previous_px=previous_px)`` on a region frame or an
+    array.
 
     A region frame gives only the box's pixels (the box clipped to the frame); positions are
     in whole-frame pixels, and the result is the one the whole frame gives with ``roi``.
     Without ``roi``, the whole frame is searched.
     """
     if isinstance(frame, np.ndarray):
-        return detect(frame, target, roi=roi) if roi is not None else detect(frame, target)
+        return detect(frame, target, roi=roi, previous_px=previous_px)
     if roi is None:
-        return detect(frame.full(), target)
+        return detect(frame.full(), target, previous_px=previous_px)
     h, w = frame.shape
     x0, y0 = max(0, int(roi[0])), max(0, int(roi[1]))
     x1, y1 = min(w, int(roi[2])), min(h, int(roi[3]))
     if x1 - x0 < 8 or y1 - y0 < 8:  # detect's own answer for a box outside the image
         return detect(frame.full(), target, roi=roi)
-    det = detect(frame.region(x0, y0, x1, y1), target)
+    before = None if previous_px is None else np.subtract(previous_px, (x0, y0))
+    det = detect(frame.region(x0, y0, x1, y1), target, previous_px=before)
     if det.found and (x0 or y0):
         return Detection(
             True, det.ids, np.add(det.q_px, (x0, y0)), det.quality_px, method=det.method

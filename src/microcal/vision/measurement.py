@@ -85,11 +85,12 @@ def _vp_of_frames(
     (a tool's tip: its apexes, their covariance and the first apex)."""
     if isinstance(target, TipTarget):
         return tip_of_frames([pixels_of(f) for f in frames], target, model, roi)
-    vps, covs, corners0 = [], [], None
+    vps, covs, corners0, last = [], [], None, None
     for image in frames:
         if corners0 is not None:  # the board stays put during a pose: search around frame 0
             roi = box_around(corners0)
-        det = detect_in(image, target, roi) if roi is not None else None
+        # and is followed from the frame before (vision.detect: searched where it moved)
+        det = detect_in(image, target, roi, last) if roi is not None else None
         if det is None or not det.found:
             det = detect_in(image, target)
         if not det.found:
@@ -100,6 +101,7 @@ def _vp_of_frames(
             return str(exc)
         vps.append(vp.q_px)
         covs.append(vp.cov_px2)
+        last = det.q_px
         if corners0 is None:
             corners0 = det.q_px
     assert corners0 is not None

@@ -56,9 +56,11 @@ def find_target(
     roi: Box | None = None,
     *,
     margin_squares: float = 3.0,
+    previous_px: FloatArray | None = None,
 ) -> TargetInFrame | None:
     """The target in ``frame`` (an array, or a region frame read only where a board is
-    searched; searched in ``roi`` when given), or None when not found."""
+    searched; searched in ``roi`` when given), or None when not found; ``previous_px``: a
+    board's corners in the frame before, followed from there (``vision.detect.detect``)."""
     h, w = frame.shape[:2]
     if isinstance(target, TipTarget):
         image = pixels_of(frame)
@@ -75,7 +77,7 @@ def find_target(
         region = _along_shank(tip.apex_px, tip.axis, spread if math.isfinite(spread) else 0.5,
                               (w, h))  # fmt: skip
         return TargetInFrame(tip.apex_px.reshape(1, 2), True, region)
-    det = detect_in(frame, target, roi if roi else None)
+    det = detect_in(frame, target, roi if roi else None, previous_px)
     if not det.found:
         return None
     q = det.q_px
