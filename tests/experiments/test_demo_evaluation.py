@@ -42,6 +42,19 @@ def test_the_clock_only_probe_takes_the_frames_time():
     assert plat.clock.now_s() - t1 == pytest.approx(took, abs=1e-9)
 
 
+def test_frames_let_pass_draw_what_grabs_draw():
+    """A platform that grabs three frames and one that lets two pass: the third frame is the
+    same, pixel for pixel (the noise stream is where the grabs leave it)."""
+    grabbed, passed = sim.platform("thesis", seed=6), sim.platform("thesis", seed=6)
+    for name in grabbed.cameras:
+        a, b = grabbed.cameras[name], passed.cameras[name]
+        for _ in range(2):
+            a.grab_lazy()
+            b.pass_frame()
+        np.testing.assert_array_equal(a.grab(), b.grab())
+    assert grabbed.clock.now_s() == passed.clock.now_s()
+
+
 def _tests(plat: sim.SimPlatform) -> DemoTests:
     m = plat.manipulator
     options = RunOptions(settle_s=0.5, truth=m.true_position_um, progress=None)
@@ -78,8 +91,14 @@ def test_forked_units_see_the_same_device_as_the_run_in_turn():
         np.testing.assert_array_equal(a.mean_arrival_um, b.mean_arrival_um)
     np.testing.assert_array_equal(dec1["truth"]["uncalibrated"].samples_um,
                                   dec2["truth"]["uncalibrated"].samples_um)  # fmt: skip
-    # the cameras measured in the forked processes (their own noise): as close to the truth
-    # as in the run in turn (one frame per camera: about 2 µm RMS)
+    # the cameras measured in the forked processes: the frames the run in turn measures (the
+    # frames left out drew what grabbing them draws), the board maybe searched in another
+    # region (one frame per camera: about 2 µm RMS from the truth)
+    seen1, seen2 = (
+        dec1["vision"]["uncalibrated"].samples_um,
+        dec2["vision"]["uncalibrated"].samples_um,
+    )
+    assert np.abs(seen1 - seen2).max() < 0.05
     for pa, dec in ((pa1, dec1), (pa2, dec2)):
         assert set(pa["vision"]) == set(dec["vision"]) == {"uncalibrated"}
         seen = dec["vision"]["uncalibrated"].samples_um
@@ -87,5 +106,3 @@ def test_forked_units_see_the_same_device_as_the_run_in_turn():
         assert np.all(np.isfinite(seen))
         assert np.sqrt(np.mean(np.sum((seen - true) ** 2, axis=1))) < 5.0
         assert np.isfinite(pa["vision"]["uncalibrated"].mean_ap_p_um)
-    assert not np.array_equal(dec1["vision"]["uncalibrated"].samples_um,
-                              dec2["vision"]["uncalibrated"].samples_um)  # fmt: skip

@@ -283,7 +283,14 @@ class SimCamera(Camera):
         self._check_open("grab")
         return self._grab_frame()
 
-    def _grab_frame(self) -> ExposedFrame:
+    def pass_frame(self) -> None:
+        """Let one frame pass that nobody reads: its time and every random draw a grab makes
+        (so later frames are those a grab here would have been followed by), nothing painted
+        or exposed."""
+        self._check_open("grab")
+        self._grab_frame(paint=False)
+
+    def _grab_frame(self, paint: bool = True) -> ExposedFrame:
         f = self.faults
         if f.timeout_rate and self.rng.random() < f.timeout_rate:
             self.clock.sleep(1.0)
@@ -306,7 +313,7 @@ class SimCamera(Camera):
             frame = self._expose(lambda: (whole, image), None, whole, gain, k, read2, top)
         else:
             job, truth = self._plan(t, offset)
-            painted = self.painter(job)
+            painted = self.painter(job) if paint else _unpainted
             frame = self._expose(painted, self._background_of(job.level, gain, k, read2),
                                  job.box, gain, k, read2, top)  # fmt: skip
         self.clock.sleep(self.exposure_s + fm.readout_s)
@@ -505,6 +512,10 @@ def paint(job: PaintJob) -> tuple[Box | None, NDArray[np.float32] | None]:
         blend += region
         region[...] = cv2.GaussianBlur(blend, (0, 0), sigma)
     return box, patch
+
+
+def _unpainted() -> tuple[Box | None, NDArray[np.float32] | None]:
+    raise RuntimeError("a frame let pass (SimCamera.pass_frame) has no pixels")
 
 
 def paint_here(job: PaintJob) -> Painted:
