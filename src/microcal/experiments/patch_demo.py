@@ -43,6 +43,7 @@ from ..procedures.evaluation import iso_cube_poses, run_pose_accuracy
 from ..procedures.evaluation_figures import BySource, Evaluation, PoseAccuracyFigures
 from ..procedures.identification import Identification, calibrate_manipulator, default_train
 from ..procedures.one_camera_acquisition import (
+    DEFAULT_VOLUME_HALF_UM,
     OneCameraPose,
     OneCameraRun,
     TipFinder,
@@ -68,9 +69,9 @@ from .stage_clock import StageClock
 
 __all__ = ["MIN_POSES", "PATCH_VOLUME_HALF_UM", "PatchDemoResult", "run_patch_demo"]
 
-#: The working volume's half sizes around the field's centre in {M}, µm: 200 x 200 µm of the
-#: 333 µm field, 50 µm of depth (a slice's working depth).
-PATCH_VOLUME_HALF_UM = (100.0, 100.0, 25.0)
+#: The working volume's half sizes around the field's centre in {M}, µm: the one-camera
+#: acquisition's default (200 x 200 µm of the 333 µm field, 50 µm of depth).
+PATCH_VOLUME_HALF_UM = DEFAULT_VOLUME_HALF_UM
 #: The fewest poses the demo takes: with fewer than about 20 poses to fit (two thirds of
 #: them), the quadratic model's stepwise selection may leave an axis without its terms.
 MIN_POSES = 30
