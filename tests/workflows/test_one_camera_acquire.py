@@ -173,3 +173,19 @@ def test_measure_on_a_one_camera_run_names_fit(tmp_path):
     (run_dir / "one_camera.json").write_text("{}")
     with pytest.raises(InputError, match=f"a one-camera run, .*; fit it: microcal fit {run_dir}"):
         measure_run(run_dir, tmp_path / "scope.json")
+
+
+def test_a_run_that_stores_no_pose_leaves_no_run_behind(tmp_path, monkeypatch):
+    import microcal.procedures.one_camera_acquisition as procedure
+
+    def no_tip(*args: object, **kwargs: object) -> None:
+        raise InputError("one-camera acquisition: no tip at the start pose where it was said")
+
+    monkeypatch.setattr(procedure, "acquire_one_camera", no_tip)
+    with pytest.raises(InputError, match="no tip at the start pose"):
+        list(acquire_any(_request(tmp_path)))
+    assert not (tmp_path / "run").exists()
+    (tmp_path / "run").mkdir()  # a directory of the user's: kept, empty
+    with pytest.raises(InputError, match="no tip at the start pose"):
+        list(acquire_any(_request(tmp_path)))
+    assert list((tmp_path / "run").iterdir()) == []

@@ -37,6 +37,7 @@ from ..formats.one_camera_run import (
     write_one_camera_run,
 )
 from ..formats.run_directory import MANIFEST, RunDirectory
+from ..formats.run_lock import LOCK_NAME
 from ..journal_record import JournalRecord
 from ..json_value import JsonValue
 from ..procedures.one_camera_acquisition import DEFAULT_VOLUME_HALF_UM, OneCameraPose, OneCameraRun
@@ -247,14 +248,15 @@ def run_one_camera_acquire(request: Any) -> Iterator[str]:
     try:
         yield from _acquire(out, request, spec, setup)
     except BaseException:
-        if not request.resume and not (out / POSES_FILE).is_file():
+        poses = out / POSES_FILE
+        if not request.resume and not (poses.is_file() and poses.stat().st_size > 0):
             _remove_new_run(out, made)  # nothing stored: no run left half made
         raise
 
 
 def _remove_new_run(out: Path, made: bool) -> None:
     with contextlib.suppress(OSError):
-        for name in (MANIFEST, ONE_CAMERA_FILE, ".microcal.lock"):
+        for name in (MANIFEST, ONE_CAMERA_FILE, POSES_FILE, "measurements.csv", LOCK_NAME):
             (out / name).unlink(missing_ok=True)
         if made and not any(out.iterdir()):
             out.rmdir()
