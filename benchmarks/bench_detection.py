@@ -173,8 +173,44 @@ def photo_case() -> Case | None:
     )
 
 
+#: The settling board: the thesis preset's 4 x 3 board in the top camera's frames.
+SETTLE_FRAMES = 12
+
+
+def followed_case() -> Case:
+    """A settling board's frames searched in the region the frame before gave (the settle
+    loop before), against followed from the frame before's corners (``previous_px``)."""
+    from microcal import sim
+    from microcal.vision.roi import box_around
+
+    plat = sim.platform("thesis", seed=SEED)
+    plat.manipulator.move_to_um(np.array([3000.0, 2000.0, 1000.0]))
+    plat.manipulator.wait_until_stopped(plat.clock)
+    target = plat.scene.board
+    images = [plat.cameras["top"].grab() for _ in range(SETTLE_FRAMES)]
+    first = detect(images[0], target)
+    roi = box_around(first.q_px, 30.0)
+
+    def searched(im: np.ndarray) -> np.ndarray:
+        return detect(im, target, roi=roi).q_px
+
+    def followed(im: np.ndarray) -> np.ndarray:
+        return detect(im, target, roi=roi, previous_px=first.q_px).q_px
+
+    diff = [np.abs(followed(im) - searched(im)).max() for im in images]
+    cols, rows = target.pattern_size
+    return Case(
+        name=f"follow a settling {cols}x{rows} board, {SETTLE_FRAMES} frames",
+        unit="ms/frame",
+        value=_time_per_image_s(followed, images) * 1e3,
+        baseline_name="searched again in the region (the settle loop before)",
+        baseline=_time_per_image_s(searched, images) * 1e3,
+        details={"max_corner_difference_px": float(max(diff)), "seed": SEED},
+    )
+
+
 def run() -> list[Case]:
-    cases = [rendered_case()]
+    cases = [rendered_case(), followed_case()]
     photo = photo_case()
     if photo is not None:
         cases.append(photo)

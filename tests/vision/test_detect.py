@@ -240,15 +240,18 @@ def test_a_board_followed_from_the_frame_before_gives_the_corners_a_search_gives
 
 
 @pytest.mark.parametrize(
-    "why", ["moved a square", "numbered one corner off", "wrong count", "half the board hidden"]
-)
+    "why",
+    ["moved half a square", "moved a square", "moved two squares", "numbered one corner off",
+     "wrong count", "half the board hidden"],
+)  # fmt: skip
 def test_corners_that_no_longer_fit_are_searched_for(why):
     target, image, _ = view("chessboard:9x7:500")
     searched = detect(image, target)
     q = searched.q_px.copy()
     square = float(np.median(np.linalg.norm(np.diff(q[:9], axis=0), axis=1)))
-    if why == "moved a square":
-        previous = q + (square, 0.0)
+    if why.startswith("moved"):
+        squares = {"half a square": 0.5, "a square": 1.0, "two squares": 2.0}[why[6:]]
+        previous = q + (squares * square, 0.0)
     elif why == "numbered one corner off":
         previous = np.roll(q, 1, axis=0)
     elif why == "wrong count":

@@ -18,7 +18,7 @@ pixel positions with sub-pixel accuracy and a quality figure; or, when there is 
   perspective (:mod:`~microcal.vision.dot_centres`).
 - Chessboard followed from the frame before (``previous_px``): while a board settles it
   moves a small fraction of a square between frames, so its corners are refined from the
-  corners found in the frame before instead of searched for again (about half the time);
+  corners found in the frame before instead of searched for again (a fraction of the time);
   the board is searched for as usual when they no longer fit (:func:`_track_chessboard`).
 - Chessboard with marker circles (a board that overfills the field): any part of the board,
   numbered from its three circles (:mod:`~microcal.vision.chessboard_markers`), corners
@@ -309,8 +309,13 @@ def _detect_chessboard_coarse_to_fine(gray: NDArray[np.float32], target: Target)
 #: A board followed from the frame before may have moved this share of a square at most.
 TRACK_MAX_MOVE = 0.25
 #: ... and its corners moved together: each within this of their median move, px (a corner
-#: refined onto something else, a glare or a shadow over it, moves apart from the others).
-TRACK_SPREAD_PX = 0.3
+#: refined onto something else, a glare or a shadow over it, moves apart from the others;
+#: the symmetry fit's own bound, ``corner_refinement.MAX_SHIFT_PX``: two frames' noise
+#: stays well inside it).
+TRACK_SPREAD_PX = 1.0
+#: ... and they lie on the board's plane as well as the frame before's did: their homography
+#: residual at most twice that one's plus this, px.
+TRACK_RESIDUAL_PX = 0.1
 
 
 def _track_chessboard(gray: NDArray[np.float32], target: Target, previous: FloatArray) -> Detection:
@@ -329,14 +334,19 @@ def _track_chessboard(gray: NDArray[np.float32], target: Target, previous: Float
     q = refine_corners(gray, previous, cols, rows)
     move = q - previous
     typical = np.median(move, axis=0)
+    ids = np.arange(len(q), dtype=np.intp)
+    residual = _homography_rms(target, ids, q)
     if (
         float(np.linalg.norm(typical)) > TRACK_MAX_MOVE * square
         or float(np.max(np.linalg.norm(move - typical, axis=1))) > TRACK_SPREAD_PX
+        or residual > 2.0 * _homography_rms(target, ids, previous) + TRACK_RESIDUAL_PX
         or _not_a_chessboard(gray, q, cols, rows)
+        # square (0, 0) the dark one, as a search numbers it: not a lattice an odd number of
+        # squares off (one an even number off reaches past the board: not alternating)
+        or _colour_score(gray, q.reshape(rows, cols, 2)) > 0
     ):
         return Detection.none("the board moved away from the corners of the frame before")
-    ids = np.arange(len(q), dtype=np.intp)
-    return Detection(True, ids, q, _homography_rms(target, ids, q), method="followed")
+    return Detection(True, ids, q, residual, method="followed")
 
 
 def _dot_centres(gray: NDArray[np.float32], bright: bool) -> FloatArray:
