@@ -20,6 +20,7 @@ error, when asked; where forking is not safe it computes it here, then.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 import pickle
@@ -27,7 +28,7 @@ import signal
 import sys
 import time
 import weakref
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from multiprocessing import get_all_start_methods, get_context
 from typing import Any, Generic, TypeVar
 
@@ -253,6 +254,33 @@ class Background(Generic[R]):
         if self._proc is not None:
             _end(self._proc, self._conn)
             self._proc = None
+
+
+def parent_messages(conn: Any) -> Iterator[Any]:
+    """In a forked helper process: what its parent sends through ``conn``, in order, until the
+    parent closes the pipe or has ended without a word (looked at every second)."""
+    parent = os.getppid()
+    while True:
+        try:
+            while not conn.poll(1.0):
+                if os.getppid() != parent:
+                    return
+            message = conn.recv()
+        except (EOFError, OSError):
+            return
+        yield message
+
+
+def end_helper(proc: Any, conn: Any, goodbye: Any) -> None:
+    """Send a forked helper ``goodbye``, give it a second to end, terminate it if it has not,
+    and close the connection."""
+    with contextlib.suppress(OSError, ValueError):
+        conn.send(goodbye)
+    proc.join(timeout=1.0)
+    if proc.is_alive():
+        proc.terminate()
+        proc.join()
+    conn.close()
 
 
 def _end(proc: Any, conn: Any) -> None:

@@ -17,9 +17,7 @@ loop decides is unchanged.
 
 from __future__ import annotations
 
-import contextlib
 import multiprocessing
-import os
 import weakref
 from collections.abc import Callable
 from multiprocessing import get_context
@@ -28,7 +26,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from .._parallel import can_fork, ignore_interrupts
+from .._parallel import can_fork, end_helper, ignore_interrupts, parent_messages
 from .._validation import FloatArray
 from ..vision.lazy_frame import RegionFrame
 
@@ -83,17 +81,9 @@ def _serve(make_search: Callable[[State], Search], conn: Any, other: Any) -> Non
     (``other``, the run's end of the pipe, closed here)."""
     other.close()
     ignore_interrupts()
-    parent = os.getppid()
     search: Search | None = None
     stopped = False
-    while True:
-        try:
-            while not conn.poll(1.0):
-                if os.getppid() != parent:  # the run's process ended without a word
-                    return
-            message = conn.recv()
-        except (EOFError, OSError):
-            return
+    for message in parent_messages(conn):
         kind = message[0]
         if kind == "end":
             return
@@ -134,7 +124,7 @@ class ForkedSearcher:
             self._proc.start()
             there.close()
             self._conn = here
-            self._finalizer = weakref.finalize(self, _end, self._proc, here)
+            self._finalizer = weakref.finalize(self, end_helper, self._proc, here, ("end",))
 
     @property
     def forked(self) -> bool:
@@ -152,7 +142,7 @@ class ForkedSearcher:
     def close(self) -> None:
         """End the process."""
         if self._proc is not None:
-            _end(self._proc, self._conn)
+            end_helper(self._proc, self._conn, ("end",))
             self._proc = None
 
 
@@ -206,13 +196,3 @@ class PoseSearch:
             self._here = self._owner.make_search(value)
         self._owner.searched_here += 1
         return self._here.corners(self._sent[k])
-
-
-def _end(proc: Any, conn: Any) -> None:
-    with contextlib.suppress(OSError, ValueError):
-        conn.send(("end",))
-    proc.join(timeout=1.0)
-    if proc.is_alive():
-        proc.terminate()
-        proc.join()
-    conn.close()

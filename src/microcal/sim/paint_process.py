@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing
-import os
 import threading
 import weakref
 from collections import deque
@@ -33,7 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .._parallel import can_fork, ignore_interrupts
+from .._parallel import can_fork, end_helper, ignore_interrupts, parent_messages
 from .camera import Box, Painted, PaintJob, SimCamera, paint, paint_here
 
 __all__ = ["PaintProcess", "painting_elsewhere"]
@@ -48,15 +47,7 @@ def _serve(conn: Any, other: Any) -> None:
     of the pipe, closed here)."""
     other.close()
     ignore_interrupts()
-    parent = os.getppid()
-    while True:
-        try:
-            while not conn.poll(1.0):
-                if os.getppid() != parent:  # the run's process ended without a word
-                    return
-            message = conn.recv()
-        except (EOFError, OSError):
-            return
+    for message in parent_messages(conn):
         if message is None:
             return
         try:
@@ -101,7 +92,7 @@ class PaintProcess:
             self._proc.start()
             there.close()
             self._conn = here
-            self._finalizer = weakref.finalize(self, _end, self._proc, here)
+            self._finalizer = weakref.finalize(self, end_helper, self._proc, here, None)
 
     @property
     def forked(self) -> bool:
@@ -143,7 +134,7 @@ class PaintProcess:
             with contextlib.suppress(RuntimeError, EOFError, OSError):
                 self._wait_for(pending)
         with self._lock:
-            _end(self._proc, self._conn)
+            end_helper(self._proc, self._conn, None)
             self._proc = None
 
 
@@ -161,13 +152,3 @@ def painting_elsewhere(cameras: Iterable[object]) -> Iterator[PaintProcess]:
         for camera in sims:
             camera.painter = paint_here
         process.close()
-
-
-def _end(proc: Any, conn: Any) -> None:
-    with contextlib.suppress(OSError, ValueError):
-        conn.send(None)
-    proc.join(timeout=1.0)
-    if proc.is_alive():
-        proc.terminate()
-        proc.join()
-    conn.close()
