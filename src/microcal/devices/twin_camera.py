@@ -37,9 +37,8 @@ from .twin_protocol import (
     FRAMES_PORT,
     GRAB,
     INFO,
-    KIND_INPUT,
+    KIND_LIMIT,
     MAX_HEADER_BYTES,
-    MOVE,
     OK,
     REGION,
     SNAP,
@@ -306,7 +305,7 @@ class FrameClient:
         if error is None:
             raise DeviceError(f"twin at {self._where()}: unexpected answer {line[:60]!r}")
         kind, message = error
-        if kind == KIND_INPUT and request.startswith(f"{MOVE} "):
+        if kind == KIND_LIMIT:
             raise LimitError(f"twin: {message}")
         raise error_of_kind(kind)(f"twin at {self._where()}: {message}")
 

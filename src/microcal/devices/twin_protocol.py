@@ -27,7 +27,7 @@ per connection, on ``frames_port`` (:data:`FRAMES_PORT` by default):
 <x1> <y1>``                 frame: answered as GRAB (``OK <h> <w> <dtype> <nbytes>`` and the
                             bytes), or ``ERR input <message>``
 ``MOVE <stage> <um>...``    move a stage (one value for a focus drive, two for an X-Y stage)
-                            to the given position, µm: ``OK``, or ``ERR input <message>`` for
+                            to the given position, µm: ``OK``, or ``ERR limit <message>`` for
                             a position outside its travel (nothing moved)
 ``POS <stage>``             ``OK <um>...``: the stage's readout, µm
 ``BUSY <stage>``            ``OK 1`` while the stage moves, else ``OK 0``
@@ -40,8 +40,9 @@ The stages (the ``patch`` preset's focus drive and X-Y stage) are listed in INFO
 
 ``<kind>`` is ``frame`` (a dropped frame, grab again), ``timeout`` (no frame in time, grab
 again; also the answer to any request that took longer than the server's request timeout),
-``device`` (any other device error), ``input`` (a request it does not take) or ``busy`` (the
-first line of a connection beyond the server's clients at once, which it then closes).
+``device`` (any other device error), ``limit`` (a stage position outside its travel; nothing
+moved), ``input`` (a request it does not take) or ``busy`` (the first line of a connection
+beyond the server's clients at once, which it then closes).
 
 Limits. Neither side trusts the other: the server (:mod:`microcal.sim.line_server`, whose
 docstring gives its defaults) drops a request line longer than its limit, closes a connection
@@ -81,6 +82,7 @@ __all__ = [
     "KIND_DEVICE",
     "KIND_FRAME",
     "KIND_INPUT",
+    "KIND_LIMIT",
     "KIND_TIMEOUT",
     "MAX_FRAME_BYTES",
     "MAX_HEADER_BYTES",
@@ -144,6 +146,7 @@ KIND_FRAME = "frame"
 KIND_TIMEOUT = "timeout"
 KIND_DEVICE = "device"
 KIND_INPUT = "input"
+KIND_LIMIT = "limit"
 KIND_BUSY = "busy"
 
 #: The pixel types of a frame, by their name in a GRAB header and in INFO.

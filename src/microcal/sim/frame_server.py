@@ -49,6 +49,7 @@ from ..devices.twin_protocol import (
     KIND_DEVICE,
     KIND_FRAME,
     KIND_INPUT,
+    KIND_LIMIT,
     KIND_TIMEOUT,
     MOVE,
     POS,
@@ -338,7 +339,7 @@ class FramePeer:
 
 def _device_call(what: Callable[[], bytes]) -> bytes:
     """``what()``'s answer, or the ERR line of the device error it raised: ``frame`` (a
-    dropped frame), ``timeout``, ``input`` (a position outside a stage's travel), ``device``."""
+    dropped frame), ``timeout``, ``limit`` (a position outside a stage's travel), ``device``."""
     try:
         return what()
     except FrameError as exc:
@@ -346,7 +347,7 @@ def _device_call(what: Callable[[], bytes]) -> bytes:
     except DeviceTimeoutError as exc:
         return encode_error(KIND_TIMEOUT, str(exc))
     except LimitError as exc:
-        return encode_error(KIND_INPUT, str(exc))
+        return encode_error(KIND_LIMIT, str(exc))
     except MicrocalError as exc:
         return encode_error(KIND_DEVICE, str(exc))
 
