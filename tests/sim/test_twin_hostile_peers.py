@@ -457,14 +457,12 @@ def test_a_hostile_snap_region_or_stage_answer_is_refused_in_one_line(netns, ans
     """The region reads and the stages of the twin's ``patch`` preset trust no answer."""
     with HostileFrameServer(answers) as hostile:
         client = _twin_camera().FrameClient(HOST, hostile.port, timeout_s=2.0)
+        asks = {"stage": lambda: client.stage("POS XYStage", 2),
+                "snap": lambda: client.snap("scope"),
+                "region": lambda: client.snap("scope").region(0, 0, 2, 2)}  # fmt: skip
         try:
             with pytest.raises(DeviceError) as refused:
-                if ask == "stage":
-                    client.stage("POS XYStage", 2)
-                elif ask == "snap":
-                    client.snap("scope")
-                else:
-                    client.snap("scope").region(0, 0, 2, 2)
+                asks[ask]()
         finally:
             client.close()
         message = str(refused.value)
@@ -482,9 +480,9 @@ def test_a_stage_described_as_no_stage_of_the_protocol_is_refused(netns):
                   {"name": "Z", "kind": "focus", "limits_um": [[1, 0]]},
                   {"name": "XY", "kind": "xy", "limits_um": [[0, 1]]}):  # fmt: skip
         info = json.dumps({"format": "microcal.twin/1", "cameras": [], "stages": [stage]})
-        with HostileFrameServer({"INFO": info.encode() + b"\r\n"}) as hostile:
-            with pytest.raises(DeviceError, match="a stage described as"):
-                load(UniMMCore(), HOST, hostile.port, timeout_s=2.0)
+        refused = pytest.raises(DeviceError, match="a stage described as")
+        with HostileFrameServer({"INFO": info.encode() + b"\r\n"}) as hostile, refused:
+            load(UniMMCore(), HOST, hostile.port, timeout_s=2.0)
 
 
 # --- the same simulation for well-behaved clients --------------------------------------------

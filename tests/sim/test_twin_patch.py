@@ -109,7 +109,8 @@ def test_a_frame_is_read_by_region_and_shows_the_pipettes_tip_in_focus(rig, serv
     x, y = int(tip_px[0]), int(tip_px[1])
     box = (x - 60, y - 60, x + 60, y + 60)
     near = frame.region(*box)
-    assert near.dtype == np.uint16 and near.shape == (120, 120)
+    assert near.dtype == np.uint16
+    assert near.shape == (120, 120)
     np.testing.assert_array_equal(near, kept.region(*box))  # the twin's pixels, unchanged
     assert abs(kept.truth.defocus_um) < 0.5  # the tip in focus
     # the pipette moved out of the box (the focus, the stage, the tissue as they were): the
@@ -148,7 +149,9 @@ def test_positions_outside_the_travel_are_refused_in_one_line_and_nothing_moves(
     assert len(str(soft.value).splitlines()) == 1
     client = FrameClient("127.0.0.1", served.frames_port, timeout_s=5.0)
     try:  # a client with wider limits: the twin refuses
-        with pytest.raises(LimitError, match=r"focus: 900 um is outside the focus drive's range -500 to 500 um"):
+        with pytest.raises(
+            LimitError, match=r"focus: 900 um is outside the focus drive's range -500 to 500 um"
+        ):
             client.stage("MOVE Focus 900", 0)
         with pytest.raises(LimitError, match="outside the soft limits"):
             client.stage("MOVE XYStage 6000 0", 0)
@@ -180,7 +183,8 @@ def test_snap_and_region_keep_the_last_frames_and_refuse_the_rest(served):
     assert info["cameras"][0]["dtype"] == "uint16"
     assert [s["name"] for s in info["stages"]] == ["XYStage", "Focus"]
     first = ask(port, "SNAP scope").split()
-    assert first[0] == b"OK" and first[2:] == [b"2048", b"2048", b"uint16"]
+    assert first[0] == b"OK"
+    assert first[2:] == [b"2048", b"2048", b"uint16"]
     data = ask(port, f"REGION {int(first[1])} 10 20 14 23", extra=24)
     assert data.startswith(b"OK 3 4 uint16 24\r\n")
     for _ in range(KEPT_FRAMES):
