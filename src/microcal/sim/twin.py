@@ -46,6 +46,7 @@ from collections.abc import Callable, Mapping
 from types import TracebackType
 from typing import Any, Self
 
+from ..devices.base import Clock
 from ..devices.smaract_mcs2 import MCS2_PORT
 from ..devices.twin_protocol import FRAMES_PORT
 from ..errors import InputError
@@ -111,6 +112,11 @@ class Twin:
         frame server, none from the MCS2 peer.
     max_lifetime_s : float
         The servers stop by themselves after this long, s.
+    clock : Clock, optional
+        The simulated devices' clock instead of the scaled clock (for comparisons run in
+        one process: a :class:`~microcal.sim.clock.SimClock`, shared with the client, makes
+        simulated time pass only by the devices' waits and the client's, as in the
+        in-process simulator; a frame's exposure is then waited out under the lock).
 
     Attributes
     ----------
@@ -144,12 +150,14 @@ class Twin:
         idle_timeout_s: float = IDLE_TIMEOUT_S,
         request_timeout_s: float = REQUEST_TIMEOUT_S,
         max_lifetime_s: float = MAX_LIFETIME_S,
+        clock: Clock | None = None,
     ) -> None:
         self.host = _check_host(host)
         self.limits = ServerLimits(max_clients, idle_timeout_s, request_timeout_s)
         self.preset, self.seed = preset, int(seed)
-        self.clock = ScaledClock(time_scale)
-        self.time_scale = self.clock.time_scale
+        scaled = ScaledClock(time_scale)
+        self.time_scale = scaled.time_scale
+        self.clock: Clock = scaled if clock is None else clock
         self.serial = f"MCS2-TWIN-{self.seed}"
         self.mcs2_port, self.frames_port = int(mcs2_port), int(frames_port)
         self._max_lifetime_s = float(max_lifetime_s)
