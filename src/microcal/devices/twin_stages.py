@@ -18,7 +18,7 @@ it has settled). Neither stage has an origin of its own to set (:class:`DeviceEr
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from pymmcore_plus.experimental.unicore import StageDevice, XYStageDevice
 
@@ -26,16 +26,26 @@ from .._validation import excerpt
 from ..errors import DeviceError
 from .twin_protocol import BUSY, MOVE, POS, STOP, StageInfo, info_stage
 
-if TYPE_CHECKING:
-    from .twin_camera import FrameClient
+__all__ = ["StageClient", "TwinFocus", "TwinXYStage", "load_stages"]
 
-__all__ = ["TwinFocus", "TwinXYStage", "load_stages"]
+
+class StageClient(Protocol):
+    """The connection to the twin's frame server the stages send their requests on (the
+    cameras' ``devices.twin_camera.FrameClient``)."""
+
+    address: str
+    port: int
+
+    def stage(self, request: str, count: int) -> tuple[float, ...]:
+        """Send a stage request; the ``count`` numbers of its ``OK`` answer (LimitError for
+        a position outside the stage's travel, DeviceError for any other refusal)."""
+        ...
 
 
 class _TwinStage:
     """The requests of one of the twin's stages."""
 
-    def __init__(self, client: FrameClient, info: StageInfo) -> None:
+    def __init__(self, client: StageClient, info: StageInfo) -> None:
         self._client, self.info = client, info
 
     def _move(self, *values_um: float) -> None:
@@ -58,7 +68,7 @@ class _TwinStage:
 class TwinXYStage(XYStageDevice):  # type: ignore[misc, unused-ignore]  # Any without stubs
     """The twin's X-Y stage as a pure-Python Micro-Manager XY stage, µm."""
 
-    def __init__(self, client: FrameClient, info: StageInfo) -> None:
+    def __init__(self, client: StageClient, info: StageInfo) -> None:
         super().__init__()
         self._stage = _TwinStage(client, info)
 
@@ -93,7 +103,7 @@ class TwinXYStage(XYStageDevice):  # type: ignore[misc, unused-ignore]  # Any wi
 class TwinFocus(StageDevice):  # type: ignore[misc, unused-ignore]  # Any without stubs
     """The twin's focus drive as a pure-Python Micro-Manager stage, µm from its home."""
 
-    def __init__(self, client: FrameClient, info: StageInfo) -> None:
+    def __init__(self, client: StageClient, info: StageInfo) -> None:
         super().__init__()
         self._stage = _TwinStage(client, info)
 
@@ -121,7 +131,7 @@ class TwinFocus(StageDevice):  # type: ignore[misc, unused-ignore]  # Any withou
         self._stage._no_origin()
 
 
-def load_stages(core: Any, client: FrameClient, stages: Sequence[Mapping[str, Any]]) -> None:
+def load_stages(core: Any, client: StageClient, stages: Sequence[Mapping[str, Any]]) -> None:
     """Load the stages of the twin's INFO answer into a ``UniMMCore``, by their names.
 
     Raises
