@@ -102,6 +102,7 @@ def test_a_frame_is_read_by_region_and_shows_the_pipettes_tip_in_focus(rig, serv
     patch = served.patch
     reading, _ = patch.in_focus()  # the focus reading that puts the tip in focus
     settle(rig.microscope, [0.0, 0.0, round(reading, 3)])
+    assert rig.cameras["scope"].grab_lazy is not None  # the twin says: read by region
     frame = grab_frame(rig.cameras["scope"])
     assert frame.shape == (2048, 2048)
     kept = served.frames._kept[max(served.frames._kept)]  # the twin's own frame

@@ -23,7 +23,7 @@ from __future__ import annotations
 import socket
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -51,6 +51,7 @@ from .twin_protocol import (
     frame_size_problem,
     grab_request,
     info_camera,
+    info_regions,
     parse_frame_header,
     parse_numbers,
     parse_snap_header,
@@ -366,13 +367,16 @@ class TwinCamera(SimpleCameraDevice):  # type: ignore[misc, unused-ignore]  # An
         ``"uint8"`` or ``"uint16"``.
     exposure_ms : float
         The camera's exposure, ms.
+    regions : bool
+        Its frames are read by region (:attr:`grab_lazy`; the twin's INFO says which).
     """
 
     def __init__(
         self, client: FrameClient, name: str, shape_px: tuple[int, int], dtype: str,
-        exposure_ms: float,
+        exposure_ms: float, *, regions: bool = False,
     ) -> None:  # fmt: skip
         super().__init__()
+        self._regions = bool(regions)
         self._client, self._name = client, name
         self._shape_px = (int(shape_px[0]), int(shape_px[1]))
         self._dtype = DTYPES[dtype]
@@ -413,9 +417,15 @@ class TwinCamera(SimpleCameraDevice):  # type: ignore[misc, unused-ignore]  # An
         buffer[:] = frame
         return {}
 
-    def grab_lazy(self) -> TwinFrame:
-        """One frame exposed by the twin and read by region (:class:`TwinFrame`); the
-        Micro-Manager bridge's cameras offer it (``MMCamera.grab_lazy``)."""
+    @property
+    def grab_lazy(self) -> Callable[[], TwinFrame] | None:
+        """A grab of one frame exposed by the twin and read by region (:class:`TwinFrame`),
+        for a camera the twin says is read so (the ``patch`` preset's); None for the others,
+        whose whole frames a snap fetches. The Micro-Manager bridge's cameras hand it on
+        (``MMCamera.grab_lazy``)."""
+        return self._snap_frame if self._regions else None
+
+    def _snap_frame(self) -> TwinFrame:
         frame = self._client.snap(self._name)
         if frame.shape != self._shape_px:
             (h, w), (sh, sw) = frame.shape, self._shape_px
@@ -462,5 +472,5 @@ def load(core: Any, address: str = "127.0.0.1", port: int = FRAMES_PORT,
             raise DeviceError(
                 f"twin at {address}:{port}: camera {name!r} of {h} x {w} {dtype}: {problem}"
             )
-        core.loadPyDevice(name, TwinCamera(client, *args))
+        core.loadPyDevice(name, TwinCamera(client, *args, regions=info_regions(cam)))
     load_stages(core, client, info["stages"])

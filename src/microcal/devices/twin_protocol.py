@@ -11,7 +11,8 @@ per connection, on ``frames_port`` (:data:`FRAMES_PORT` by default):
 ``INFO``                    one JSON line: ``{"format": "microcal.twin/1", "preset",
                             "seed", "time_scale", "cameras": [{"name", "width",
                             "height", "bit_depth", "dtype", "pixel_size_um",
-                            "exposure_ms"}, ...]}``
+                            "exposure_ms", "regions"}, ...]}`` (``regions``: the camera's
+                            frames are to be read by region, SNAP and REGION; absent: false)
 ``GRAB <camera>``           ``OK <height> <width> <dtype> <nbytes>`` then ``nbytes`` bytes:
                             the frame in row-major order, ``uint8`` or little-endian
                             ``uint16``; or ``ERR <kind> <message>`` when there is no frame
@@ -112,6 +113,7 @@ __all__ = [
     "frame_size_problem",
     "grab_request",
     "info_camera",
+    "info_regions",
     "info_stage",
     "parse_frame_header",
     "parse_numbers",
@@ -156,7 +158,7 @@ MAX_HEADER_BYTES = 1 << 16
 #: The largest frame a client accepts, bytes (256 MiB: far above any sensor here).
 MAX_FRAME_BYTES = 1 << 28
 #: The frames of SNAP the server keeps for REGION requests (the oldest is dropped beyond).
-KEPT_FRAMES = 8
+KEPT_FRAMES = 16
 #: The kinds of stage and their number of axes.
 STAGE_KINDS = {"xy": 2, "focus": 1}
 #: The most values a stage request carries.
@@ -174,6 +176,7 @@ class CameraInfo:
     dtype: str
     pixel_size_um: float
     exposure_ms: float
+    regions: bool = False
 
     def to_json(self) -> dict[str, Any]:
         """The camera's JSON object."""
@@ -416,6 +419,12 @@ def info_stage(stage: Mapping[str, Any]) -> StageInfo:
     ):
         raise ValueError(f"stage limits {stage['limits_um']!r}")
     return StageInfo(str(stage["name"]), kind, limits)
+
+
+def info_regions(cam: Mapping[str, Any]) -> bool:
+    """Whether a camera of the INFO answer is to be read by region (``regions``; absent:
+    false)."""
+    return cam.get("regions", False) is True
 
 
 def info_camera(cam: Mapping[str, Any]) -> tuple[str, tuple[int, int], str, float]:

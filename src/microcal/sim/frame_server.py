@@ -230,6 +230,7 @@ class FramePeer:
                 dtype=np.dtype(cam.dtype).name,
                 pixel_size_um=cam.pixel_size_um,
                 exposure_ms=cam.exposure_s * 1e3,
+                regions=bool(getattr(cam, "regions", False)),
             ).to_json()
             for name, cam in self.cameras.items()
         ]

@@ -61,6 +61,8 @@ class PatchTwinCamera:
         self.bit_depth = int(cfg.bit_depth)
         self.pixel_size_um = float(cfg.sensor_pixel_um)
         self.dtype: Any = np.uint16
+        #: Its frames are read by region (INFO says so): a whole one takes minutes to render.
+        self.regions = True
 
     @property
     def exposure_s(self) -> float:
