@@ -103,6 +103,11 @@ BLOCKS = all_blocks()
 #: A simulated rig (the thesis platform, seed 0: the quick demo's), for blocks that name a rig
 #: file of the simulator.
 SIM_RIG = 'driver = "sim"\npreset = "thesis"\nseed = 0\n'
+#: The simulated one-camera rig of docs/microscope.md (small frames).
+PATCH_RIG = (
+    'driver = "sim"\npreset = "patch"\nseed = 0\n[overrides]\nsize_px = [512, 512]\n'
+    "supersample = 1\n"
+)
 
 
 @dataclass(frozen=True)
@@ -150,6 +155,8 @@ SETUPS: dict[tuple[str, int], Setup] = {
     ("docs/hardware.md", 10): Setup(serve_s=0.2),
     ("docs/identification.md", 0): Setup(synthetic_run="runs/a"),
     ("docs/simulator.md", 2): Setup(python_prelude="from microcal import sim\n"),
+    # the one-camera rig of the block before
+    ("docs/microscope.md", 7): Setup(files={"patch.toml": PATCH_RIG}),
 }
 
 #: docs/hardware.md's rig fragments: (lines before, lines after) that make each a whole rig.
@@ -187,6 +194,7 @@ COSTLY = {
     ("docs/hardware.md", 9),
     ("docs/microscope.md", 0),
     ("docs/microscope.md", 5),
+    ("docs/microscope.md", 7),
 }
 
 
