@@ -84,6 +84,7 @@ DRIVER_LIBRARIES = {
     "devices.aravis_camera": {"gi", "aravis"},
     "devices.micromanager": {"pymmcore_plus"},
     "devices.twin_camera": {"pymmcore_plus"},
+    "devices.twin_stages": {"pymmcore_plus"},
     "devices.mm_tip_stage": {"pymmcore_plus"},
 }
 

@@ -130,6 +130,7 @@ def test_frames_have_the_sims_shape_and_show_the_board_where_the_manipulator_put
         assert frame.shape == (sim.sensor_size_px[1], sim.sensor_size_px[0])
         assert frame.dtype == sim.dtype
         assert cam.pixel_size_um == sim.pixel_size_um
+        assert cam.grab_lazy is None  # whole frames (only the patch camera is read by region)
         before[name] = centre_px(frame, opened.board)
     opened.cameras["side"].exposure_s = 0.01  # through Micro-Manager to the simulated camera
     assert served.platform.cameras["side"].exposure_s == pytest.approx(0.01)

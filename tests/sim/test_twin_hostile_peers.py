@@ -439,6 +439,52 @@ def test_the_cameras_refuse_a_sensor_or_frame_other_than_announced(netns):
             client.close()
 
 
+@pytest.mark.parametrize(
+    ("answers", "ask", "says"),
+    [
+        ({"SNAP": b"OK 1 200000 200000 uint16\r\n"}, "snap", "above the protocol's limit"),
+        ({"SNAP": b"OK one 2 2 uint8\r\n"}, "snap", "not integers"),
+        ({"SNAP": b"OK 1 4 4 float64\r\n"}, "snap", "pixel type 'float64'"),
+        ({"SNAP": b"OK 1 4 4 uint8\r\n", "REGION": b"OK 1 4 uint8 4\r\n\x01\x02\x03\x04"},
+         "region", "a region of 1 x 4 uint8 for a box of 2 x 2 uint8"),
+        ({"SNAP": b"OK 1 4 4 uint8\r\n", "REGION": b"OK 2 2 uint8 99\r\n"}, "region",
+         "declares 99 bytes"),
+        ({"POS": b"OK 1e999 0\r\n"}, "stage", "unexpected answer"),
+        ({"POS": b"OK 1 2 3\r\n"}, "stage", "unexpected answer"),
+    ],
+)  # fmt: skip
+def test_a_hostile_snap_region_or_stage_answer_is_refused_in_one_line(netns, answers, ask, says):
+    """The region reads and the stages of the twin's ``patch`` preset trust no answer."""
+    with HostileFrameServer(answers) as hostile:
+        client = _twin_camera().FrameClient(HOST, hostile.port, timeout_s=2.0)
+        asks = {"stage": lambda: client.stage("POS XYStage", 2),
+                "snap": lambda: client.snap("scope"),
+                "region": lambda: client.snap("scope").region(0, 0, 2, 2)}  # fmt: skip
+        try:
+            with pytest.raises(DeviceError) as refused:
+                asks[ask]()
+        finally:
+            client.close()
+        message = str(refused.value)
+        assert len(message.splitlines()) == 1
+        assert says in message
+
+
+def test_a_stage_described_as_no_stage_of_the_protocol_is_refused(netns):
+    pytest.importorskip("pymmcore_plus")
+    from pymmcore_plus.experimental.unicore import UniMMCore
+
+    from microcal.devices.twin_camera import load
+
+    for stage in ({"name": "Z", "kind": "rotary", "limits_um": [[0, 1]]},
+                  {"name": "Z", "kind": "focus", "limits_um": [[1, 0]]},
+                  {"name": "XY", "kind": "xy", "limits_um": [[0, 1]]}):  # fmt: skip
+        info = json.dumps({"format": "microcal.twin/1", "cameras": [], "stages": [stage]})
+        refused = pytest.raises(DeviceError, match="a stage described as")
+        with HostileFrameServer({"INFO": info.encode() + b"\r\n"}) as hostile, refused:
+            load(UniMMCore(), HOST, hostile.port, timeout_s=2.0)
+
+
 # --- the same simulation for well-behaved clients --------------------------------------------
 class FrozenClock(ScaledClock):
     """A scaled clock stopped at one instant (its waits still wait): frames that depend only

@@ -18,7 +18,7 @@ _Duration = Annotated[float | None, Option(min=0, help="Stop after this long, s 
 
 @app.command(short_help="Serve the simulator through the real device protocols.")
 def twin(
-    preset: Annotated[str, Option(help="The simulated platform's preset.")] = "thesis",
+    preset: Annotated[str, Option(help="The preset (patch: the one-camera scope).")] = "thesis",
     seed: Annotated[int, Option(min=0, help="Seed of the simulated platform.")] = 0,
     host: Annotated[str, Option(help="The loopback address to listen on.")] = "127.0.0.1",
     port: _Port = 55551, frames_port: _Frames = 55561, time_scale: _Scale = 1.0,

@@ -12,7 +12,7 @@ from __future__ import annotations
 import contextlib
 import importlib
 import logging
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 import numpy as np
@@ -119,6 +119,17 @@ def _device_error(message: str, exc: RuntimeError) -> DeviceError:
     return kind(message)
 
 
+def _python_device(core: Any, label: str) -> Any:
+    """The pure-Python device ``label`` of a ``UniMMCore`` (None for a C++ device, a core of
+    no pure-Python devices or a closed one); pymmcore-plus keeps them by label in the core's
+    device manager."""
+    devices = getattr(core, "_pydevices", None)
+    try:
+        return devices[label] if devices is not None and label in devices else None
+    except (KeyError, TypeError):
+        return None
+
+
 class MMManipulator(Manipulator):
     """An XY stage and a focus stage of a Micro-Manager core as one 3-axis manipulator, or
     an XY stage alone as a 2-axis one (``focus`` None: joints x, y)."""
@@ -213,6 +224,29 @@ class MMCamera(Camera):
             self.core.setExposure(self.device, exposure_s * 1e3)
         except RuntimeError as exc:
             raise DeviceError(f"{self.name}: exposure not accepted ({exc})") from None
+
+    @property
+    def grab_lazy(self) -> Callable[[], Any] | None:
+        """One frame read by region (a :class:`~microcal.vision.lazy_frame.RegionFrame`),
+        where the camera is a pure-Python device that gives such frames (a ``grab_lazy()`` of
+        its own: the digital twin's, ``devices.twin_camera``); None for any other camera,
+        whose whole frames :meth:`grab` gives (``vision.lazy_frame.grab_frame`` takes either).
+
+        The core's ``snapImage`` gives whole frames only: such a frame is asked of the device
+        itself, found among the core's pure-Python devices by its label.
+        """
+        lazy = getattr(_python_device(self.core, self.device), "grab_lazy", None)
+        if not callable(lazy):
+            return None
+
+        def grab() -> Any:
+            self._check_open("grab")
+            try:
+                return lazy()
+            except RuntimeError as exc:
+                raise _device_error(f"{self.name}: no frame ({exc})", exc) from None
+
+        return grab
 
     def _grab(self) -> NDArray[np.unsignedinteger]:
         try:

@@ -6,6 +6,11 @@ Micro-Manager bridge then calls :func:`load`, which asks the twin's frame server
 (:mod:`microcal.sim.frame_server`) for its cameras and loads one :class:`TwinCamera` per
 camera, labelled with the camera's name. Each snap fetches one frame (``GRAB <camera>``), so
 the frames reach microcal through ``devices.micromanager.MMCamera`` as a real camera's would.
+A camera also gives frames read by region (:meth:`TwinCamera.grab_lazy`: ``SNAP``, then one
+``REGION`` per region read, :class:`TwinFrame`), which ``MMCamera.grab_lazy`` hands on: a
+procedure that looks at the tip's neighbourhood in a 2048 x 2048 frame moves its pixels, not
+8 MB. Where the twin serves stages (the ``patch`` preset's focus and X-Y stage), :func:`load`
+loads them too (:mod:`microcal.devices.twin_stages`), on the same connection.
 The protocol, its words and limits are :mod:`microcal.devices.twin_protocol`'s.
 
 A dropped frame is a :class:`FrameError` and a frame that does not come in time a
@@ -18,22 +23,26 @@ from __future__ import annotations
 import socket
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from pymmcore_plus.experimental.unicore import SimpleCameraDevice
 
-from ..errors import DeviceError, DeviceTimeoutError
+from ..errors import DeviceError, DeviceTimeoutError, LimitError
 from .twin_protocol import (
     DTYPES,
     EOL,
     FRAMES_PORT,
     GRAB,
     INFO,
+    KIND_LIMIT,
     MAX_HEADER_BYTES,
     OK,
+    REGION,
+    SNAP,
+    SnapHeader,
     decode_error,
     decode_frame,
     decode_info,
@@ -42,10 +51,16 @@ from .twin_protocol import (
     frame_size_problem,
     grab_request,
     info_camera,
+    info_regions,
     parse_frame_header,
+    parse_numbers,
+    parse_snap_header,
+    region_request,
+    snap_request,
 )
+from .twin_stages import load_stages
 
-__all__ = ["FRAMES_PORT", "FrameClient", "TwinCamera", "load"]
+__all__ = ["FRAMES_PORT", "FrameClient", "TwinCamera", "TwinFrame", "load"]
 
 
 class _RefusedError(Exception):
@@ -144,7 +159,7 @@ class FrameClient:
         self._sock.sendall(request.encode("ascii") + EOL)
         deadline = time.monotonic() + self.timeout_s
         line = self._read_line(deadline).decode("ascii", errors="replace")
-        if not request.startswith(f"{GRAB} "):
+        if not request.startswith((f"{GRAB} ", f"{REGION} ")):
             return line, None
         try:
             header = parse_frame_header(line)
@@ -225,11 +240,117 @@ class FrameClient:
             raise error_of_kind(kind)(message or line)
         raise DeviceError(f"twin at {self._where()}: unexpected answer {line[:60]!r} to {GRAB}")
 
+    def snap(self, camera: str) -> TwinFrame:
+        """One frame of a camera, kept by the twin and read by region (:class:`TwinFrame`).
+
+        Raises
+        ------
+        FrameError, DeviceTimeoutError
+            The twin lost the frame or it came too late (grab again).
+        DeviceError
+            Any other failure (an answer that is not a frame's, refused).
+        """
+        line, _ = self.request(snap_request(camera))
+        try:
+            header = parse_snap_header(line)
+        except ValueError as exc:
+            raise DeviceError(f"twin at {self._where()}: the answer to SNAP {exc}") from None
+        if header is not None:
+            return TwinFrame(self, header)
+        error = decode_error(line)
+        if error is not None:
+            raise error_of_kind(error[0])(error[1] or line)
+        raise DeviceError(f"twin at {self._where()}: unexpected answer {line[:60]!r} to {SNAP}")
+
+    def region(self, header: SnapHeader, box: tuple[int, int, int, int]) -> NDArray[Any]:
+        """The pixels of a kept frame over ``box`` (x0, y0, x1, y1, inside the frame).
+
+        Raises
+        ------
+        DeviceError
+            The twin no longer keeps the frame, or any other failure.
+        """
+        line, data = self.request(region_request(header.frame_id, box))
+        frame_header = parse_frame_header(line)
+        if frame_header is not None and data is not None:
+            x0, y0, x1, y1 = box
+            shape = (y1 - y0, x1 - x0)
+            if (frame_header.height, frame_header.width) != shape or (
+                frame_header.dtype != header.dtype
+            ):
+                raise DeviceError(
+                    f"twin at {self._where()}: a region of {frame_header.height} x "
+                    f"{frame_header.width} {frame_header.dtype} for a box of {shape[0]} x "
+                    f"{shape[1]} {header.dtype}; refused"
+                )
+            return decode_frame(frame_header, data)
+        error = decode_error(line)
+        message = error[1] if error is not None else f"unexpected answer {line[:60]!r}"
+        raise DeviceError(f"twin at {self._where()}: {REGION}: {message}")
+
+    def stage(self, request: str, count: int) -> tuple[float, ...]:
+        """Send a stage request; the ``count`` numbers of its ``OK`` answer.
+
+        Raises
+        ------
+        LimitError
+            A move the twin refused as outside the stage's travel (nothing moved).
+        DeviceError, DeviceTimeoutError
+            Any other refusal or failure.
+        """
+        line, _ = self.request(request)
+        values = parse_numbers(line, count)
+        if values is not None:
+            return values
+        error = decode_error(line)
+        if error is None:
+            raise DeviceError(f"twin at {self._where()}: unexpected answer {line[:60]!r}")
+        kind, message = error
+        if kind == KIND_LIMIT:
+            raise LimitError(f"twin: {message}")
+        raise error_of_kind(kind)(f"twin at {self._where()}: {message}")
+
     def set_exposure_ms(self, camera: str, exposure_ms: float) -> None:
         """Set a camera's exposure, ms."""
         line, _ = self.request(exposure_request(camera, exposure_ms))
         if line != OK:
             raise DeviceError(f"twin: exposure of {camera} not accepted ({line[:80]})")
+
+
+class TwinFrame:
+    """A frame the twin exposed and keeps, read by region
+    (a :class:`~microcal.vision.lazy_frame.RegionFrame`): each :meth:`region` is one REGION
+    request, so a look at the tip's neighbourhood costs its pixels, not the whole frame's.
+
+    The twin keeps its last :data:`~microcal.devices.twin_protocol.KEPT_FRAMES` frames: a
+    frame read after that many more were snapped is a :class:`DeviceError`.
+    """
+
+    def __init__(self, client: FrameClient, header: SnapHeader) -> None:
+        self._client, self._header = client, header
+        self._full: NDArray[Any] | None = None
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(height, width) of the whole frame, px."""
+        return self._header.height, self._header.width
+
+    def region(self, x0: int, y0: int, x1: int, y1: int) -> NDArray[Any]:
+        """The frame's pixels over [x0, x1) x [y0, y1) (clipped to the frame), a new array."""
+        h, w = self.shape
+        x0, y0, x1, y1 = max(0, int(x0)), max(0, int(y0)), min(w, int(x1)), min(h, int(y1))
+        if self._full is not None:
+            return self._full[y0:y1, x0:x1].copy()
+        if x1 <= x0 or y1 <= y0:
+            return np.zeros((max(y1 - y0, 0), max(x1 - x0, 0)), dtype=DTYPES[self._header.dtype])
+        return self._client.region(self._header, (x0, y0, x1, y1)).copy()
+
+    def full(self) -> NDArray[Any]:
+        """The whole frame (made once)."""
+        if self._full is None:
+            h, w = self.shape
+            self._full = self.region(0, 0, w, h)
+        return self._full
 
 
 class TwinCamera(SimpleCameraDevice):  # type: ignore[misc, unused-ignore]  # Any without stubs
@@ -246,13 +367,16 @@ class TwinCamera(SimpleCameraDevice):  # type: ignore[misc, unused-ignore]  # An
         ``"uint8"`` or ``"uint16"``.
     exposure_ms : float
         The camera's exposure, ms.
+    regions : bool
+        Its frames are read by region (:attr:`grab_lazy`; the twin's INFO says which).
     """
 
     def __init__(
         self, client: FrameClient, name: str, shape_px: tuple[int, int], dtype: str,
-        exposure_ms: float,
+        exposure_ms: float, *, regions: bool = False,
     ) -> None:  # fmt: skip
         super().__init__()
+        self._regions = bool(regions)
         self._client, self._name = client, name
         self._shape_px = (int(shape_px[0]), int(shape_px[1]))
         self._dtype = DTYPES[dtype]
@@ -293,10 +417,30 @@ class TwinCamera(SimpleCameraDevice):  # type: ignore[misc, unused-ignore]  # An
         buffer[:] = frame
         return {}
 
+    @property
+    def grab_lazy(self) -> Callable[[], TwinFrame] | None:
+        """A grab of one frame exposed by the twin and read by region (:class:`TwinFrame`),
+        for a camera the twin says is read so (the ``patch`` preset's); None for the others,
+        whose whole frames a snap fetches. The Micro-Manager bridge's cameras hand it on
+        (``MMCamera.grab_lazy``)."""
+        return self._snap_frame if self._regions else None
+
+    def _snap_frame(self) -> TwinFrame:
+        frame = self._client.snap(self._name)
+        if frame.shape != self._shape_px:
+            (h, w), (sh, sw) = frame.shape, self._shape_px
+            raise DeviceError(
+                f"twin: a {h} x {w} frame from camera {self._name!r} of {sh} x {sw}; is the "
+                "twin the one its rig was loaded from?"
+            )
+        return frame
+
 
 def load(core: Any, address: str = "127.0.0.1", port: int = FRAMES_PORT,
          timeout_s: float = 10.0) -> None:  # fmt: skip
-    """Load the twin's cameras into a ``UniMMCore`` (the rig's ``python_devices`` loader).
+    """Load the twin's cameras, and its stages where it has some (the ``patch`` preset's
+    focus and X-Y stage, :mod:`microcal.devices.twin_stages`), into a ``UniMMCore`` (the
+    rig's ``python_devices`` loader).
 
     Parameters
     ----------
@@ -314,7 +458,8 @@ def load(core: Any, address: str = "127.0.0.1", port: int = FRAMES_PORT,
         limit, say).
     """
     client = FrameClient(str(address), int(port), float(timeout_s))
-    for cam in client.info()["cameras"]:
+    info = client.info()
+    for cam in info["cameras"]:
         try:
             args = info_camera(cam)
         except (KeyError, TypeError, ValueError):
@@ -327,4 +472,5 @@ def load(core: Any, address: str = "127.0.0.1", port: int = FRAMES_PORT,
             raise DeviceError(
                 f"twin at {address}:{port}: camera {name!r} of {h} x {w} {dtype}: {problem}"
             )
-        core.loadPyDevice(name, TwinCamera(client, *args))
+        core.loadPyDevice(name, TwinCamera(client, *args, regions=info_regions(cam)))
+    load_stages(core, client, info["stages"])

@@ -34,6 +34,7 @@ from ..control.conditions import closed_loop_condition, open_loop_conditions
 from ..control.feedforward import extra_inputs_reader
 from ..control.visual_servo import ServoConfig
 from ..devices.microscope_drive import MicroscopeDrive
+from ..devices.rig import Rig
 from ..devices.shifted_joints import ShiftedJoints
 from ..errors import InputError
 from ..journal_record import JournalRecord
@@ -53,7 +54,7 @@ from ..procedures.one_camera_acquisition import (
 from ..procedures.one_camera_pose import measure_tip_one_camera
 from ..procedures.one_camera_probe import OneCameraTipProbe
 from ..procedures.scope_calibration import ScopeRun, calibrate_scope, depth_for, scope_plan
-from ..sim.patch import patch_rig
+from ..sim.patch import PatchRig, patch_rig
 from ..sim.patch_devices import patch_as_rig
 from ..sim.patch_scope import (
     end_offset_px,
@@ -191,6 +192,8 @@ def run_patch_demo(
     progress: Callable[[str, int, int], None] | None = None,
     store: Callable[[JournalRecord, OneCameraPose], None] | None = None,
     stages: StageClock | None = None,
+    patch: PatchRig | None = None,
+    rig: Rig | None = None,
 ) -> PatchDemoResult:
     """Run the calibration on the ``patch`` rig of ``seed`` (module docstring).
 
@@ -201,6 +204,12 @@ def run_patch_demo(
     tip's depth by a focus sweep at every pose, or by one frame against the tool's reference
     stack grabbed at the start (``stack``); ``slide_roi_px``: the square region of the sensor
     the slide is seen in.
+
+    ``patch`` is the simulated rig (``patch_rig(seed)`` by default), whose ground truth and
+    slide the demo uses, and ``rig`` the devices it drives (``patch_as_rig(patch)`` by
+    default): the same rig served another way, say by the digital twin and opened from its
+    rig file through the hardware drivers (``scripts/patch_twin_figures.py``), its clock the
+    twin's.
     """
     if poses < MIN_POSES:
         raise InputError(
@@ -208,9 +217,9 @@ def run_patch_demo(
             f"first two thirds of them), got {poses}"
         )
     wall = stages if stages is not None else StageClock()
-    patch = patch_rig(seed)
+    patch = patch_rig(seed) if patch is None else patch
     cfg = patch.config
-    rig = patch_as_rig(patch, f"simulated, preset patch, seed {seed}")
+    rig = patch_as_rig(patch, f"simulated, preset patch, seed {seed}") if rig is None else rig
     assert rig.microscope is not None  # the patch rig has one
     drive = MicroscopeDrive(rig.microscope, rig.cameras["scope"], rig.clock)
     rig_clock = StageClock(rig.clock.now_s)

@@ -44,6 +44,32 @@ def _toml_channels(first: int, limits_um: Limits) -> str:
     return "{ " + pairs + " }"
 
 
+def _served(rig: TwinRig) -> list[str]:
+    """What the twin serves through which protocol (the file's first comment)."""
+    if rig.microscope is not None:
+        return [
+            "# The simulated microscope served through the real device protocols: the manipulator",
+            "# through the SmarAct MCS2 driver, the camera, the X-Y stage and the focus through",
+            "# Micro-Manager.",
+        ]
+    return [
+        "# The simulated platform served through the real device protocols: the manipulator and",
+        "# the target stage through the SmarAct MCS2 driver, the cameras through Micro-Manager.",
+    ]
+
+
+def _targets(rig: TwinRig) -> list[str]:
+    """The rig's board (or tool tip) and its calibration target, with what they are."""
+    if rig.calibration_target is None:
+        return ["# the tool's tip the camera sees", f"board = {json.dumps(rig.board)}"]
+    return [
+        "# the chessboard on the end-effector, and the target on the target stage (the cameras",
+        "# see the target while the stage was moved more recently than the manipulator)",
+        f"board = {json.dumps(rig.board)}",
+        f"calibration_target = {json.dumps(rig.calibration_target)}",
+    ]
+
+
 def twin_rig_toml(rig: TwinRig, rig_path: str = "twin.toml") -> str:
     """The hardware rig file that drives the twin ``rig`` describes through the real drivers.
 
@@ -51,8 +77,10 @@ def twin_rig_toml(rig: TwinRig, rig_path: str = "twin.toml") -> str:
     ``host:mcs2_port``, further devices (``[manipulators.NAME]``) the channels after, each
     with its simulated device's limits; the cameras are Micro-Manager devices of
     :mod:`microcal.devices.twin_camera` fed by the frame server at ``host:frames_port``, with
-    the simulated cameras' pixel sizes. The comments say how to start the twin (``preset``,
-    ``time_scale``) and check the rig (``rig_path``).
+    the simulated cameras' pixel sizes; a microscope's X-Y stage and focus (the ``patch``
+    preset's) are the ``[microscope]``, Micro-Manager stages of
+    :mod:`microcal.devices.twin_stages` on the same frame server. The comments say how to
+    start the twin (``preset``, ``time_scale``) and check the rig (``rig_path``).
 
     Parameters
     ----------
@@ -85,8 +113,7 @@ def twin_rig_toml(rig: TwinRig, rig_path: str = "twin.toml") -> str:
     faster = faster if time_scale == 1.0 else []
     lines = [
         RIG_HEADER,
-        "# The simulated platform served through the real device protocols: the manipulator and",
-        "# the target stage through the SmarAct MCS2 driver, the cameras through Micro-Manager.",
+        *_served(rig),
         "# Start the twin first, in another terminal (it runs until Ctrl-C):",
         f"#   {start}",
         *faster,
@@ -94,14 +121,12 @@ def twin_rig_toml(rig: TwinRig, rig_path: str = "twin.toml") -> str:
         f"#   microcal acquire --rig {rig_path} --out runs/a --dry-run",
         "# Needs: pip install 'microcal[mm]'  (see docs/hardware.md, 'The digital twin')",
         'driver = "hardware"',
-        "# the chessboard on the end-effector, and the target on the target stage (the cameras",
-        "# see the target while the stage was moved more recently than the manipulator)",
-        f"board = {json.dumps(rig.board)}",
-        f"calibration_target = {json.dumps(rig.calibration_target)}",
+        *_targets(rig),
         "",
         "[manipulator]",
         'kind = "smaract-mcs2"',
-        "# the twin's MCS2 peer: channels 0-2 move the manipulator, 3-5 the target stage",
+        "# the twin's MCS2 peer: channels 0-2 move the manipulator"
+        + (", 3-5 the target stage" if rig.target_stage is not None else ""),
         f"address = {address}",
         f"port = {mcs2_port}",
         "channels = { x = 0, y = 1, z = 2 }",
@@ -131,10 +156,22 @@ def twin_rig_toml(rig: TwinRig, rig_path: str = "twin.toml") -> str:
             f"channels = {_toml_channels(c, device.limits_um)}",
             f"limits_um = {_toml_limits(device.limits_um)}",
         ]
+    if rig.microscope is not None:
+        scope = rig.microscope
+        lines += [
+            "",
+            "[microscope]",
+            "# the microscope's X-Y stage and focus drive: Micro-Manager devices of the twin",
+            f"xy_stage = {json.dumps(scope.xy_stage)}",
+            f"focus = {json.dumps(scope.focus)}",
+            f"limits_um = {_toml_limits(scope.limits_um)}",
+        ]
     lines += [
         "",
         "[micromanager]",
-        "# pure-Python devices: one camera per simulated camera, frames from the twin",
+        "# pure-Python devices served by the twin: its camera and the microscope's stages"
+        if rig.microscope is not None
+        else "# pure-Python devices: one camera per simulated camera, frames from the twin",
         'python_devices = "microcal.devices.twin_camera:load"',
         f"options = {{ address = {address}, port = {frames_port} }}",
     ]

@@ -42,9 +42,10 @@ from __future__ import annotations
 import math
 import threading
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
+from ..devices.base import Clock
 from ..devices.smaract_mcs2 import PM_PER_UM, STATE_BITS
 from ..devices.twin_protocol import ascii_message
 from ..errors import DeviceTimeoutError, LimitError, MicrocalError, MoveError
@@ -85,19 +86,22 @@ class _NoAnswerError(Exception):
 
 
 class MCS2Peer:
-    """The controller's command set over the platform's manipulator and target stage."""
+    """The controller's command set over simulated devices: device k on channels 3k to
+    3k + 2 (a platform's: :func:`mcs2_devices`; the ``patch`` preset's: its manipulator)."""
 
-    def __init__(self, plat: SimPlatform, lock: threading.Lock, serial: str) -> None:
+    def __init__(
+        self, devices: Sequence[SimDevice], clock: Clock, lock: threading.Lock, serial: str
+    ) -> None:
         self.lock = lock
         self.serial = serial
-        self.devices = [device for _, device in mcs2_devices(plat)]
-        now = plat.clock.now_s()
+        self.devices = list(devices)
+        now = clock.now_s()
         #: Per device, the joint targets last commanded, (3,) µm.
         self.targets = [d.joints_um(now).copy() for d in self.devices]
         self.modes = [0] * (3 * len(self.devices))
         self.errors: deque[tuple[int, str]] = deque(maxlen=64)
         self.log: deque[str] = deque(maxlen=1000)  # the last commands received (for tests)
-        self.clock = plat.clock
+        self.clock = clock
 
     def handle(self, line: bytes, deadline: float = math.inf) -> bytes | None:
         """The answer line to one line of ``;``-chained commands (None: no answer).

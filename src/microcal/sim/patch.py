@@ -41,6 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._validation import FloatArray, check_number
+from ..devices.base import Clock
 from ..geometry.affine_camera import AffineCamera
 from ..kinematics.models import KinematicModel
 from ..kinematics.terms import JOINTS, polynomial_terms
@@ -300,20 +301,23 @@ class PatchRig:
     Attributes
     ----------
     config : PatchConfig
-    clock : SimClock
+    clock : Clock
     focus : FocusDrive
     stage : SimStage
         The X-Y stage under the sample (z held at 0).
     manipulator : SimManipulator
         The pipette's manipulator (``m1``).
+
+    ``clock`` is the rig's clock (a :class:`SimClock` of its own by default; the digital
+    twin gives its scaled clock).
     """
 
-    def __init__(self, config: PatchConfig, seed: int = 0) -> None:
+    def __init__(self, config: PatchConfig, seed: int = 0, clock: Clock | None = None) -> None:
         self.config = config
         self.seed = int(seed)
         root = np.random.SeedSequence([self.seed, 35])
         s_focus, s_stage, s_manip, s_tex = root.spawn(4)
-        self.clock = SimClock()
+        self.clock: Clock = SimClock() if clock is None else clock
         self.focus = FocusDrive(self.clock, np.random.default_rng(s_focus), config.focus)
         xy_limits = ((-5000.0, 5000.0), (-5000.0, 5000.0), (0.0, 0.0))
         self.stage = SimStage(self.clock, np.random.default_rng(s_stage), name="xy",

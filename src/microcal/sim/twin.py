@@ -22,6 +22,11 @@ It serves two peers, each a line protocol on a server of its own
   :mod:`microcal.sim.frame_server`, speaking :mod:`microcal.devices.twin_protocol` (its
   docstring has the protocol table).
 
+``--preset patch`` serves the one-camera microscope instead (:mod:`microcal.sim.patch_twin`):
+its camera, X-Y stage and focus drive on the frame server (Micro-Manager devices on the
+other side: :mod:`microcal.devices.twin_camera`, :mod:`microcal.devices.twin_stages`), its
+pipette's manipulator on the MCS2 peer.
+
 Every access to the platform holds one lock, except a frame's exposure, waited out after
 the frame is rendered (:mod:`microcal.sim.frame_server`): a long exposure holds up no other
 device. Each connection has its own thread. No client is trusted: each server bounds a
@@ -41,6 +46,7 @@ from collections.abc import Callable, Mapping
 from types import TracebackType
 from typing import Any, Self
 
+from ..devices.base import Clock
 from ..devices.smaract_mcs2 import MCS2_PORT
 from ..devices.twin_protocol import FRAMES_PORT
 from ..errors import InputError
@@ -53,8 +59,10 @@ from .line_server import (
     LineServer,
     ServerLimits,
 )
-from .mcs2_peer import MCS2Peer
-from .platforms import platform
+from .mcs2_peer import MCS2Peer, SimDevice, mcs2_devices
+from .patch import PATCH_PRESET, PatchConfig, PatchRig
+from .patch_twin import PatchFramePeer, patch_twin_rig
+from .platforms import SimPlatform, platform
 from .scaled_clock import ScaledClock
 from .twin_rig import TwinRig, twin_rig
 
@@ -85,7 +93,9 @@ class Twin:
     Parameters
     ----------
     preset, seed, overrides :
-        The simulated platform (:func:`microcal.sim.platform`).
+        The simulated platform (:func:`microcal.sim.platform`); preset ``patch`` is the
+        one-camera microscope (:mod:`microcal.sim.patch_twin`: its camera, X-Y stage and
+        focus on the frame server, its manipulator on the MCS2 peer; no overrides).
     host : str
         A loopback address to listen on.
     mcs2_port, frames_port : int
@@ -102,11 +112,18 @@ class Twin:
         frame server, none from the MCS2 peer.
     max_lifetime_s : float
         The servers stop by themselves after this long, s.
+    clock : Clock, optional
+        The simulated devices' clock instead of the scaled clock (for comparisons run in
+        one process: a :class:`~microcal.sim.clock.SimClock`, shared with the client, makes
+        simulated time pass only by the devices' waits and the client's, as in the
+        in-process simulator; a frame's exposure is then waited out under the lock).
 
     Attributes
     ----------
-    platform : SimPlatform
-        The simulated platform (its ``truth_*`` for tests).
+    platform : SimPlatform or None
+        The simulated platform (its ``truth_*`` for tests); None for ``patch``.
+    patch : PatchRig or None
+        The ``patch`` preset's rig (its truth for tests); None for a platform.
     serial : str
         The MCS2 peer's serial number, ``MCS2-TWIN-<seed>``.
     limits : ServerLimits
@@ -133,21 +150,38 @@ class Twin:
         idle_timeout_s: float = IDLE_TIMEOUT_S,
         request_timeout_s: float = REQUEST_TIMEOUT_S,
         max_lifetime_s: float = MAX_LIFETIME_S,
+        clock: Clock | None = None,
     ) -> None:
         self.host = _check_host(host)
         self.limits = ServerLimits(max_clients, idle_timeout_s, request_timeout_s)
         self.preset, self.seed = preset, int(seed)
-        self.clock = ScaledClock(time_scale)
-        self.time_scale = self.clock.time_scale
-        self.platform = platform(preset, self.seed, dict(overrides or {}), clock=self.clock)
+        scaled = ScaledClock(time_scale)
+        self.time_scale = scaled.time_scale
+        self.clock: Clock = scaled if clock is None else clock
         self.serial = f"MCS2-TWIN-{self.seed}"
         self.mcs2_port, self.frames_port = int(mcs2_port), int(frames_port)
         self._max_lifetime_s = float(max_lifetime_s)
         self._lock = threading.Lock()
         self._stop = threading.Event()
-        self.mcs2 = MCS2Peer(self.platform, self._lock, self.serial)
-        self.frames = FramePeer(self.platform, self._lock, preset=preset, seed=self.seed,
-                                time_scale=self.time_scale, stop=self._stop)  # fmt: skip
+        self.platform: SimPlatform | None = None
+        self.patch: PatchRig | None = None
+        self.frames: FramePeer
+        if preset == PATCH_PRESET:
+            if overrides:
+                raise InputError(
+                    "overrides: the twin serves the patch preset as it is (no overrides); "
+                    "leave them out"
+                )
+            self.patch = PatchRig(PatchConfig(), self.seed, clock=self.clock)
+            devices: list[SimDevice] = [self.patch.manipulator]
+            self.frames = PatchFramePeer(self.patch, self._lock, seed=self.seed,
+                                         time_scale=self.time_scale, stop=self._stop)  # fmt: skip
+        else:
+            self.platform = platform(preset, self.seed, dict(overrides or {}), clock=self.clock)
+            devices = [d for _, d in mcs2_devices(self.platform)]
+            self.frames = FramePeer(self.platform, self._lock, preset=preset, seed=self.seed,
+                                    time_scale=self.time_scale, stop=self._stop)  # fmt: skip
+        self.mcs2 = MCS2Peer(devices, self.clock, self._lock, self.serial)
         self._servers: list[LineServer] = []
         self._started = False
 
@@ -247,6 +281,12 @@ class Twin:
     def rig_description(self) -> TwinRig:
         """The twin as started (its host and actual ports), for its rig file
         (``microcal.formats.twin_rig_file.twin_rig_toml`` writes it)."""
+        if self.patch is not None:
+            return patch_twin_rig(
+                self.patch, host=self.host, mcs2_port=self.mcs2_port,
+                frames_port=self.frames_port, time_scale=self.time_scale,
+            )  # fmt: skip
+        assert self.platform is not None  # a twin serves a platform or the patch rig
         return twin_rig(self.platform, host=self.host, mcs2_port=self.mcs2_port,
                         frames_port=self.frames_port, preset=self.preset,
                         time_scale=self.time_scale)  # fmt: skip
@@ -256,5 +296,6 @@ class Twin:
         return (
             f"digital twin (preset {self.preset}, seed {self.seed}, time x{self.time_scale:g}): "
             f"SmarAct MCS2 {self.serial} on {self.host}:{self.mcs2_port}, frames of "
-            f"{', '.join(self.platform.cameras)} on {self.host}:{self.frames_port}"
+            f"{', '.join(self.frames.cameras)} on {self.host}:{self.frames_port}"
+            + (f", stages {', '.join(self.frames.stages)}" if self.frames.stages else "")
         )

@@ -14,7 +14,7 @@ from ..devices.twin_protocol import FRAMES_PORT
 from .mcs2_peer import mcs2_devices
 from .platforms import SimPlatform
 
-__all__ = ["TwinRig", "TwinRigCamera", "TwinRigDevice", "twin_rig"]
+__all__ = ["TwinRig", "TwinRigCamera", "TwinRigDevice", "TwinRigMicroscope", "twin_rig"]
 
 
 @dataclass(frozen=True)
@@ -45,6 +45,16 @@ class TwinRigCamera:
 
 
 @dataclass(frozen=True)
+class TwinRigMicroscope:
+    """The microscope's X-Y stage and focus drive of the twin's frame server (the ``patch``
+    preset's): their Micro-Manager labels and travel per axis x, y, z, µm."""
+
+    xy_stage: str
+    focus: str
+    limits_um: tuple[tuple[float, float], ...]
+
+
+@dataclass(frozen=True)
 class TwinRig:
     """The twin as a rig file describes it (how to start it, and every device's entry).
 
@@ -59,8 +69,10 @@ class TwinRig:
         The MCS2 peer's and the frame server's ports.
     time_scale : float
         Simulated seconds per wall second.
-    board, calibration_target : str
-        The end-effector's board and the target stage's calibration target.
+    board : str
+        The end-effector's board (or the tool's tip).
+    calibration_target : str or None
+        The target stage's calibration target (None: no target stage).
     manipulator : TwinRigDevice
         Channels 0-2.
     target_stage : TwinRigDevice or None
@@ -68,6 +80,9 @@ class TwinRig:
     further : tuple of TwinRigDevice
         The further devices (``[manipulators.NAME]``), on the channels after.
     cameras : tuple of TwinRigCamera
+    microscope : TwinRigMicroscope or None
+        The microscope's stage and focus (the ``patch`` preset's), served as Micro-Manager
+        devices.
     """
 
     preset: str
@@ -77,11 +92,12 @@ class TwinRig:
     frames_port: int
     time_scale: float
     board: str
-    calibration_target: str
+    calibration_target: str | None
     manipulator: TwinRigDevice
     target_stage: TwinRigDevice | None
     further: tuple[TwinRigDevice, ...]
     cameras: tuple[TwinRigCamera, ...]
+    microscope: TwinRigMicroscope | None = None
 
 
 def twin_rig(
