@@ -33,6 +33,7 @@ from .._validation import FloatArray
 from ..control.conditions import closed_loop_condition, open_loop_conditions
 from ..control.feedforward import extra_inputs_reader
 from ..control.visual_servo import ServoConfig
+from ..devices.microscope_drive import MicroscopeDrive
 from ..devices.shifted_joints import ShiftedJoints
 from ..errors import InputError
 from ..journal_record import JournalRecord
@@ -51,7 +52,8 @@ from ..procedures.one_camera_acquisition import (
 from ..procedures.one_camera_pose import measure_tip_one_camera
 from ..procedures.one_camera_probe import OneCameraTipProbe
 from ..procedures.scope_calibration import ScopeRun, calibrate_scope, depth_for, scope_plan
-from ..sim.patch import PatchRig, patch_rig
+from ..sim.patch import patch_rig
+from ..sim.patch_devices import patch_as_rig
 from ..sim.patch_scope import (
     end_offset_px,
     image_axis,
@@ -137,16 +139,17 @@ def _scope_errors(frame: MicroscopeFrame, truth: MicroscopeFrame) -> dict[str, f
             "rotation_error_deg": float(abs(rot)), "drift_error_px_per_um": drift}  # fmt: skip
 
 
-def _stack_finder(rig: PatchRig, sweep: TipFinder) -> TipFinder:
+def _stack_finder(drive: MicroscopeDrive, sweep: TipFinder) -> TipFinder:
     """The finder by the tool's reference stack (0.5 µm planes over ±4 µm), grabbed where a
     fine sweep (15 frames 0.4 µm apart) finds the tip at the start."""
     frame = sweep.frame
     tip = measure_tip_one_camera(
-        rig.move_focus, rig.grab, frame.centre_px, 0.0, frame.um_per_px, axis_px=sweep.axis_px,
-        frames=15, step_um=0.4, end_offset_px=sweep.end_offset_px, clock=rig.clock.now_s,
+        drive.move_focus, drive.grab, frame.centre_px, 0.0, frame.um_per_px,
+        axis_px=sweep.axis_px, frames=15, step_um=0.4, end_offset_px=sweep.end_offset_px,
+        clock=drive.clock.now_s,
     )  # fmt: skip
     est = tip.depth
-    stack = grab_stack(rig.grab_at_focus, est.z_um, est.apex_px, step_um=0.5,
+    stack = grab_stack(drive.grab_at_focus, est.z_um, est.apex_px, step_um=0.5,
                        tip_focus_var_um2=est.var_um2, tip_cov_px=est.cov_px)  # fmt: skip
     return dataclasses.replace(sweep, method="stack", stack=stack)
 
@@ -181,8 +184,11 @@ def run_patch_demo(
             f"first two thirds of them), got {poses}"
         )
     wall = stages if stages is not None else StageClock()
-    rig = patch_rig(seed)
-    cfg = rig.config
+    patch = patch_rig(seed)
+    cfg = patch.config
+    rig = patch_as_rig(patch, f"simulated, preset patch, seed {seed}")
+    assert rig.microscope is not None  # the patch rig has one
+    drive = MicroscopeDrive(rig.microscope, rig.cameras["scope"], rig.clock)
     rig_clock = StageClock(rig.clock.now_s)
 
     def tick(stage: str, done: int, total: int) -> None:
@@ -190,14 +196,14 @@ def run_patch_demo(
             progress(stage, done, total)
 
     with wall.stage("slide"), rig_clock.stage("slide"):
-        slide = slide_scope(rig, slide_roi_px, seed)
+        slide = slide_scope(patch, slide_roi_px, seed, drive)
         field = slide_roi_px * cfg.um_per_px
         plan = scope_plan(field, depth_for(cfg.numerical_aperture))
         scope = calibrate_scope(slide.move_stage, slide.move_focus, slide.grab, slide.target,
                                 plan, progress=lambda k, n: tick("slide", k, n))  # fmt: skip
     frame = MicroscopeFrame.from_scope(scope.calibration, cfg.size_px)
     truth_frame = true_frame(cfg)
-    truth = truth_in_frame(rig, truth_frame)
+    truth = truth_in_frame(patch, truth_frame)
     device = ShiftedJoints(rig.manipulator, rig.manipulator.position_um().round(0))
     finder = TipFinder(frame, image_axis(cfg), end_offset_px(cfg))
     if method == "stack":  # the tool's reference stack, grabbed once at the start
@@ -205,7 +211,7 @@ def run_patch_demo(
             wall.stage("acquisition and measurement"),
             rig_clock.stage("acquisition and measurement"),
         ):
-            finder = _stack_finder(rig, finder)
+            finder = _stack_finder(drive, finder)
     elif method != "sweep":
         raise InputError(f"method: expected sweep or stack, got {method!r}")
     volume = WorkingVolume(np.zeros(3), np.array(PATCH_VOLUME_HALF_UM))
@@ -218,7 +224,7 @@ def run_patch_demo(
 
     with wall.stage("acquisition and measurement"), rig_clock.stage("acquisition and measurement"):
         run = acquire_one_camera(
-            device, rig.clock, rig.move_focus, rig.grab, finder, volume, poses,
+            device, rig.clock, drive.move_focus, drive.grab, finder, volume, poses,
             nominal_um_per_um=nominal_axes(cfg), settle_s=settle_s, seed=seed, store=keep,
             progress=lambda k, n: tick("acquisition and measurement", k, n),
         )  # fmt: skip
@@ -249,7 +255,7 @@ def run_patch_demo(
     with wall.stage("evaluation"), rig_clock.stage("evaluation"):
         read_extra = extra_inputs_reader(cal.model, {})
         conditions = dict(open_loop_conditions(device, cal, extra=read_extra, clock=rig.clock))
-        probe = OneCameraTipProbe(finder, rig.move_focus, rig.grab, rig.clock, expect)
+        probe = OneCameraTipProbe(finder, drive.move_focus, drive.grab, rig.clock, expect)
         loop = None
         if closed_loop:
             loop = closed_loop_condition(device, cal, probe.measure_with_covariance, rig.clock,

@@ -328,7 +328,8 @@ def _check_keys(path: Path, where: str, table: object, model: type[BaseModel]) -
 
 
 def _sim(path: Path, data: Mapping[str, object]) -> SimRigSpec:
-    from ..sim.platforms import PRESETS, check_overrides
+    from ..sim.patch_devices import patch_config
+    from ..sim.platforms import ONE_CAMERA_PRESET, PRESETS, check_overrides
 
     _check_keys(path, "", data, _Sim)
     try:
@@ -341,12 +342,19 @@ def _sim(path: Path, data: Mapping[str, object]) -> SimRigSpec:
     overrides: dict[str, object] = {}
     _flatten("", rig.overrides or {}, overrides)
     preset = "thesis" if rig.preset is None else rig.preset
-    if preset not in PRESETS:
-        near = did_you_mean(preset, PRESETS).strip()
+    presets = (*PRESETS, ONE_CAMERA_PRESET)
+    if preset not in presets:
+        near = did_you_mean(preset, presets).strip()
         hint = f" ({near})" if near else ""
         raise FormatError(
-            f"{path}: preset: expected one of {list(PRESETS)}, got {excerpt(preset)}{hint}"
+            f"{path}: preset: expected one of {list(presets)}, got {excerpt(preset)}{hint}"
         )
+    if preset == ONE_CAMERA_PRESET:  # the one-camera microscope: its own settings
+        try:
+            patch_config(overrides)
+            return _spec(SimRigSpec, {**given, "overrides": overrides})
+        except InputError as exc:
+            raise FormatError(f"{path}: {exc}") from None
     board = overrides.get("board")
     if isinstance(board, str):  # a board or a tool's tip, refused with the fix of a near miss
         _check_target(path, "overrides.board", board)

@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._validation import FloatArray
+from ..devices.microscope_drive import MicroscopeDrive
 from ..vision.microscope_frame import MicroscopeFrame
 from ..vision.targets import Target
 from .patch import PatchConfig, PatchRig
@@ -53,10 +54,12 @@ def scope_truth(config: PatchConfig) -> ScopeTruth:
 @dataclass
 class SlideOnStage:
     """The slide's callables on the rig: ``move_stage``, ``move_focus``, ``grab``, and its
-    ``target``."""
+    ``target``; the stage and focus moved through ``drive`` (the rig's devices) where given,
+    else through the rig's own drives."""
 
     rig: PatchRig
     scope: StageSlideScope
+    drive: MicroscopeDrive | None = None
 
     @property
     def target(self) -> Target:
@@ -65,13 +68,19 @@ class SlideOnStage:
 
     def move_stage(self, xy_um: FloatArray) -> None:
         """Move the rig's stage (time on its clock) and the slide with it."""
-        self.rig.stage.move_to_um([float(xy_um[0]), float(xy_um[1]), 0.0])
-        self.rig.stage.wait_until_stopped(self.rig.clock)
+        if self.drive is not None:
+            self.drive.move_stage(xy_um)
+        else:
+            self.rig.stage.move_to_um([float(xy_um[0]), float(xy_um[1]), 0.0])
+            self.rig.stage.wait_until_stopped(self.rig.clock)
         self.scope.move_stage(np.asarray(xy_um, dtype=np.float64))
 
     def move_focus(self, z_um: float) -> None:
         """Move the rig's focus (from below) and the slide's view with it."""
-        self.rig.move_focus(z_um)
+        if self.drive is not None:
+            self.drive.move_focus(z_um)
+        else:
+            self.rig.move_focus(z_um)
         self.scope.move_focus(z_um)
 
     def grab(self) -> NDArray[np.float32]:
@@ -81,10 +90,13 @@ class SlideOnStage:
         return self.scope.grab()
 
 
-def slide_scope(rig: PatchRig, roi_px: int = 512, seed: int = 0) -> SlideOnStage:
-    """A slide on ``rig``'s stage seen through a ``roi_px`` square region of its camera."""
+def slide_scope(
+    rig: PatchRig, roi_px: int = 512, seed: int = 0, drive: MicroscopeDrive | None = None
+) -> SlideOnStage:
+    """A slide on ``rig``'s stage seen through a ``roi_px`` square region of its camera; the
+    stage and focus moved through ``drive`` (made from the rig's devices) where given."""
     scope = StageSlideScope(scope_truth(rig.config), image_size_px=(roi_px, roi_px), seed=seed)
-    return SlideOnStage(rig, scope)
+    return SlideOnStage(rig, scope, drive)
 
 
 def nominal_axes(config: PatchConfig) -> FloatArray:

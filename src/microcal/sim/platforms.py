@@ -221,7 +221,8 @@ class PlatformConfig:
 
 
 #: The one-camera microscope's preset (``microcal.sim.patch.patch_rig``): a rig of its own
-#: kind, not one of :data:`PRESETS`; ``microcal demo --preset patch`` runs it.
+#: kind, not one of :data:`PRESETS`; a rig file's ``preset = "patch"`` opens it as a ``Rig``
+#: (``microcal.sim.patch_devices.patch_as_rig``), ``microcal demo --preset patch`` runs it.
 ONE_CAMERA_PRESET = "patch"
 
 #: The simulator's presets (see the module docstring).
@@ -272,8 +273,8 @@ def preset_config(preset: str) -> PlatformConfig:
     if preset == ONE_CAMERA_PRESET:
         raise InputError(
             "preset 'patch' is the one-camera microscope, not a platform of cameras around the "
-            "manipulator: build it with microcal.sim.patch.patch_rig(seed), or run microcal "
-            "demo --preset patch"
+            'manipulator: open it as a rig (a rig file with preset = "patch"), build it '
+            "with microcal.sim.patch.patch_rig(seed), or run microcal demo --preset patch"
         )
     if preset not in PRESETS:
         hint = did_you_mean(preset, PRESETS).strip()
