@@ -140,7 +140,7 @@ class Station:
         probe: Any = None,
     ) -> None:
         missing = sorted(set(rig.cameras) - set(cameras))
-        if missing:
+        if missing and probe is None:
             raise InputError(f"station: no camera calibration for the rig's camera(s) {missing}")
         calibration.check_device(rig.manipulator.identity)
         check_number("settle_s", settle_s, low=0)
@@ -153,8 +153,9 @@ class Station:
         self.settle_s = float(settle_s)
         model = calibration.model
         extra = extra_inputs_reader(model, rig.sensors)
-        models = {n: cameras[n] for n in rig.cameras}
-        self.probe = probe or VisionProbe(rig.cameras, models, rig.board, self.frames)
+        self.probe = probe or VisionProbe(
+            rig.cameras, {n: cameras[n] for n in rig.cameras}, rig.board, self.frames
+        )
         method: Literal["optimal", "matrix"] = "optimal" if model.kind == "polynomial" else "matrix"
         self._open = FeedForward(rig.manipulator, model, method, extra, rig.clock)
         measure = self.probe.measure_with_covariance
@@ -212,8 +213,8 @@ class Station:
             self._d = d
             self.rig.manipulator.wait_until_stopped(self.rig.clock)
             self.rig.clock.sleep(self.settle_s)
-            p, cov = self.where_um()
-            return Arrival(target, d, p, cov, "open", "open", 0, self.frames)
+            p, cov, frames = self._measured()
+            return Arrival(target, d, p, cov, "open", "open", 0, frames)
         if tolerance_um is not None:
             self._closed.config = dataclasses.replace(
                 self._closed.config, tolerance_um=tolerance_um
@@ -278,8 +279,17 @@ class Station:
             self.rig.clock.sleep(self.settle_s)
         if mode == "closed":
             return move, self.move_to_um(last, "closed", tolerance_um)
+        p, cov, frames = self._measured()
+        return move, Arrival(last, self._d, p, cov, "open", "open", 0, frames)
+
+    def _measured(self) -> tuple[FloatArray, FloatArray, int]:
+        """:meth:`where_um` and the frames it took: per camera, or a one-camera probe's
+        (its focus sweep's, which it counts in ``frames_used``)."""
+        before = getattr(self.probe, "frames_used", None)
         p, cov = self.where_um()
-        return move, Arrival(last, self._d, p, cov, "open", "open", 0, self.frames)
+        after = getattr(self.probe, "frames_used", None)
+        used = after - before if isinstance(after, int) and isinstance(before, int) else None
+        return p, cov, self.frames if used is None else used
 
     def check_reach(self, p_um: ArrayLike) -> None:
         """Raise :class:`LimitError` if the model's joints for ``p_um`` (3,) in {G} leave the

@@ -13,6 +13,7 @@ its one-camera sections: :mod:`microcal.report.one_camera_section`).
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -27,6 +28,7 @@ from .demo_results import fit_sections
 if TYPE_CHECKING:
     from ..experiments.patch_demo import PatchDemoResult
     from ..journal_record import JournalRecord
+    from ..kinematics.manipulator_calibration import ManipulatorCalibration
 
 __all__ = ["PATCH_FILES", "PatchDemoRun", "patch_demo"]
 
@@ -104,7 +106,7 @@ def patch_demo(
         write_objective(out / "scope.json", "40x", result.scope.calibration.to_json(), prov)
         if result.manipulator is None:
             raise InputError("demo: nothing was identified; no calibration to write")
-        entry = result.manipulator
+        entry = _with_frame_keys(result)
         write_calibration(out / "calibration.json", Calibration({entry.name: entry}, {}, prov))
         update_results(out / "results.json", _results(result, prov))
     result.stages_s = dict(stages.stages_s)
@@ -115,6 +117,21 @@ def patch_demo(
     }})  # fmt: skip
     write_report(out)  # the report of the files (results.json's timing: without it)
     return PatchDemoRun(result, out, time.monotonic() - wall0)
+
+
+def _with_frame_keys(result: PatchDemoResult) -> ManipulatorCalibration:
+    """The manipulator's calibration with where its joints are counted from
+    (``joint_origin_um``, the start pose's joints) and the working volume in {M} it was made
+    for (``working_volume_um``: low and high corners), so that a command on the rig counts
+    the joints as the model does and evaluates inside the volume."""
+    from ..experiments.patch_demo import PATCH_VOLUME_HALF_UM
+
+    entry = result.manipulator
+    assert entry is not None
+    half = np.asarray(PATCH_VOLUME_HALF_UM, dtype=np.float64)
+    extra = {**entry.extra, "joint_origin_um": np.asarray(result.joint_origin_um).tolist(),
+             "working_volume_um": [(-half).tolist(), half.tolist()]}  # fmt: skip
+    return dataclasses.replace(entry, extra=extra)
 
 
 def _measured(result: PatchDemoResult, records: list[JournalRecord]) -> dict[str, object]:
