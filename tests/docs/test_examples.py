@@ -150,6 +150,10 @@ SETUPS: dict[tuple[str, int], Setup] = {
     ("docs/hardware.md", 10): Setup(serve_s=0.2),
     ("docs/identification.md", 0): Setup(synthetic_run="runs/a"),
     ("docs/simulator.md", 2): Setup(python_prelude="from microcal import sim\n"),
+    # the commands on a one-camera rig: the patch demo's seed as a rig file
+    ("docs/microscope.md", 6): Setup(
+        files={"patch.toml": 'driver = "sim"\npreset = "patch"\nseed = 0\n'}
+    ),
 }
 
 #: docs/hardware.md's rig fragments: (lines before, lines after) that make each a whole rig.
@@ -187,6 +191,7 @@ COSTLY = {
     ("docs/hardware.md", 9),
     ("docs/microscope.md", 0),
     ("docs/microscope.md", 5),
+    ("docs/microscope.md", 6),
 }
 
 
