@@ -103,6 +103,11 @@ BLOCKS = all_blocks()
 #: A simulated rig (the thesis platform, seed 0: the quick demo's), for blocks that name a rig
 #: file of the simulator.
 SIM_RIG = 'driver = "sim"\npreset = "thesis"\nseed = 0\n'
+#: The simulated one-camera rig of docs/microscope.md (small frames).
+PATCH_RIG = (
+    'driver = "sim"\npreset = "patch"\nseed = 0\n[overrides]\nsize_px = [512, 512]\n'
+    "supersample = 1\n"
+)
 
 
 @dataclass(frozen=True)
@@ -154,6 +159,8 @@ SETUPS: dict[tuple[str, int], Setup] = {
     ("docs/microscope.md", 6): Setup(
         files={"patch.toml": 'driver = "sim"\npreset = "patch"\nseed = 0\n'}
     ),
+    # the one-camera rig of the block before
+    ("docs/microscope.md", 8): Setup(files={"patch.toml": PATCH_RIG}),
 }
 
 #: docs/hardware.md's rig fragments: (lines before, lines after) that make each a whole rig.
@@ -192,6 +199,7 @@ COSTLY = {
     ("docs/microscope.md", 0),
     ("docs/microscope.md", 5),
     ("docs/microscope.md", 6),
+    ("docs/microscope.md", 8),
 }
 
 

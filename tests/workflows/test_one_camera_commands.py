@@ -176,3 +176,39 @@ def test_goto_takes_x_y_z_or_a_move_along_the_approach_axis(xyz, along, says) ->
         goto_target(xyz, along)
     assert goto_target((1.0, 2.0, 3.0), None) == [1.0, 2.0, 3.0]
     assert goto_target((None, None, None), 5.0) is None
+
+
+@pytest.mark.slow
+def test_a_calibration_fitted_from_acquire_serves_goto_and_evaluate(tmp_path) -> None:
+    """scope-calibrate, acquire --scope and fit on the rig (smaller frames), then the tip sent
+    through the station: fit records where the run counted the joints from and its volume."""
+    from microcal.workflows.evaluate import EvaluateRequest, evaluate
+
+    rig = tmp_path / "patch.toml"
+    rig.write_text('driver = "sim"\npreset = "patch"\nseed = 4\n[overrides]\n'
+                   "size_px = [512, 512]\nsupersample = 1\n", encoding="utf-8")  # fmt: skip
+    scope, run, cal = tmp_path / "scope.json", tmp_path / "run", tmp_path / "calibration.json"
+    for args in (
+        ["scope-calibrate", "--rig", str(rig), "--objective", "40x", "--out", str(scope)],
+        ["acquire", "--rig", str(rig), "--scope", str(scope), "--objective", "40x", "--poses",
+         "30", "--volume-um", "30,30,10", "--out", str(run)],
+        ["fit", str(run), "--out", str(cal)],
+    ):  # fmt: skip
+        result = CliRunner().invoke(app, args)
+        assert result.exit_code == 0, result.output
+    entry = json.loads(cal.read_text(encoding="utf-8"))["manipulators"]["m1"]
+    assert entry["joint_origin_um"] == [10000.0, 10000.0, 10000.0]  # where the run began
+    assert entry["working_volume_um"] == [[-30.0, -30.0, -10.0], [30.0, 30.0, 10.0]]
+    target = np.array([10.0, -10.0, 5.0])
+    with open_station(str(rig), cal, scope=scope, settle_s=1.0) as station:
+        station.move_to_um(target, "open")
+        truth = station.rig.truth
+        assert truth is not None
+        assert np.linalg.norm(truth() - target) < 1.0  # µm, by truth
+    out = tmp_path / "results.json"
+    evaluate(EvaluateRequest(cal, str(rig), "pose-accuracy", cycles=1, poses="iso-cube",
+                             settle_s=1.0, out=out, scope=scope))  # fmt: skip
+    pa = json.loads(out.read_text(encoding="utf-8"))["pose_accuracy"]
+    assert pa["truth"]["optimal"]["mean_ap_p_um"] < 1.0
+    desired = np.array([p["desired_um"] for p in pa["truth"]["optimal"]["poses"]])
+    assert np.all(np.abs(desired) <= [30.0, 30.0, 10.0])  # the cube inside the run's volume

@@ -73,3 +73,18 @@ def test_bad_patch_overrides_are_refused_in_one_line(tmp_path, body, says):
     with pytest.raises(FormatError, match=says) as err:
         load_rig(_rig_file(tmp_path, body))
     assert "\n" not in str(err.value)
+
+
+@pytest.mark.slow
+def test_scope_calibrate_on_the_patch_rig_recovers_its_pixel_and_focus_tilt(tmp_path):
+    from microcal.sim.patch import PatchConfig
+    from microcal.sim.patch_scope import true_frame
+    from microcal.workflows.scope import ScopeRequest, scope_calibrate
+
+    got = scope_calibrate(ScopeRequest(_rig_file(tmp_path), "40x", tmp_path / "scope.json",
+                                       image_px=384)).calibration  # fmt: skip
+    cfg = PatchConfig()
+    assert got.pixel_size_um == pytest.approx(cfg.um_per_px, rel=1e-3)  # 0.1 %
+    truth = -np.linalg.inv(true_frame(cfg).px_per_um)  # the image's y against the stage's
+    np.testing.assert_allclose(got.affine_um[:, :2], truth, atol=1e-3 * cfg.um_per_px)
+    assert got.focus_angle_deg == pytest.approx(cfg.focus.tilt_deg, abs=0.02)

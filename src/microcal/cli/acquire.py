@@ -25,6 +25,11 @@ _DryRun = Annotated[bool, Option("--dry-run", help="Check rig and design; nothin
 _Until = Annotated[float | None, Option(help="Adaptive: stop at this predicted 95 % error, µm.")]
 _MaxPoses = Annotated[int | None, Option(min=20, help="Adaptive: at most this many poses. [400]")]
 _Cameras = Annotated[str | None, Option(help="Adaptive: cameras.json it measures with.")]
+_Scope = Annotated[Path | None, Option(help="One camera: scope.json (scope-calibrate).")]
+_Objective = Annotated[str | None, Option(help="One camera: the scope file's set (40x).")]
+_Volume = Annotated[str | None, Option(help="One camera: the volume's half sizes X,Y,Z µm.")]
+_Approach = Annotated[float | None, Option(help="One camera: pipette's tilt, degrees. [30]")]
+_Azimuth = Annotated[float | None, Option(help="One camera: its direction in x-y, deg. [0]")]
 
 
 @app.command(short_help="Move through a design, settle and store images.")
@@ -33,15 +38,18 @@ def acquire(
     seed: _Seed = None, resume: _Resume = False, settle: _Settle = None, frames: _Frames = None,
     store: _Store = None, dry_run: _DryRun = False, manipulator: _Manip = None,
     check_calibration: _CheckCal = None, check_every: _Every = None, until_um: _Until = None,
-    max_poses: _MaxPoses = None, cameras: _Cameras = None,
+    max_poses: _MaxPoses = None, cameras: _Cameras = None, scope: _Scope = None,
+    objective: _Objective = None, volume_um: _Volume = None, approach_deg: _Approach = None,
+    azimuth_deg: _Azimuth = None,
 ) -> None:  # fmt: skip
     """Drive the manipulator through a design and store images of every pose.
 
     Designs: random, sobol, lhs, grid (over the rig's soft limits); table-5-2, decoupling,
     iso-cube (evaluation trajectories); adaptive: batches chosen from what was measured
-    until the predicted 95 % error of the compensated tip is below --until-um. run.json
-    records every option: a stopped run continues with `microcal acquire --out DIR --resume`
-    alone.
+    until the predicted 95 % error of the compensated tip is below --until-um. One camera on a
+    focus drive (--scope): the tip measured at each pose in the microscope's frame, poses
+    filling --volume-um [100,100,25]. run.json records every option: a stopped run continues
+    with `microcal acquire --out DIR --resume` alone.
 
     Example: microcal acquire --rig sim --design random --poses 170 --out runs/a
     (first: microcal acquire --rig myrig.toml --out runs/a --dry-run)
@@ -51,6 +59,7 @@ def acquire(
 
     request = AcquireRequest(out, rig, design, poses, seed, resume, settle, frames, store,
                              dry_run, manipulator, check_calibration, check_every, until_um,
-                             max_poses, cameras)  # fmt: skip
+                             max_poses, cameras, scope, objective, volume_um, approach_deg,
+                             azimuth_deg)  # fmt: skip
     for line in acquire_any(request):
         print(line, flush=True)

@@ -43,6 +43,7 @@ from ..procedures.evaluation import iso_cube_poses, run_pose_accuracy
 from ..procedures.evaluation_figures import BySource, Evaluation, PoseAccuracyFigures
 from ..procedures.identification import Identification, calibrate_manipulator, default_train
 from ..procedures.one_camera_acquisition import (
+    DEFAULT_VOLUME_HALF_UM,
     OneCameraPose,
     OneCameraRun,
     TipFinder,
@@ -66,11 +67,17 @@ from ..vision.focus_depth import grab_stack
 from ..vision.microscope_frame import MicroscopeFrame
 from .stage_clock import StageClock
 
-__all__ = ["MIN_POSES", "PATCH_VOLUME_HALF_UM", "PatchDemoResult", "run_patch_demo"]
+__all__ = [
+    "MIN_POSES",
+    "PATCH_VOLUME_HALF_UM",
+    "PatchDemoResult",
+    "identify_run",
+    "run_patch_demo",
+]
 
-#: The working volume's half sizes around the field's centre in {M}, µm: 200 x 200 µm of the
-#: 333 µm field, 50 µm of depth (a slice's working depth).
-PATCH_VOLUME_HALF_UM = (100.0, 100.0, 25.0)
+#: The working volume's half sizes around the field's centre in {M}, µm: the one-camera
+#: acquisition's default (200 x 200 µm of the 333 µm field, 50 µm of depth).
+PATCH_VOLUME_HALF_UM = DEFAULT_VOLUME_HALF_UM
 #: The fewest poses the demo takes: with fewer than about 20 poses to fit (two thirds of
 #: them), the quadratic model's stepwise selection may leave an axis without its terms.
 MIN_POSES = 30
@@ -154,6 +161,23 @@ def _stack_finder(drive: MicroscopeDrive, sweep: TipFinder) -> TipFinder:
     return dataclasses.replace(sweep, method="stack", stack=stack)
 
 
+def identify_run(
+    run: OneCameraRun, seed: int = 0
+) -> tuple[ManipulatorCalibration, dict[str, Identification]]:
+    """The demo's identification of a one-camera run: the quadratic polynomial model (and the
+    matrix model) on the measured poses, the first two thirds fitted, with each joint's
+    approach direction where every joint came from each side at 3 poses or more."""
+    ok = run.ok
+    d, p = run.d_um[ok], run.p_um[ok]
+    extra: dict[str, FloatArray] | None = {k: v[ok] for k, v in run.approach().items()}
+    if extra and min(min(np.sum(v > 0), np.sum(v < 0)) for v in extra.values()) < 3:
+        extra = None  # too few poses from each side for the approach terms (a short run)
+    return calibrate_manipulator(
+        "m1", d, p, "polynomial", train=default_train(len(d)), extra_inputs=extra,
+        family="quadratic", seed=seed,
+    )  # fmt: skip
+
+
 def run_patch_demo(
     seed: int = 0,
     poses: int = 80,
@@ -233,16 +257,10 @@ def run_patch_demo(
     result.joint_origin_um = device.origin_um.copy()
     result.method = method
     ok = run.ok
-    d, p = run.d_um[ok], run.p_um[ok]
-    n_fit = default_train(len(d))
-    extra: dict[str, FloatArray] | None = {k: v[ok] for k, v in run.approach().items()}
-    if extra and min(min(np.sum(v > 0), np.sum(v < 0)) for v in extra.values()) < 3:
-        extra = None  # too few poses from each side for the approach terms (a short run)
+    p = run.p_um[ok]
+    n_fit = default_train(int(ok.sum()))
     with wall.stage("identification"), rig_clock.stage("identification"):
-        result.manipulator, result.models = calibrate_manipulator(
-            "m1", d, p, "polynomial", train=n_fit, extra_inputs=extra, family="quadratic",
-            seed=seed,
-        )  # fmt: skip
+        result.manipulator, result.models = identify_run(run, seed)
     oracle = summarize_errors(np.linalg.norm(p[n_fit:] - result.truth_um[ok][n_fit:], axis=1))
     result.oracle = {"mean": oracle.mean, "std": oracle.std, "max": oracle.max}
     cal = result.manipulator

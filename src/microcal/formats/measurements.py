@@ -9,6 +9,7 @@ One row per pose, a header naming units. Columns (others are kept and ignored he
 | `dx_um`, `dy_um`, `dz_um` | joint commands, µm |
 | `x_um`, `y_um`, `z_um` | measured position of the end-effector in {G}, µm |
 | `sx_um`, `sy_um`, `sz_um` | (optional) standard deviation of the measured position, µm |
+| `cxx_um2` ... `czz_um2` | (optional) its covariance's six entries `xx, xy, xz, yy, yz, zz`, µm² |
 | `temperature_c` | (optional) ambient temperature, °C |
 | `reason` | (optional) why a pose failed |
 
@@ -43,6 +44,9 @@ __all__ = [
 JOINT_COLUMNS = ("dx_um", "dy_um", "dz_um")
 POSITION_COLUMNS = ("x_um", "y_um", "z_um")
 STD_COLUMNS = ("sx_um", "sy_um", "sz_um")
+#: The covariance's upper triangle, row by row: (row, column) of each column.
+COV_COLUMNS = {"cxx_um2": (0, 0), "cxy_um2": (0, 1), "cxz_um2": (0, 2), "cyy_um2": (1, 1),
+               "cyz_um2": (1, 2), "czz_um2": (2, 2)}  # fmt: skip
 REQUIRED = ("pose", "status", *JOINT_COLUMNS, *POSITION_COLUMNS)
 
 
@@ -212,11 +216,14 @@ def write_measurements(
     reason: list[str] | None = None,
     extra: dict[str, FloatArray] | None = None,
     pose: list[int] | None = None,
+    cov_um2: FloatArray | None = None,
 ) -> Path:
     """Write a measurements file atomically.
 
     Parameters
     ----------
+    cov_um2 : (N, 3, 3) float, optional
+        The measured positions' covariances (:data:`COV_COLUMNS`); NaN: a failed pose.
     extra : dict of name -> (N,) float, optional
         Extra inputs by registry name, each in its column (NaN: not recorded);
         ``temperature_c`` is the same as ``extra={"temperature": ...}``.
@@ -230,6 +237,7 @@ def write_measurements(
     columns = [(extra_input(name).column, np.asarray(v, float)) for name, v in extras.items()]
     header = ["pose", "status", *JOINT_COLUMNS, *POSITION_COLUMNS]
     header += list(STD_COLUMNS) if std_um is not None else []
+    header += list(COV_COLUMNS) if cov_um2 is not None else []
     header += [c for c, _ in columns]
     header += ["reason"]
     out = io.StringIO()
@@ -239,6 +247,8 @@ def write_measurements(
         row: list[object] = [pose[i] if pose else i + 1, status[i] if status else "ok"]
         row += [f"{v:.6f}" for v in d_um[i]] + [f"{v:.6f}" for v in p_um[i]]
         row += [f"{v:.6f}" for v in std_um[i]] if std_um is not None else []
+        if cov_um2 is not None:
+            row += [f"{cov_um2[i][rc]:.6g}" for rc in COV_COLUMNS.values()]
         row += ["" if not np.isfinite(v[i]) else f"{v[i]:.4f}" for _, v in columns]
         row += [reason[i] if reason else ""]
         w.writerow(row)

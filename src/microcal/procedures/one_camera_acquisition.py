@@ -23,12 +23,16 @@ the predicted reading, or one frame against the tool's reference stack): the foc
 the tip wherever the design takes it. Each pose's :class:`~microcal.journal_record.JournalRecord`
 and its tip in {M} go to ``store`` as soon as it is measured (the caller's crash-safe
 journal); a pose whose tip is not found is journaled as failed and the run goes on.
+
+A run resumed after a stop hands its stored poses back (``done``): they are taken as
+measured, in order, without moving, and the design goes on from there as it would have
+(the poses' commands follow from the seed and the tips measured, so the same ones again).
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -45,6 +49,7 @@ from ..vision.microscope_frame import MicroscopeFrame
 from .one_camera_pose import measure_tip_one_camera
 
 __all__ = [
+    "DEFAULT_VOLUME_HALF_UM",
     "FROM_BELOW",
     "MAP_OUTLIER_UM",
     "RECENTRE_PX",
@@ -58,6 +63,9 @@ __all__ = [
     "linear_map",
 ]
 
+#: The working volume's half sizes around the field's centre in {M} by default, µm: 200 x 200
+#: µm of a 40x objective's 333 µm field, 50 µm of depth (a slice's working depth).
+DEFAULT_VOLUME_HALF_UM = (100.0, 100.0, 25.0)
 #: The first steps of each joint from the start pose, µm.
 STEP_UM = 20.0
 #: Design poses approached from below on every joint before the sides are drawn at random.
@@ -278,6 +286,7 @@ def acquire_one_camera(
     seed: int = 0,
     store: PoseStore | None = None,
     progress: Callable[[int, int], None] | None = None,
+    done: Sequence[tuple[JournalRecord, OneCameraPose]] = (),
 ) -> OneCameraRun:
     """Acquire ``poses`` poses (the start, one step per joint, and the design; see the
     module docstring).
@@ -307,11 +316,15 @@ def acquire_one_camera(
         ``store(record, tip)`` after each pose.
     progress : callable, optional
         ``progress(done, total)`` after each pose.
+    done : sequence of (JournalRecord, OneCameraPose)
+        The poses a stopped run stored, in order: taken as measured, not moved to again
+        (nor stored again).
 
     Raises
     ------
     InputError
-        Too few poses; the start pose's tip not found (where it was said to be).
+        Too few poses; the start pose's tip not found (where it was said to be); a stored
+        pose that is not the one the design asks for there (the run's settings changed).
     """
     if poses < 5:
         raise InputError(f"one-camera acquisition: expected 5 poses or more, got {poses}")
@@ -328,6 +341,8 @@ def acquire_one_camera(
 
     def pose(d: FloatArray, sides: FloatArray, expected_um: FloatArray) -> OneCameraPose:
         k = len(commands) + 1
+        if k <= len(done):
+            return replay(d, sides, *done[k - 1])
         wall, t0 = time.time(), clock.now_s()
         if approach_um > 0:
             manipulator.move_to_um(d - sides * approach_um)
@@ -358,6 +373,23 @@ def acquire_one_camera(
             store(record, tip)
         if progress is not None:
             progress(k, poses)
+        return tip
+
+    def replay(
+        d: FloatArray, sides: FloatArray, record: JournalRecord, tip: OneCameraPose
+    ) -> OneCameraPose:
+        stored_sides = [record.approach.get(extra_input(a).column) or 0.0 for a in APPROACH_INPUTS]
+        if not (np.allclose(record.commanded_um, d, rtol=0, atol=1e-6)
+                and np.array_equal(stored_sides, sides)):  # fmt: skip
+            raise InputError(
+                f"one-camera acquisition: stored pose {record.pose} was {record.commanded_um} "
+                f"µm, but the design asks for {d.tolist()} µm there: the run's settings "
+                f"changed since it was stored; start a new run"
+            )
+        side_list.append(sides.copy())
+        commands.append(np.array(record.commanded_um, dtype=np.float64))
+        run.tips.append(tip)
+        run.records.append(record)
         return tip
 
     first = pose(start.copy(), below, p_start)

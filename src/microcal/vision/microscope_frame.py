@@ -18,6 +18,7 @@ out by ``g f``. Distortion is left out: the map is the stage's linear one.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,6 +66,35 @@ class MicroscopeFrame:
         m = np.asarray(-np.linalg.inv(np.asarray(scope.affine_um, dtype=np.float64)[:, :2]), float)
         centre = np.array([(w - 1) / 2, (h - 1) / 2])
         return cls(m, np.asarray(scope.drift_px_per_um, float), centre)
+
+    @classmethod
+    def from_record(
+        cls, record: Mapping[str, object], image_size_px: tuple[int, int]
+    ) -> MicroscopeFrame:
+        """The frame of one objective's set of a scope file
+        (:meth:`~microcal.vision.stage_affine.ScopeCalibration.to_json`'s object: its
+        ``pixel_size_affine`` and ``focus.drift_px_per_um``) on a camera of ``image_size_px``;
+        the same as :meth:`from_scope` of the calibration it was written from.
+
+        Raises
+        ------
+        InputError
+            A set without those keys, or with numbers of other shapes.
+        """
+        focus = record.get("focus")
+        affine = record.get("pixel_size_affine")
+        drift = focus.get("drift_px_per_um") if isinstance(focus, Mapping) else None
+        try:
+            a = np.asarray(affine, dtype=np.float64).reshape(2, 3)
+            g = np.asarray(drift, dtype=np.float64).reshape(2)
+        except (TypeError, ValueError):
+            raise InputError(
+                "scope set: expected pixel_size_affine (6 numbers) and focus.drift_px_per_um "
+                "(2 numbers); calibrate the objective again (microcal scope-calibrate)"
+            ) from None
+        w, h = image_size_px
+        m = np.asarray(-np.linalg.inv(a[:, :2]), dtype=np.float64)
+        return cls(m, g, np.array([(w - 1) / 2, (h - 1) / 2]))
 
     @property
     def um_per_px(self) -> float:

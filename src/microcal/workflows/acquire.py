@@ -79,6 +79,11 @@ class AcquireRequest:
     until_um: float | None = None
     max_poses: int | None = None
     cameras: str | None = None
+    scope: Path | None = None
+    objective: str | None = None
+    volume_um: str | None = None
+    approach_deg: float | None = None
+    azimuth_deg: float | None = None
 
     def filled(self, manifest: RunManifest | None = None) -> AcquireRequest:
         """Every option set: a new run's defaults, or what a resumed run recorded.

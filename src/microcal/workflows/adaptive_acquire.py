@@ -130,11 +130,22 @@ def _measured(batch: Path, cameras: str) -> Measured:
 
 
 def acquire_any(request: Any) -> Iterator[str]:
-    """``microcal acquire``: the adaptive run (``--design adaptive``, or ``--resume`` of a run
-    directory holding adaptive.json), else :func:`~microcal.workflows.acquire.run_acquire`."""
+    """``microcal acquire``: the one-camera run (``--scope``, or ``--resume`` of one:
+    :mod:`~microcal.workflows.one_camera_acquire`), the adaptive run (``--design adaptive``,
+    or ``--resume`` of a run directory holding adaptive.json), else
+    :func:`~microcal.workflows.acquire.run_acquire`."""
     from .acquire import run_acquire
+    from .one_camera_acquire import (
+        refuse_one_camera_options,
+        run_one_camera_acquire,
+        wants_one_camera,
+    )
 
     out: Path = request.out
+    if wants_one_camera(request):
+        yield from run_one_camera_acquire(request)
+        return
+    refuse_one_camera_options(request)
     adaptive = request.design == ADAPTIVE or (request.resume and (out / ADAPTIVE_FILE).is_file())
     if not adaptive:
         yield from run_acquire(request)

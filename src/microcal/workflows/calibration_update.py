@@ -125,6 +125,7 @@ def camera_models(calibration: Calibration) -> dict[str, AnyCamera]:
     if not calibration.cameras:
         where = str(calibration.path) if calibration.path else "calibration"
         raise InputError(
-            f"{where}: holds no cameras; run 'microcal fit ... --cameras cameras.json'"
+            f"{where}: holds no cameras; run 'microcal fit ... --cameras cameras.json' (a "
+            f"one-camera rig's calibration has none: this command needs two cameras or more)"
         )
     return calibration.camera_models()

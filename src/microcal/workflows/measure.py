@@ -102,9 +102,16 @@ def measure_run(
         measured than the measurements.csv it would replace (kept; ``force`` replaces it).
     """
     from ..formats.cameras_file import load_cameras
+    from ..formats.one_camera_run import is_one_camera_run
     from ..vision.effector_target import parse_effector_target
     from ..vision.measurement import measure_poses
 
+    if is_one_camera_run(run_dir):
+        raise InputError(
+            f"{run_dir}: a one-camera run, measured as it was acquired (its measurements.csv "
+            f"holds each tip in the microscope's frame with its covariance); fit it: "
+            f"microcal fit {run_dir}"
+        )
     run = RunDirectory.open(run_dir, require_commands=False)
     models = load_cameras(cameras)
     poses, d = run.commands()

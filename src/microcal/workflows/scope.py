@@ -5,7 +5,8 @@ focus drive for one objective (:func:`~microcal.procedures.scope_calibration.cal
 and adds the objective's set to a scope file (:mod:`microcal.formats.scope_file`), leaving the
 file's other objectives as they were. ``--rig sim`` is the simulated microscope
 (:mod:`microcal.sim.stage_slide`; its objectives are ``SIM_OBJECTIVES``); a rig file names the
-camera and the ``[microscope]`` (Micro-Manager's XY stage and focus devices).
+camera and the ``[microscope]`` (Micro-Manager's XY stage and focus devices), or the simulated
+one-camera rig (``preset = "patch"``: a slide on its stage, seen by its camera's truth).
 ``scope-show`` reads one objective's set by name.
 """
 
@@ -14,6 +15,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -122,11 +124,14 @@ def _run_sim(req: ScopeRequest) -> tuple[ScopeRun, dict[str, JsonValue]]:
 
 
 def _run_rig(req: ScopeRequest) -> tuple[ScopeRun, dict[str, JsonValue]]:
-    from ..devices.rig_spec import HardwareRigSpec
+    from ..devices.rig_spec import HardwareRigSpec, SimRigSpec
     from ..formats.rig_file import load_rig
+    from ..sim.platforms import ONE_CAMERA_PRESET
     from .rigs import open_rig
 
     spec = load_rig(req.rig)
+    if isinstance(spec, SimRigSpec) and spec.preset == ONE_CAMERA_PRESET:
+        return _run_patch(req, spec)
     if not isinstance(spec, HardwareRigSpec) or spec.microscope is None:
         raise InputError(
             f"--rig {req.rig}: names no [microscope] (the X-Y stage and focus that move the "
@@ -173,6 +178,28 @@ def _run_rig(req: ScopeRequest) -> tuple[ScopeRun, dict[str, JsonValue]]:
     finally:
         rig.close()
     return run, {"rig": str(req.rig), "camera": name, "slide": target.spec}
+
+
+def _run_patch(req: ScopeRequest, spec: Any) -> tuple[ScopeRun, dict[str, JsonValue]]:
+    """The slide on the simulated one-camera rig's stage, moved by its devices."""
+    from ..devices.microscope_drive import MicroscopeDrive
+    from ..sim.patch import PatchRig
+    from ..sim.patch_devices import patch_as_rig, patch_config
+    from ..sim.patch_scope import slide_scope
+
+    if req.target is not None:
+        raise InputError("--target: the simulated one-camera rig has its own slide; leave it out")
+    patch = PatchRig(patch_config(spec.overrides), spec.seed)
+    with patch_as_rig(patch) as rig:
+        assert rig.microscope is not None  # the patch rig has one
+        drive = MicroscopeDrive(rig.microscope, rig.cameras["scope"], rig.clock)
+        slide = slide_scope(patch, req.image_px, spec.seed, drive)
+        na = req.numerical_aperture or patch.config.numerical_aperture
+        field_um = req.image_px * (req.um_per_px or patch.config.um_per_px)
+        plan = scope_plan(field_um, depth_for(na))
+        run = calibrate_scope(slide.move_stage, slide.move_focus, slide.grab, slide.target,
+                              plan, sweep_um=_sweep(req, na))  # fmt: skip
+    return run, {"rig": str(req.rig), "camera": "scope", "slide": slide.target.spec}
 
 
 def scope_calibrate(req: ScopeRequest) -> ScopeResult:
