@@ -212,3 +212,10 @@ def test_a_calibration_fitted_from_acquire_serves_goto_and_evaluate(tmp_path) ->
     assert pa["truth"]["optimal"]["mean_ap_p_um"] < 1.0
     desired = np.array([p["desired_um"] for p in pa["truth"]["optimal"]["poses"]])
     assert np.all(np.abs(desired) <= [30.0, 30.0, 10.0])  # the cube inside the run's volume
+    from microcal.report import write_report
+
+    html = write_report(run).read_text(encoding="utf-8")  # the run's page: one-camera sections
+    assert 'id="scope"' in html
+    assert "<h3>objective 40x</h3>" in html
+    assert "A one-camera acquisition" in html
+    assert "30 tips measured" in html

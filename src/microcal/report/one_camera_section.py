@@ -3,9 +3,11 @@ camera against its stage, the tip measured from the image and the focus, the ope
 the working volume, and the rig's time per stage.
 
 A run is one-camera when its results.json holds the scope calibration (``scope``, as
-``microcal demo --preset patch`` writes it) or its directory holds a scope file
-(``scope.json``). The report shows these sections in place of the stereo calibration's and
-the cameras' measurement; the models and ISO 9283 sections are the same for every rig.
+``microcal demo --preset patch`` writes it), its directory holds a scope file
+(``scope.json``) or it is a one-camera acquisition's (``one_camera.json``: the scope set it
+measured in, ``microcal acquire --scope``). The report shows these sections in place of the
+stereo calibration's and the cameras' measurement; the models and ISO 9283 sections are the
+same for every rig.
 """
 
 from __future__ import annotations
@@ -110,7 +112,21 @@ def _scope_rows(data: RunData, results: Results) -> list[ScopeRow]:
     for name in names:
         if not rows or rows[0].objective != name:
             rows.append(ScopeRow(name, load_objective(path, name), ""))
+    used = _acquired_with(data)
+    if not rows and used is not None:
+        rows.append(ScopeRow(str(used.get("objective", "?")), used.get("set") or {}, ""))
     return rows
+
+
+def _acquired_with(data: RunData) -> Mapping[str, Mapping[str, object]] | None:
+    """A one-camera acquisition's scope entry (``file``, ``objective``, ``set``); None for
+    another run."""
+    from ..formats.one_camera_run import is_one_camera_run, read_one_camera_setup
+
+    if not is_one_camera_run(data.run_dir):
+        return None
+    scope = read_one_camera_setup(data.run_dir).get("scope")
+    return scope if isinstance(scope, Mapping) else None
 
 
 def _same(a: Mapping[str, object], b: Mapping[str, object]) -> bool:
@@ -129,6 +145,8 @@ def _tip(data: RunData, results: Results) -> TipMeasurement:
     extra = dict(acq.model_extra or {}) if acq is not None else {}
     journal = data.journal
     std: FloatArray = journal.tip_std_um
+    if not len(std) and data.measurements is not None and data.measurements.std_um is not None:
+        std = data.measurements.std_um  # a one-camera acquisition's measurements.csv
     frames = _number(extra.get("frames"))
     n = len(std) or (acq.stored if acq is not None else 0)
     method = extra.get("method")
@@ -169,7 +187,11 @@ def one_camera_section(data: RunData) -> OneCameraSection | None:
     """
     results = data.results if data.results is not None else Results()
     extra = dict(results.model_extra or {})
-    if not isinstance(extra.get("scope"), Mapping) and not (data.run_dir / "scope.json").exists():
+    if (
+        not isinstance(extra.get("scope"), Mapping)
+        and not (data.run_dir / "scope.json").exists()
+        and _acquired_with(data) is None
+    ):
         return None
     scope = _scope_rows(data, results)
     own = extra.get("scope")

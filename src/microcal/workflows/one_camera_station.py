@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,7 +45,7 @@ from ..procedures.one_camera_probe import OneCameraTipProbe
 from ..vision.microscope_frame import MicroscopeFrame
 from ..vision.tip_target import TipTarget
 
-__all__ = ["OneCameraDevice", "is_one_camera", "one_camera_device", "scope_frame"]
+__all__ = ["OneCameraDevice", "is_one_camera", "one_camera_device"]
 
 
 def is_one_camera(rig: Rig) -> bool:
@@ -73,29 +73,6 @@ class OneCameraDevice:
     probe: OneCameraTipProbe
     objective: str
     joint_origin_um: FloatArray
-
-
-def scope_frame(record: Mapping[str, object], image_size_px: tuple[int, int]) -> MicroscopeFrame:
-    """{M} of a scope file's objective set on a camera of ``image_size_px`` (width, height).
-
-    Raises
-    ------
-    InputError
-        A set without ``pixel_size_affine`` (6 numbers) or ``focus.drift_px_per_um`` (2).
-    """
-    focus = record.get("focus")
-    try:
-        a = np.asarray(record.get("pixel_size_affine"), dtype=np.float64).reshape(2, 3)
-        g = np.asarray(focus.get("drift_px_per_um") if isinstance(focus, Mapping) else None,
-                       dtype=np.float64).reshape(2)  # fmt: skip
-    except (TypeError, ValueError):
-        raise InputError(
-            "--scope: the objective's set lacks pixel_size_affine (6 numbers) or "
-            "focus.drift_px_per_um (2); calibrate it again (microcal scope-calibrate)"
-        ) from None
-    w, h = image_size_px
-    m: FloatArray = np.asarray(-np.linalg.inv(a[:, :2]), dtype=np.float64)
-    return MicroscopeFrame(m, g, np.array([(w - 1) / 2, (h - 1) / 2]))
 
 
 def _objective(scope: str | os.PathLike[str], objective: str | None) -> str:
@@ -175,7 +152,7 @@ def one_camera_device(
         )
     name = _objective(scope, objective)
     camera = next(iter(rig.cameras.values()))
-    frame = scope_frame(load_objective(scope, name), camera.sensor_size_px)
+    frame = MicroscopeFrame.from_record(load_objective(scope, name), camera.sensor_size_px)
     origin = _origin(entry)
     device = ShiftedJoints(rig.manipulator, origin)
     finder = _finder(frame, entry, device.position_um(), rig.board)
