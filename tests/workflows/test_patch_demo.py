@@ -34,7 +34,9 @@ def test_too_few_poses_are_refused_before_the_directory_is_made(tmp_path: Path) 
 
 
 def test_the_files_it_writes() -> None:
-    assert {"journal.jsonl", "scope.json", "calibration.json", "results.json"} == PATCH_FILES
+    assert {"journal.jsonl", "scope.json", "calibration.json", "results.json", "report.html"} == (
+        PATCH_FILES
+    )
 
 
 @pytest.mark.slow

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 from typing import Annotated, Any, NoReturn
 
 import typer
@@ -22,6 +23,15 @@ Tolerance = Annotated[
         help="The closed loop's tolerance, µm (90 % sure; no less than the cameras can "
         "confirm, which goto names when it is).",
     ),
+]
+
+#: A one-camera rig's scope calibration and its objective (goto, evaluate, check).
+ScopeFile = Annotated[
+    Path | None,
+    Option("--scope", help="A one-camera rig: its camera's scope.json (scope-calibrate)."),
+]
+ObjectiveName = Annotated[
+    str | None, Option(help="The objective's set in --scope (its only one by default).")
 ]
 
 

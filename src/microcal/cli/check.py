@@ -8,7 +8,7 @@ from typing import Annotated
 from typer import Option
 
 from ..report.console import staged_progress
-from ._app import app
+from ._app import ObjectiveName, ScopeFile, app
 
 _Cal = Annotated[Path, Option(help="calibration.json with the cameras ('fit --cameras').")]
 _Out = Annotated[Path, Option("--out", "-o", help="check.json to write.")]
@@ -27,6 +27,7 @@ def check(
     alpha: _Alpha = 0.05, history_sigma: _Sigma = 3.0, update: _Update = None,
     manipulator: Annotated[str | None, Option(help="Manipulator (if several).")] = None,
     seed: Annotated[int | None, Option(min=0, help="Seed of the simulated rig.")] = None,
+    scope: ScopeFile = None, objective: ObjectiveName = None,
 ) -> None:  # fmt: skip
     """Re-measure ten poses of the ISO cube and test them against the calibration: still
     valid, the offset moved by (x, y, z) ± (a re-mounted device, an exchanged tool), or the
@@ -44,7 +45,7 @@ def check(
         tick = lambda done, total: progress("check poses measured", done, total)  # noqa: E731
         done = check_calibration(rig, calibration, out, manipulator=manipulator, seed=seed,
                                  config=cfg, history_sigma=history_sigma, update=update,
-                                 progress=tick)  # fmt: skip
+                                 progress=tick, scope=scope, objective=objective)  # fmt: skip
     for line in check_lines(done.result, done.flag, done.update):
         print(line)
     print(f"wrote {out}")

@@ -99,6 +99,6 @@ def _patch(out: Path, seed: int, poses: int, quick: bool, console: Console) -> N
         [
             *patch_demo_lines(run.result),
             f"wrote {out}/: journal.jsonl, "
-            f"scope.json, calibration.json, results.json ({run.wall_s:.0f} s)",
+            f"scope.json, calibration.json, results.json, report.html ({run.wall_s:.0f} s)",
         ],
     )

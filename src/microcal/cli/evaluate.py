@@ -10,7 +10,7 @@ from rich.console import Console
 from typer import Option
 
 from ..report.console import print_parts, staged_progress
-from ._app import Tolerance, app
+from ._app import ObjectiveName, ScopeFile, Tolerance, app
 
 PoseChoice = StrEnum("PoseChoice", {"table": "table-5-2", "cube": "iso-cube"})
 TestChoice = StrEnum("TestChoice", {"pose_accuracy": "pose-accuracy", "decoupling": "decoupling",
@@ -41,6 +41,7 @@ def evaluate(
     frames: _Frames = 5, settle_s: _Settle = 5.0, seed: _Seed = None,
     out: _Out = Path("results.json"), control: _Control = ControlChoice.open,
     tolerance_um: Tolerance = 0.5, drift_h: _Drift = 0.0, band_um: _Band = 2.0,
+    scope: ScopeFile = None, objective: ObjectiveName = None,
 ) -> None:  # fmt: skip
     """Pose accuracy (ISO 9283) and decoupling tests without and with compensation.
 
@@ -48,6 +49,9 @@ def evaluate(
     by the cameras (and on the simulator also by ground truth): ISO 9283's AP/RP, AD/RD and
     stabilisation time, the decoupling test, and with --drift-h the drift of AP. The rig is
     opened as 'microcal acquire' opens it: the simulator or a rig file's hardware.
+
+    A one-camera rig (--scope scope.json): the tip by its image and a focus sweep, at ISO
+    9283's cube in the calibration's working volume (--poses iso-cube).
 
     Example: microcal evaluate --rig sim --calibration calibration.json --control all
     """
@@ -57,7 +61,7 @@ def evaluate(
 
     request = EvaluateRequest(
         calibration, rig, test.value, manipulator, cycles, poses.value, frames, settle_s, seed,
-        out, control.value, tolerance_um, drift_h, band_um,
+        out, control.value, tolerance_um, drift_h, band_um, scope, objective,
     )  # fmt: skip
     with staged_progress() as progress:
         done = run(request, progress)

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Mapping, Sequence
-from typing import TypedDict
+from typing import Any, TypedDict
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -346,6 +346,7 @@ def run_evaluation(
     drift_s: float = 0.0,
     drift_interval_s: float = 600.0,
     band_um: float = 2.0,
+    probe: Any = None,
 ) -> Evaluation:
     """The evaluation tests of a calibrated manipulator on any rig (thesis 5.3, ISO 9283).
 
@@ -377,6 +378,13 @@ def run_evaluation(
     drift_s : float
         Above 0: also the drift of AP at the first pose over this long, measured every
         ``drift_interval_s`` (ISO 9283 clause 7.7; on hardware it takes that long).
+    probe : object, optional
+        What measures the tip instead of the cameras' probe: a one-camera rig's
+        (:class:`~microcal.procedures.one_camera_probe.OneCameraTipProbe`, ``cameras`` and
+        ``models`` then unused). Its rig sees only its working volume: the tests are
+        ISO 9283's at the cube (``poses="iso-cube"``: inside the calibration's
+        ``working_volume_um`` where it records one); Table 5-2's poses and the decoupling
+        path, which span the whole travel, are refused.
 
     Returns
     -------
@@ -391,8 +399,14 @@ def run_evaluation(
     if control not in ("open", "closed", "all"):
         raise InputError(f"control: expected open, closed or all, got {control!r}")
     missing = sorted(set(cameras) - set(models))
-    if missing:
+    if missing and probe is None:
         raise InputError(f"evaluate: no camera calibration for the rig's camera(s) {missing}")
+    if probe is not None and (poses != "iso-cube" or tests in ("all", "decoupling")):
+        raise InputError(
+            "evaluate on a one-camera rig: the camera sees only the working volume, and Table "
+            "5-2's poses and the decoupling path span the whole travel; use --poses iso-cube "
+            "--test pose-accuracy (or distance, stabilisation)"
+        )
     if not np.isfinite(settle_s) or settle_s < 0:
         raise InputError(f"settle: expected a finite wait >= 0 s, got {settle_s}")
     try:
@@ -402,8 +416,9 @@ def run_evaluation(
     conditions: dict[str, FeedForward | None] = {}
     if control in ("open", "all"):
         conditions |= open_loop_conditions(manipulator, calibration, extra=read_extra, clock=clock)
-    used = {n: models[n] for n in cameras}  # a calibrated camera the rig lacks is not used
-    probe = VisionProbe({n: cameras[n] for n in used}, used, board, frames)
+    if probe is None:
+        used = {n: models[n] for n in cameras}  # a calibrated camera the rig lacks is not used
+        probe = VisionProbe({n: cameras[n] for n in used}, used, board, frames)
     loop = None
     if control in ("closed", "all"):
         loop = closed_loop_condition(manipulator, calibration, probe.measure_with_covariance,
@@ -414,6 +429,9 @@ def run_evaluation(
     parts = Evaluation()
     rng = calibration.joint_range_um
     lim = manipulator.limits_um if rng is None else rng
+    volume = calibration.extra.get("working_volume_um")
+    if volume is not None:  # a one-camera calibration's volume in {M}: low and high corners
+        lim = np.asarray(volume, dtype=np.float64).reshape(2, 3).T
     poses_um = TABLE_5_2_POSES_UM if poses == "table-5-2" else iso_cube_poses(*lim.T)
     held = manipulator.held
     if held.any() and (poses == "table-5-2" or tests in ("all", "decoupling")):
@@ -439,5 +457,6 @@ def run_evaluation(
                drift_interval_s, band_um, parts)  # fmt: skip
     if loop is not None:
         parts.closed_loop = loop.summary()
-    parts.unseen = [{"d_um": d.tolist(), "reason": why} for d, why in probe.failures]
+    failures = getattr(probe, "failures", [])
+    parts.unseen = [{"d_um": d.tolist(), "reason": why} for d, why in failures]
     return parts

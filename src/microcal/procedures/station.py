@@ -32,6 +32,7 @@ from ..geometry import AnyCamera
 from ..kinematics.manipulator_calibration import ManipulatorCalibration
 from ..vision.probe import VisionProbe
 from ..vision.targets import Target
+from .approach_axis import ApproachMove, plan_approach
 
 __all__ = ["Arrival", "Station", "check_frames"]
 
@@ -139,7 +140,7 @@ class Station:
         probe: Any = None,
     ) -> None:
         missing = sorted(set(rig.cameras) - set(cameras))
-        if missing:
+        if missing and probe is None:
             raise InputError(f"station: no camera calibration for the rig's camera(s) {missing}")
         calibration.check_device(rig.manipulator.identity)
         check_number("settle_s", settle_s, low=0)
@@ -152,8 +153,9 @@ class Station:
         self.settle_s = float(settle_s)
         model = calibration.model
         extra = extra_inputs_reader(model, rig.sensors)
-        models = {n: cameras[n] for n in rig.cameras}
-        self.probe = probe or VisionProbe(rig.cameras, models, rig.board, self.frames)
+        self.probe = probe or VisionProbe(
+            rig.cameras, {n: cameras[n] for n in rig.cameras}, rig.board, self.frames
+        )
         method: Literal["optimal", "matrix"] = "optimal" if model.kind == "polynomial" else "matrix"
         self._open = FeedForward(rig.manipulator, model, method, extra, rig.clock)
         measure = self.probe.measure_with_covariance
@@ -211,8 +213,8 @@ class Station:
             self._d = d
             self.rig.manipulator.wait_until_stopped(self.rig.clock)
             self.rig.clock.sleep(self.settle_s)
-            p, cov = self.where_um()
-            return Arrival(target, d, p, cov, "open", "open", 0, self.frames)
+            p, cov, frames = self._measured()
+            return Arrival(target, d, p, cov, "open", "open", 0, frames)
         if tolerance_um is not None:
             self._closed.config = dataclasses.replace(
                 self._closed.config, tolerance_um=tolerance_um
@@ -223,6 +225,71 @@ class Station:
         c = self._closed.config
         return Arrival(target, d, r.measured_um, r.cov_um2, "closed", r.status, r.iterations,
                        r.frames, c.tolerance_um, c.confidence, c.max_iterations)  # fmt: skip
+
+    def move_along_approach_um(
+        self,
+        distance_um: float,
+        mode: Literal["open", "closed"] = "open",
+        tolerance_um: float | None = None,
+        step_um: float | None = None,
+        path: Literal["joint", "line"] = "joint",
+    ) -> tuple[ApproachMove, Arrival]:
+        """Move the tip ``distance_um`` along the tool's approach axis (the calibration's
+        direction of the approach joint ``dx``, the manipulator's x;
+        :mod:`~microcal.procedures.approach_axis`), through targets ``step_um`` apart (None:
+        one), from where the model puts the tip for the joints commanded last.
+
+        ``path="joint"``: the approach joint alone travels (no joint goes back and forth);
+        ``"line"``: the compensator's joints for each target. ``mode="closed"`` then servoes
+        to the last target (the closed loop's moves arrive from below, as every closed loop's
+        do). Every joint is checked against the soft limits before anything moves.
+
+        Returns
+        -------
+        move : ApproachMove
+            The plan (start, axis, targets, the joint's travel).
+        arrival : Arrival
+            Where the last target left the tip, as measured.
+
+        Raises
+        ------
+        LimitError
+            A target outside the soft limits (nothing moves).
+        DetectionError
+            The tip is not found (the tip stays where the last move left it).
+        """
+        if mode not in ("open", "closed") or path not in ("joint", "line"):
+            raise InputError(f"mode, path: expected open|closed and joint|line, got {mode!r}, "
+                             f"{path!r}")  # fmt: skip
+        extra = None if self._open.extra is None else self._open.extra()
+        move = plan_approach(self.calibration.model, self._d, distance_um, extra=extra,
+                             step_um=step_um)  # fmt: skip
+        m = self.rig.manipulator
+        for d, target in zip(move.joints_um, move.targets_um, strict=True):
+            if path == "joint":
+                m.check_limits(d)
+            else:
+                self.check_reach(target)
+        last = move.targets_um[-1]
+        for d, target in zip(move.joints_um, move.targets_um, strict=True):
+            self._d = d if path == "joint" else self._open.move_to_position_um(target)
+            if path == "joint":
+                m.move_to_um(d)
+            m.wait_until_stopped(self.rig.clock)
+            self.rig.clock.sleep(self.settle_s)
+        if mode == "closed":
+            return move, self.move_to_um(last, "closed", tolerance_um)
+        p, cov, frames = self._measured()
+        return move, Arrival(last, self._d, p, cov, "open", "open", 0, frames)
+
+    def _measured(self) -> tuple[FloatArray, FloatArray, int]:
+        """:meth:`where_um` and the frames it took: per camera, or a one-camera probe's
+        (its focus sweep's, which it counts in ``frames_used``)."""
+        before = getattr(self.probe, "frames_used", None)
+        p, cov = self.where_um()
+        after = getattr(self.probe, "frames_used", None)
+        used = after - before if isinstance(after, int) and isinstance(before, int) else None
+        return p, cov, self.frames if used is None else used
 
     def check_reach(self, p_um: ArrayLike) -> None:
         """Raise :class:`LimitError` if the model's joints for ``p_um`` (3,) in {G} leave the

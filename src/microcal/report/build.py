@@ -52,12 +52,16 @@ from . import figures
 from .bounds import MAX_PANELS, MAX_ROWS, Shown, clip, first, last
 from .data import ReportInputs, RunData, load_run
 from .glossary import GLOSSARY
+from .one_camera_section import one_camera_section
 from .text_tables import consistency_lines, is_thesis_rig
 
 __all__ = ["build_report", "compares_with_thesis", "write_report"]
 
 THESIS_REPROJECTION_PX = {"top": REPROJECTION_ERROR_TOP_PX, "side": REPROJECTION_ERROR_SIDE_PX}
 CONDITIONS = ("uncalibrated", "matrix", "optimal")
+#: The conditions of the pose-accuracy tables: the open loop's, then the closed loop where
+#: the evaluation ran it.
+POSE_CONDITIONS = (*CONDITIONS, "closed_loop")
 
 
 def compares_with_thesis(data: RunData) -> bool:
@@ -77,6 +81,11 @@ def _rig_text(data: RunData) -> str:
     so that a rig of any version is named.
     """
     rig = data.rig
+    preset = (data.results.model_extra or {}).get("preset") if data.results is not None else None
+    if rig is None and isinstance(preset, str):  # a demo's run: results.json names its preset
+        rig = {"driver": "sim", "preset": preset}
+        seed = (data.results.provenance or {}).get("seed") if data.results is not None else None
+        rig |= {"seed": seed} if isinstance(seed, int) else {}
     if rig is None:
         return "not recorded (no run.json)" if data.manifest is None else "not recorded in run.json"
     driver = rig.get("driver")
@@ -262,8 +271,13 @@ def _acquisition(data: RunData) -> AcquisitionSection | None:
         failed += measured.rows
         n_failed += len(measured.rows) + measured.more
     manifest = data.manifest
+    planned = data.results.acquisition if data.results is not None else None  # a demo's
     return AcquisitionSection(
-        n_commands=None if data.commands_um is None else len(data.commands_um),
+        n_commands=(
+            len(data.commands_um)
+            if data.commands_um is not None
+            else (planned.poses if planned is not None else None)
+        ),
         n_stored=journal.n_ok,
         design=manifest.design if manifest is not None else None,
         settle=manifest.settle if manifest is not None else None,
@@ -388,7 +402,7 @@ def _pose_accuracy(data: RunData, thesis: bool) -> PoseAccuracySection | None:
         return None
     sources: list[str] = [s for s in ("vision", "truth") if s in pa]
     tables = [PoseTable(source, name, pa[source][name])
-              for source in sources for name in CONDITIONS if name in pa[source]]  # fmt: skip
+              for source in sources for name in POSE_CONDITIONS if name in pa[source]]  # fmt: skip
     return PoseAccuracySection(sources, tables, POSE_ACCURACY_UM if thesis else {})
 
 
@@ -636,6 +650,7 @@ def build_report(
         "iso": _iso(data),
         "checks": _checks(data),
         "station": _station(data, Path(run_dir)),
+        "one_camera": one_camera_section(data),
         "provenance": _provenance(data),
         "rig": _rig_text(data),
         "glossary": GLOSSARY,

@@ -275,6 +275,7 @@ def measurement_uncertainty(std_um: FloatArray) -> str:
         ax = fig.add_subplot(1, 3, k + 1)
         ax.hist(std_um[:, k], bins=25, color="tab:blue")
         ax.xaxis.set_major_locator(MaxNLocator(4))  # labels apart however narrow the spread
+        ax.ticklabel_format(axis="x", useOffset=False)  # the values, not offsets from one
         ax.set_xlabel(f"std {AXES[k]}, µm")
         ax.set_ylabel("poses")
     return _uri(fig)

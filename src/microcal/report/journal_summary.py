@@ -49,6 +49,11 @@ class JournalSummary:
     rig_time_s : (m,) float
         Rig time of every pose that records when it began, its moves and its settling
         (:func:`~microcal.procedures.rig_time.pose_rig_times_s`), in journal order.
+    tip_std_um : (k, 3) float
+        A one-camera run's journal (each stored pose with its tip in {M}, ``cov_um2``): the
+        stated standard deviation of each tip per axis, in journal order.
+    tip_frames : (k,) float
+        Frames each of those tips took (the focus sweep's, or one against a stack).
     """
 
     n_poses: int = 0
@@ -57,6 +62,23 @@ class JournalSummary:
     failed: list[tuple[int, str]] = field(default_factory=list)
     n_failed: int = 0
     rig_time_s: FloatArray = field(default_factory=lambda: np.zeros(0))
+    tip_std_um: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    tip_frames: FloatArray = field(default_factory=lambda: np.zeros(0))
+
+
+def _tip(line: JournalLine) -> tuple[float, float, float, float] | None:
+    """A one-camera pose's stated standard deviations (x, y, z, µm) and frames; None for a
+    line without a finite 3 x 3 ``cov_um2`` (a stereo run's, a failed pose's)."""
+    cov, frames = line.get("cov_um2"), line.get("frames")
+    try:
+        c = np.asarray(cov, dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+    if c.shape != (3, 3) or not np.all(np.isfinite(c)) or np.any(np.diagonal(c) < 0):
+        return None
+    n = float(frames) if isinstance(frames, int | float) else np.nan
+    sx, sy, sz = np.sqrt(np.diagonal(c))
+    return float(sx), float(sy), float(sz), n
 
 
 def _lines(path: Path) -> Iterator[bytes | None]:
@@ -88,6 +110,7 @@ def summarise_journal(path: Path) -> JournalSummary:
     seen: set[int] = set()
     settle = array("d")
     timed: list[tuple[float, float, float]] = []
+    tips: list[tuple[float, float, float, float]] = []
     try:
         for raw in _lines(path):
             if raw is None or not raw.strip():
@@ -107,6 +130,9 @@ def summarise_journal(path: Path) -> JournalSummary:
                     timed.append((float(start), float(move), float(line.settle_s)))
             if line.status == "ok":
                 out.n_ok += 1
+                tip = _tip(line)
+                if tip is not None:
+                    tips.append(tip)
             else:
                 out.n_failed += 1
                 if len(out.failed) < MAX_ROWS:
@@ -117,4 +143,7 @@ def summarise_journal(path: Path) -> JournalSummary:
     if timed:
         start_s, move_s, settle_s = zip(*timed, strict=True)
         out.rig_time_s = pose_rig_times_s(start_s, move_s, settle_s)
+    if tips:
+        table = np.array(tips, dtype=np.float64)
+        out.tip_std_um, out.tip_frames = table[:, :3], table[:, 3]
     return out

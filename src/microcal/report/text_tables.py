@@ -35,6 +35,7 @@ if TYPE_CHECKING:
     from ..kinematics.manipulator_calibration import ManipulatorCalibration
     from ..kinematics.models import KinematicModel
     from ..kinematics.validation import Validation
+    from ..procedures.approach_axis import ApproachMove
     from ..procedures.check import CheckResult, CheckUpdate
     from ..procedures.compensation import Solution
     from ..procedures.evaluation_figures import (
@@ -391,6 +392,16 @@ def unseen_lines(unseen: Sequence[Mapping[str, Any]], shown: int = 3) -> list[st
     if len(unseen) > shown:
         out.append(f"  and {len(unseen) - shown} more")
     return out
+
+
+def approach_line(move: ApproachMove) -> str:
+    """What ``goto --along-approach-um`` prints before the arrival: the axis and the move."""
+    axis = ", ".join(f"{v:.4f}" for v in move.axis.tolist())
+    return (
+        f"along the approach axis ({axis}) of joint {move.joint}, {move.elevation_deg:.2f}° "
+        f"from the x-y plane: {move.distance_um:g} µm in {len(move.targets_um)} step(s) by "
+        f"that joint alone (the model bends its path {move.bend_um:.3f} µm off the line)"
+    )
 
 
 def arrival_line(a: Arrival) -> str:

@@ -120,8 +120,13 @@ def check_calibration(
     history_sigma: float = 3.0,
     update: str | os.PathLike[str] | None = None,
     progress: Callable[[int, int], None] | None = None,
+    scope: str | os.PathLike[str] | None = None,
+    objective: str | None = None,
 ) -> CheckOutcome:
     """Check a calibration on its rig, write check.json, add to the history, update if asked.
+
+    A one-camera rig measures the tip through its scope calibration (``scope``, its set
+    ``objective``; :mod:`~.one_camera_station`).
 
     Returns
     -------
@@ -134,8 +139,8 @@ def check_calibration(
     name = cal.manipulator(manipulator).name  # each device of a calibration has its history
     history = of_device(read_history(calibration), name, len(cal.manipulators) == 1)
     reference = _reference(history)
-    with open_station(rig, calibration, manipulator=manipulator, seed=seed,
-                      settle_s=cfg.settle_s) as station:  # fmt: skip
+    with open_station(rig, calibration, manipulator=manipulator, seed=seed, scope=scope,
+                      objective=objective, settle_s=cfg.settle_s) as station:  # fmt: skip
         rig_ = station.rig
         m = station.calibration
         measure = station.probe.measure_with_covariance

@@ -35,6 +35,8 @@ class EvaluateRequest:
         Hours over which the drift of AP is measured (0: none).
     out : Path
         results.json to write or update.
+    scope, objective : optional
+        A one-camera rig's scope calibration (scope.json) and its objective's set.
     """
 
     calibration: Path
@@ -51,6 +53,8 @@ class EvaluateRequest:
     tolerance_um: float = 0.5
     drift_h: float = 0.0
     band_um: float = 2.0
+    scope: Path | None = None
+    objective: str | None = None
 
 
 @dataclass(frozen=True)
@@ -71,7 +75,8 @@ def evaluate(
     """
     r = request
     check_json_output(r.out, RESULTS_FORMAT, "results.json")
-    c = open_calibrated_rig(r.rig, r.calibration, seed=r.seed, manipulator=r.manipulator)
+    c = open_calibrated_rig(r.rig, r.calibration, seed=r.seed, manipulator=r.manipulator,
+                            scope=r.scope, objective=r.objective)  # fmt: skip
     with c.opened:
         d = c.device
         parts = run_evaluation(
@@ -79,7 +84,7 @@ def evaluate(
             tests=r.tests, poses=r.poses, cycles=r.cycles, frames=r.frames,
             settle_s=r.settle_s, truth=d.truth, sensors=d.sensors, progress=progress,
             control=r.control, tolerance_um=r.tolerance_um, drift_s=r.drift_h * 3600.0,
-            band_um=r.band_um,
+            band_um=r.band_um, probe=c.probe,
         )  # fmt: skip
     update_results(r.out, {**parts.to_json(), "target": d.board.spec})
     return EvaluateResult(parts, c.spec.to_dict(), r.out)

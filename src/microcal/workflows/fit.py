@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -217,12 +218,31 @@ def fit(request: FitRequest) -> FitResult:
         train=r.train, select=r.select, penter=r.penter, premove=r.premove, folds=r.folds,
         seed=r.seed, extra_inputs=inputs, exclude_outliers=r.exclude_outliers, held_um=held,
     )  # fmt: skip
+    if in_run:
+        entry = _with_one_camera_frame(entry, r.source)
     calibration = update.add_manipulator(
         r.out, entry, r.cameras, {"measurements": path}, r.model, manifest, mat=r.mat
     )
     written = [r.out] if r.mat is None else [r.out, r.mat]
     return FitResult(path, calibration.manipulators[entry.name], fits[r.model], meas.pose,
                      meas.n_failed, calibration, tuple(written), notes)  # fmt: skip
+
+
+def _with_one_camera_frame(entry: ManipulatorCalibration, run: Path) -> ManipulatorCalibration:
+    """A one-camera run's entry with where its joints are counted from (``joint_origin_um``)
+    and the working volume in {M} it filled (``working_volume_um``: low and high corners), as
+    one_camera.json records them, for goto, evaluate and check on the rig; any other run's
+    entry as it is."""
+    from ..formats.one_camera_run import is_one_camera_run, read_one_camera_setup
+
+    if not is_one_camera_run(run):
+        return entry
+    setup = read_one_camera_setup(run)
+    centre = np.asarray(setup["volume_centre_um"], dtype=np.float64)
+    half = np.asarray(setup["volume_half_um"], dtype=np.float64)
+    extra = {**entry.extra, "joint_origin_um": setup["joint_origin_um"],
+             "working_volume_um": [(centre - half).tolist(), (centre + half).tolist()]}  # fmt: skip
+    return dataclasses.replace(entry, extra=extra)
 
 
 def _fit_adaptive(r: FitRequest) -> FitResult:

@@ -7,11 +7,13 @@ stage, objective ``40x``), ``calibration.json`` (the manipulator's models; its j
 from the start pose, ``results.json``'s ``joint_origin_um``) and ``results.json`` (the
 thesis demo's sections where they apply: ``measurement``, ``models``, ``oracle``,
 ``acquisition``, ``pose_accuracy``, ``closed_loop``, ``timing``; and the rig's own:
-``scope``, ``volume_accuracy``, ``rig_time_s``).
+``scope``, ``volume_accuracy``, ``rig_time_s``) and ``report.html`` (the report of those files,
+its one-camera sections: :mod:`microcal.report.one_camera_section`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -25,11 +27,15 @@ from .demo_results import fit_sections
 
 if TYPE_CHECKING:
     from ..experiments.patch_demo import PatchDemoResult
+    from ..journal_record import JournalRecord
+    from ..kinematics.manipulator_calibration import ManipulatorCalibration
 
 __all__ = ["PATCH_FILES", "PatchDemoRun", "patch_demo"]
 
 #: What the patch demo writes into its directory (and may replace on the next one).
-PATCH_FILES = frozenset({"journal.jsonl", "scope.json", "calibration.json", "results.json"})
+PATCH_FILES = frozenset(
+    {"journal.jsonl", "scope.json", "calibration.json", "results.json", "report.html"}
+)
 
 
 def _check_dir(out: Path) -> None:
@@ -79,6 +85,7 @@ def patch_demo(
     from ..formats.provenance import provenance
     from ..formats.results_file import update_results
     from ..formats.scope_file import write_objective
+    from ..report import write_report
 
     wall0 = time.monotonic()
     if poses < MIN_POSES:
@@ -99,7 +106,7 @@ def patch_demo(
         write_objective(out / "scope.json", "40x", result.scope.calibration.to_json(), prov)
         if result.manipulator is None:
             raise InputError("demo: nothing was identified; no calibration to write")
-        entry = result.manipulator
+        entry = _with_frame_keys(result)
         write_calibration(out / "calibration.json", Calibration({entry.name: entry}, {}, prov))
         update_results(out / "results.json", _results(result, prov))
     result.stages_s = dict(stages.stages_s)
@@ -108,7 +115,40 @@ def patch_demo(
         "simulated_s": result.sim_time_s, "wall_s": wall, "stages_s": result.stages_s,
         "rig_s": result.rig_s, "calibration_rig_s": result.calibration_rig_s,
     }})  # fmt: skip
-    return PatchDemoRun(result, out, wall)
+    write_report(out)  # the report of the files (results.json's timing: without it)
+    return PatchDemoRun(result, out, time.monotonic() - wall0)
+
+
+def _with_frame_keys(result: PatchDemoResult) -> ManipulatorCalibration:
+    """The manipulator's calibration with where its joints are counted from
+    (``joint_origin_um``, the start pose's joints) and the working volume in {M} it was made
+    for (``working_volume_um``: low and high corners), so that a command on the rig counts
+    the joints as the model does and evaluates inside the volume."""
+    from ..experiments.patch_demo import PATCH_VOLUME_HALF_UM
+
+    entry = result.manipulator
+    assert entry is not None
+    half = np.asarray(PATCH_VOLUME_HALF_UM, dtype=np.float64)
+    extra = {**entry.extra, "joint_origin_um": np.asarray(result.joint_origin_um).tolist(),
+             "working_volume_um": [(-half).tolist(), half.tolist()]}  # fmt: skip
+    return dataclasses.replace(entry, extra=extra)
+
+
+def _measured(result: PatchDemoResult, records: list[JournalRecord]) -> dict[str, object]:
+    """The demo's ``measurement``, ``models``, ``oracle`` and ``acquisition`` sections; the
+    measurement's with the share of true tips inside their stated 95 % region (``in_95``),
+    the acquisition's with its frames and how the tips' depth was found (``method``)."""
+    from ..control.closed_loop import CHI2_3_95
+
+    frames = int(sum(t.frames for t in result.run.tips))
+    out = fit_sections(result, records, {"frames": frames, "method": result.method})
+    ok = result.run.ok
+    e = result.run.p_um[ok] - result.truth_um[ok]
+    m2 = np.einsum("ni,nij,nj->n", e, np.linalg.inv(result.run.cov_um2[ok]), e)
+    measurement = out["measurement"]
+    assert isinstance(measurement, dict)
+    measurement["in_95"] = float(np.mean(m2 <= CHI2_3_95)) if len(m2) else None
+    return out
 
 
 def _results(result: PatchDemoResult, prov: Mapping[str, object]) -> dict[str, object]:
@@ -119,7 +159,7 @@ def _results(result: PatchDemoResult, prov: Mapping[str, object]) -> dict[str, o
     return {
         "preset": "patch",
         "scope": result.scope.calibration.to_json() | {"errors": result.scope_errors},
-        **fit_sections(result, records, {"frames": int(sum(t.frames for t in result.run.tips))}),
+        **_measured(result, records),
         "joint_origin_um": np.asarray(result.joint_origin_um).tolist(),
         **result.evaluation.to_json(),
         "volume_accuracy": volume.get("pose_accuracy"),
