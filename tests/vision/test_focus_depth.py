@@ -52,6 +52,28 @@ def test_the_sweep_finds_the_tips_depth_and_image(seed: int) -> None:
     assert np.allclose(est.focus_um, sweep_positions_um(prior))
 
 
+@pytest.mark.parametrize("across_px", [6.0, 12.0])  # the tip 1 and 2 µm beside the expected line
+def test_the_sweep_follows_a_tool_that_lies_beside_where_it_was_expected(across_px) -> None:
+    rig = patch_rig(2, size_px=SIZE)
+    rig.manipulator.move_to_um(10000.0 + np.array([4.0, -3.0, 6.0]))
+    rig.clock.sleep(2.0)
+    z, px = rig.in_focus()
+    est = depth_by_sweep(rig.grab_at_focus, _box(px + (2.0, across_px)), (1.0, 0.0), z,
+                         end_offset_px=_offset_px(rig), clock=rig.clock.now_s)  # fmt: skip
+    assert abs(est.apex_px[1] - px[1]) < 0.5  # across the tool: not pulled towards the line
+    assert abs(est.z_um - z) < 0.15
+
+
+def test_a_tool_beside_the_region_is_refused_not_measured_wrong() -> None:
+    rig = patch_rig(0, size_px=SIZE)
+    rig.manipulator.move_to_um(10000.0 + np.array([4.0, -3.0, 6.0]))
+    rig.clock.sleep(2.0)
+    z, px = rig.in_focus()
+    with pytest.raises(DetectionError, match="focus sweep"):
+        depth_by_sweep(rig.grab_at_focus, _box(px + (2.0, 30.0)), (1.0, 0.0), z,
+                       end_offset_px=_offset_px(rig), clock=rig.clock.now_s)  # fmt: skip
+
+
 def test_the_stack_interpolates_between_planes_and_the_baseline_rounds_to_one() -> None:
     rig = patch_rig(2, size_px=SIZE)
     z0, px0 = rig.in_focus()

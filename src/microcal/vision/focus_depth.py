@@ -194,6 +194,7 @@ def sweep_positions_um(centre_um: float, frames: int = 13, step_um: float = 0.5)
 class _Strips:
     """Pixel masks of strips across the tool and of the background beside it."""
 
+    origin: FloatArray  # (2,) the strips' origin in the region, px
     offsets_px: FloatArray  # (J,) position of each strip along the axis, from the origin
     tool: list[NDArray[np.bool_]]
     background: list[NDArray[np.bool_]]
@@ -214,7 +215,7 @@ def _strips(shape: tuple[int, int], origin: FloatArray, axis: FloatArray, half_p
         band = np.abs(along - s) <= width_px / 2.0
         tool.append(band & (np.abs(across) <= half_px))
         bg.append(band & (np.abs(across) > half_px + 6.0) & (np.abs(across) <= 2 * half_px + 6))
-    return _Strips(offsets, tool, bg, along, across)
+    return _Strips(np.asarray(origin, dtype=np.float64), offsets, tool, bg, along, across)
 
 
 def _gradient_energy(gray: NDArray[np.float32]) -> NDArray[np.float32]:
@@ -321,8 +322,9 @@ def depth_by_sweep(
         windows.append(_window(frame, region))
     x0, y0, x1, y1 = region
     origin = np.array([(x1 - x0 - 1) / 2.0, (y1 - y0 - 1) / 2.0])
-    strips = _strips(windows[0].shape, origin, axis, half_width_px, strip_px, reach_px)
     energies = [_gradient_energy(w) for w in windows]
+    strips = _centred_strips(windows, energies, origin, axis, half_width_px, strip_px, reach_px)
+    origin = strips.origin
     sharp = np.array(  # (J strips, K frames)
         [
             [float(e[t].mean() - e[b].mean()) for e in energies]
@@ -353,6 +355,44 @@ def depth_by_sweep(
     cov_z = g * START_SIGMA_PX**2 * axis  # the start's error moves the apex and the depth
     return DepthEstimate(z_tip, var, len(zs), clock() - t0, "sweep", apex, cov_px, zs,
                          cov_z_px=cov_z)  # fmt: skip
+
+
+#: The strips follow the tool's centre line across the axis until it is this close to theirs,
+#: px, at most :data:`RECENTRE_ROUNDS` times (a centroid inside a band about the expected line
+#: is pulled towards that line when the tool lies beside it).
+RECENTRE_PX = 0.1
+RECENTRE_ROUNDS = 8
+
+
+def _centred_strips(
+    windows: list[NDArray[np.float32]],
+    energies: list[NDArray[np.float32]],
+    origin: FloatArray,
+    axis: FloatArray,
+    half_px: float,
+    strip_px: float,
+    reach_px: float,
+) -> _Strips:
+    """The strips about the tool's own centre line: moved across the axis, from ``origin``
+    (the region's middle), to the darkness's centre line in the sharpest frame until they
+    sit on it. A tool that leaves the region across the axis is refused."""
+    k = int(np.argmax([float(e.mean()) for e in energies]))
+    normal = np.array([-axis[1], axis[0]])
+    h, w = windows[0].shape
+    for _ in range(RECENTRE_ROUNDS):
+        strips = _strips((h, w), origin, axis, half_px, strip_px, reach_px)
+        _, across = _tool_start(windows[k], strips, half_px)
+        if abs(across) <= RECENTRE_PX:
+            break
+        origin = origin + across * normal
+        if not (
+            half_px <= origin[0] <= w - 1 - half_px and half_px <= origin[1] <= h - 1 - half_px
+        ):
+            raise DetectionError(
+                "focus sweep: the tool lies beside the tip's region, not through it "
+                "(the tip is far from where it was looked for)"
+            )
+    return strips
 
 
 def _line(s: FloatArray, z: FloatArray, v: FloatArray) -> tuple[float, float, FloatArray]:
