@@ -287,13 +287,14 @@ class Twins:
         self.stack, self.sandbox = stack, sandbox
 
     def start(self, preset="thesis", seed=0, host="127.0.0.1", port=0, frames_port=0,
-              time_scale=1.0, rig_out=None, duration_s=None) -> None:  # fmt: skip
+              time_scale=1.0, rig_out=None, duration_s=None,
+              sample="tissue") -> None:  # fmt: skip
         """As ``microcal twin`` with these options does, however faster (TWIN_TIME_SCALE)."""
         from microcal.formats.twin_rig_file import twin_rig_toml
         from microcal.sim.twin import Twin
 
         twin = Twin(preset, seed, host=host, mcs2_port=port, frames_port=frames_port,
-                    time_scale=max(time_scale, TWIN_TIME_SCALE))  # fmt: skip
+                    time_scale=max(time_scale, TWIN_TIME_SCALE), sample=sample)  # fmt: skip
         self.stack.enter_context(twin)
         if rig_out is not None:
             path = self.sandbox / rig_out

@@ -5,6 +5,7 @@ refusals, in-process."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -189,3 +190,22 @@ def test_a_run_that_stores_no_pose_leaves_no_run_behind(tmp_path, monkeypatch):
     with pytest.raises(InputError, match="no tip at the start pose"):
         list(acquire_any(_request(tmp_path)))
     assert list((tmp_path / "run").iterdir()) == []
+
+
+def test_the_dry_run_reads_every_device_and_moves_nothing(tmp_path):
+    lines = list(acquire_any(_request(tmp_path, dry_run=True)))
+    text = "\n".join(lines)
+    assert re.search(r"manipulator at x (9999\.9|10000\.0)\d+, y .* µm, still", text)
+    assert "microscope: stage x 0.000, y 0.000 µm, focus 0.000 µm" in text
+    assert "camera: 512 x 512 px, uint16" in text
+    assert "design: 14 poses in 40 x 40 x 16 µm around the tip, within the soft limits" in text
+    assert not (tmp_path / "run").exists()  # nothing written
+
+
+def test_a_dry_run_volume_beyond_the_limits_is_refused_in_one_line(tmp_path):
+    with pytest.raises(InputError, match="--volume-um: joint x would go over") as err:
+        list(acquire_any(_request(tmp_path, dry_run=True, volume_um="20000,20,8")))
+    assert "\n" not in str(err.value)
+    with pytest.raises(InputError, match="--dry-run and --resume: choose one"):
+        list(acquire_any(_request(tmp_path, dry_run=True, resume=True, scope=None,
+                                  objective=None, volume_um=None)))  # fmt: skip

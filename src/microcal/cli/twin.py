@@ -13,6 +13,7 @@ _Port = Annotated[int, Option(min=0, max=65535, help="The MCS2 peer's TCP port (
 _Frames = Annotated[int, Option(min=0, max=65535, help="The frame server's TCP port (0: any).")]
 _Scale = Annotated[float, Option(help="Simulated seconds per wall second (> 0).")]
 _RigOut = Annotated[Path | None, Option(help="Write the twin's rig file here (TOML).")]
+_Sample = Annotated[str, Option(help="What lies on the patch rig's stage: tissue or slide.")]
 _Duration = Annotated[float | None, Option(min=0, help="Stop after this long, s (else Ctrl-C).")]
 
 
@@ -22,17 +23,19 @@ def twin(
     seed: Annotated[int, Option(min=0, help="Seed of the simulated platform.")] = 0,
     host: Annotated[str, Option(help="The loopback address to listen on.")] = "127.0.0.1",
     port: _Port = 55551, frames_port: _Frames = 55561, time_scale: _Scale = 1.0,
-    rig_out: _RigOut = None, duration_s: _Duration = None,
+    rig_out: _RigOut = None, duration_s: _Duration = None, sample: _Sample = "tissue",
 ) -> None:  # fmt: skip
     """Serve the simulated platform as a rig: its manipulator and target stage as a SmarAct
     MCS2 controller, its cameras through a frame server that Micro-Manager reads, until
     Ctrl-C. Open it with the rig file it writes; the hardware drivers drive it.
 
     Example: microcal twin --seed 0 --rig-out twin.toml  (then, in another terminal:
-    microcal acquire --rig twin.toml --out runs/a --dry-run)
+    microcal acquire --rig twin.toml --out runs/a --dry-run). With --preset patch --sample
+    slide the calibration slide lies on the stage (for microcal scope-calibrate).
     """
     from ..workflows.twin import TwinRequest, serve_twin
 
-    request = TwinRequest(preset, seed, host, port, frames_port, time_scale, rig_out, duration_s)
+    request = TwinRequest(preset, seed, host, port, frames_port, time_scale, rig_out, duration_s,
+                          sample)  # fmt: skip
     reason = serve_twin(request, ready=lambda line: print(line, flush=True))
     print(f"digital twin stopped ({reason})")

@@ -173,7 +173,7 @@ def twin_rig_toml(rig: TwinRig, rig_path: str = "twin.toml") -> str:
         if rig.microscope is not None
         else "# pure-Python devices: one camera per simulated camera, frames from the twin",
         'python_devices = "microcal.devices.twin_camera:load"',
-        f"options = {{ address = {address}, port = {frames_port} }}",
+        f"options = {{ address = {address}, port = {frames_port}{_timeout(rig)} }}",
     ]
     for cam in rig.cameras:
         lines += [
@@ -184,3 +184,8 @@ def twin_rig_toml(rig: TwinRig, rig_path: str = "twin.toml") -> str:
             f"pixel_size_um = {cam.pixel_size_um!r}",
         ]
     return "\n".join(lines) + "\n"
+
+
+def _timeout(rig: TwinRig) -> str:
+    """The one-camera rig's frames wait longer: a whole 2048 x 2048 frame takes seconds."""
+    return ", timeout_s = 60.0" if rig.microscope is not None else ""

@@ -30,14 +30,18 @@ from numpy.typing import NDArray
 
 from ..devices.smaract_mcs2 import MCS2_PORT
 from ..devices.twin_protocol import FRAMES_PORT, StageInfo
-from ..errors import LimitError
+from ..errors import InputError, LimitError
+from ..vision.lazy_frame import ArrayFrame
 from .frame_server import FramePeer, ServedStage
 from .patch import PATCH_PRESET, PatchFrame, PatchRig
+from .patch_scope import scope_truth
+from .stage_slide import StageSlideScope
 from .twin_rig import TwinRig, TwinRigCamera, TwinRigDevice, TwinRigMicroscope
 
 __all__ = [
     "CAMERA",
     "FOCUS",
+    "SAMPLES",
     "XY_STAGE",
     "PatchFramePeer",
     "PatchTwinCamera",
@@ -49,13 +53,31 @@ __all__ = [
 
 #: The names the twin serves the ``patch`` rig's devices by (Micro-Manager labels).
 CAMERA, FOCUS, XY_STAGE = "scope", "Focus", "XYStage"
+#: What can lie on the stage: the tissue the pipette works in, or the calibration slide.
+SAMPLES = ("tissue", "slide")
+
+
+def check_sample(sample: str) -> str:
+    """``sample`` if it is one of :data:`SAMPLES` (InputError naming them otherwise)."""
+    if sample not in SAMPLES:
+        raise InputError(f"sample {sample!r}: the patch twin's stage holds {' or '.join(SAMPLES)}")
+    return sample
 
 
 class PatchTwinCamera:
-    """The ``patch`` rig's camera as the frame server serves it (:class:`ServedCamera`)."""
+    """The ``patch`` rig's camera as the frame server serves it (:class:`ServedCamera`).
 
-    def __init__(self, rig: PatchRig) -> None:
+    ``sample`` is what lies on the stage: ``"tissue"`` (the rig's own scene: tissue and the
+    pipette) or ``"slide"``: the marked dot slide of :func:`~microcal.sim.patch_scope.
+    slide_scope` over the whole sensor, under the camera's truth (pixel size, the focus
+    axis's tilt, the NA), moved by the rig's X-Y stage (where it truly is) and focus drive
+    (its reading), its reflectance in counts of the camera's bit depth (seconds a frame).
+    """
+
+    def __init__(self, rig: PatchRig, sample: str = "tissue") -> None:
         self.rig = rig
+        self.sample = check_sample(sample)
+        self._slide: StageSlideScope | None = None
         cfg = rig.config
         self.sensor_size_px = (int(cfg.size_px[0]), int(cfg.size_px[1]))
         self.bit_depth = int(cfg.bit_depth)
@@ -73,13 +95,36 @@ class PatchTwinCamera:
     def exposure_s(self, value: float) -> None:
         self.rig.config = dataclasses.replace(self.rig.config, exposure_s=float(value))
 
+    @property
+    def slide(self) -> StageSlideScope:
+        """The calibration slide (made when first asked for)."""
+        if self._slide is None:
+            cfg = self.rig.config
+            self._slide = StageSlideScope(scope_truth(cfg), image_size_px=cfg.size_px,
+                                          seed=self.rig.seed)  # fmt: skip
+        return self._slide
+
     def grab(self) -> NDArray[np.uint16]:
-        """One whole frame (seconds to render)."""
+        """One whole frame (a few seconds to render)."""
+        if self.sample == "slide":
+            return self._grab_slide()
         return self.rig.grab().full()
 
-    def grab_lazy(self) -> PatchFrame:
-        """One frame, rendered where it is read."""
+    def grab_lazy(self) -> PatchFrame | ArrayFrame:
+        """One frame, rendered where it is read (the slide's: whole)."""
+        if self.sample == "slide":
+            return ArrayFrame(self._grab_slide())
         return self.rig.grab()
+
+    def _grab_slide(self) -> NDArray[np.uint16]:
+        rig, slide = self.rig, self.slide
+        slide.move_stage(rig.stage.joints_um(rig.clock.now_s())[:2])
+        slide.move_focus(rig.focus.position_um())
+        rig.clock.sleep(rig.config.exposure_s + rig.config.readout_s)
+        top = 2**self.bit_depth - 1
+        counts = np.clip(np.rint(slide.grab() * np.float32(top)), 0, top)
+        out: NDArray[np.uint16] = counts.astype(np.uint16)
+        return out
 
 
 class ServedXYStage:
@@ -147,11 +192,12 @@ class PatchFramePeer(FramePeer):
 
     def __init__(
         self, rig: PatchRig, lock: threading.Lock, *, seed: int, time_scale: float,
-        stop: threading.Event | None = None,
+        stop: threading.Event | None = None, sample: str = "tissue",
     ) -> None:  # fmt: skip
         self.rig = rig
+        self.camera = PatchTwinCamera(rig, sample)
         stages: dict[str, ServedStage] = {XY_STAGE: ServedXYStage(rig), FOCUS: ServedFocus(rig)}
-        self.serve({CAMERA: PatchTwinCamera(rig)}, stages, rig.clock, lock, preset=PATCH_PRESET,
+        self.serve({CAMERA: self.camera}, stages, rig.clock, lock, preset=PATCH_PRESET,
                    seed=seed, time_scale=time_scale, stop=stop)  # fmt: skip
 
     def truth(self) -> dict[str, Any]:

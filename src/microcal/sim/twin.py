@@ -61,7 +61,7 @@ from .line_server import (
 )
 from .mcs2_peer import MCS2Peer, SimDevice, mcs2_devices
 from .patch import PATCH_PRESET, PatchConfig, PatchRig
-from .patch_twin import PatchFramePeer, patch_twin_rig
+from .patch_twin import PatchFramePeer, check_sample, patch_twin_rig
 from .platforms import SimPlatform, platform
 from .scaled_clock import ScaledClock
 from .twin_rig import TwinRig, twin_rig
@@ -151,6 +151,7 @@ class Twin:
         request_timeout_s: float = REQUEST_TIMEOUT_S,
         max_lifetime_s: float = MAX_LIFETIME_S,
         clock: Clock | None = None,
+        sample: str = "tissue",
     ) -> None:
         self.host = _check_host(host)
         self.limits = ServerLimits(max_clients, idle_timeout_s, request_timeout_s)
@@ -172,11 +173,18 @@ class Twin:
                     "overrides: the twin serves the patch preset as it is (no overrides); "
                     "leave them out"
                 )
+            check_sample(sample)
             self.patch = PatchRig(PatchConfig(), self.seed, clock=self.clock)
             devices: list[SimDevice] = [self.patch.manipulator]
             self.frames = PatchFramePeer(self.patch, self._lock, seed=self.seed,
-                                         time_scale=self.time_scale, stop=self._stop)  # fmt: skip
+                                         time_scale=self.time_scale, stop=self._stop,
+                                         sample=sample)  # fmt: skip
         else:
+            if sample != "tissue":
+                raise InputError(
+                    f"sample {sample!r}: only the patch preset has a sample to change; "
+                    "add --preset patch"
+                )
             self.platform = platform(preset, self.seed, dict(overrides or {}), clock=self.clock)
             devices = [d for _, d in mcs2_devices(self.platform)]
             self.frames = FramePeer(self.platform, self._lock, preset=preset, seed=self.seed,
@@ -291,6 +299,19 @@ class Twin:
                         frames_port=self.frames_port, preset=self.preset,
                         time_scale=self.time_scale)  # fmt: skip
 
+    @property
+    def sample(self) -> str:
+        """What lies on the patch rig's stage (``tissue`` or ``slide``; ``tissue`` for a
+        platform)."""
+        return self.frames.camera.sample if isinstance(self.frames, PatchFramePeer) else "tissue"
+
+    @sample.setter
+    def sample(self, value: str) -> None:
+        if not isinstance(self.frames, PatchFramePeer):
+            raise InputError(f"sample {value!r}: only the patch preset has a sample to change")
+        with self._lock:
+            self.frames.camera.sample = check_sample(value)
+
     def describe(self) -> str:
         """One line: what listens where."""
         return (
@@ -298,4 +319,10 @@ class Twin:
             f"SmarAct MCS2 {self.serial} on {self.host}:{self.mcs2_port}, frames of "
             f"{', '.join(self.frames.cameras)} on {self.host}:{self.frames_port}"
             + (f", stages {', '.join(self.frames.stages)}" if self.frames.stages else "")
+            + self._sample_note()
         )
+
+    def _sample_note(self) -> str:
+        if not isinstance(self.frames, PatchFramePeer) or self.sample != "slide":
+            return ""
+        return f"; on the stage the slide {self.frames.camera.slide.target.spec}"

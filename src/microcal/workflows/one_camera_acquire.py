@@ -237,12 +237,15 @@ def run_one_camera_acquire(request: Any) -> Iterator[str]:
     from .acquire import check_out
 
     out = Path(request.out)
-    if request.dry_run:
-        raise InputError("--dry-run: not for a one-camera run (it measures as it moves)")
-    check_out(out, request.resume, False)
+    if request.dry_run and request.resume:
+        raise InputError("--dry-run and --resume: choose one")
+    check_out(out, request.resume, bool(request.dry_run))
     setup = _resumed_setup(request) if request.resume else _new_setup(request)
     spec = _spec_for(request)
     check_one_camera_rig(spec, str(request.rig or "sim"))
+    if request.dry_run:
+        yield from _dry_run(request, spec, setup)
+        return
     made = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     try:
@@ -252,6 +255,27 @@ def run_one_camera_acquire(request: Any) -> Iterator[str]:
         if not request.resume and not (poses.is_file() and poses.stat().st_size > 0):
             _remove_new_run(out, made)  # nothing stored: no run left half made
         raise
+
+
+def _dry_run(request: Any, spec: RigSpec, setup: _Setup) -> Iterator[str]:
+    """The rig checked without moving anything (one frame; the volume within the limits)."""
+    from ..procedures.one_camera_dry_run import one_camera_dry_run
+    from ..procedures.one_camera_setup import nominal_axes_um
+    from .rigs import open_rig
+
+    with open_rig(spec, request.manipulator) as rig:
+        (_, camera), = rig.cameras.items()  # fmt: skip
+        assert rig.microscope is not None  # checked by check_one_camera_rig
+        lines = one_camera_dry_run(
+            rig.manipulator, rig.microscope, camera, _tip_of(rig),
+            np.array(setup.volume_half_um), nominal_axes_um(setup.approach_deg,
+                                                            setup.azimuth_deg), setup.poses,
+        )  # fmt: skip
+        description = [f"{what}: {text}" for what, text in (rig.description or {}).items()]
+    scope = setup.scope
+    yield from description
+    yield f"scope calibration: {scope['file']}, objective {scope['objective']}"
+    yield from lines
 
 
 def _remove_new_run(out: Path, made: bool) -> None:
@@ -313,14 +337,21 @@ def _acquire(out: Path, request: Any, spec: RigSpec, setup: _Setup) -> Iterator[
     yield from _summary(out, run)
 
 
-def _finder(rig: Any, camera: Any, setup: _Setup) -> Any:
-    from ..procedures.one_camera_setup import tool_finder
-    from ..vision.microscope_frame import MicroscopeFrame
+def _tip_of(rig: Any) -> Any:
+    """The rig's tool's tip (InputError, one line, for a rig whose target is a board)."""
     from ..vision.tip_target import TipTarget
 
     if not isinstance(rig.board, TipTarget):
         raise InputError(f"the rig's target is {rig.board.spec}, not a tool's tip: a one-camera "
                          f"run follows a pipette's tip (board = \"tip:pipette:10:1\")")  # fmt: skip
+    return rig.board
+
+
+def _finder(rig: Any, camera: Any, setup: _Setup) -> Any:
+    from ..procedures.one_camera_setup import tool_finder
+    from ..vision.microscope_frame import MicroscopeFrame
+
+    _tip_of(rig)
     record = setup.scope["set"]
     assert isinstance(record, dict)
     frame = MicroscopeFrame.from_record(record, camera.sensor_size_px)

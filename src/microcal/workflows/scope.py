@@ -19,7 +19,6 @@ from typing import Any
 
 import numpy as np
 
-from .._validation import FloatArray
 from ..errors import InputError
 from ..formats.json_file import check_json_output
 from ..formats.provenance import provenance
@@ -124,6 +123,7 @@ def _run_sim(req: ScopeRequest) -> tuple[ScopeRun, dict[str, JsonValue]]:
 
 
 def _run_rig(req: ScopeRequest) -> tuple[ScopeRun, dict[str, JsonValue]]:
+    from ..devices.microscope_drive import MicroscopeDrive
     from ..devices.rig_spec import HardwareRigSpec, SimRigSpec
     from ..formats.rig_file import load_rig
     from ..sim.platforms import ONE_CAMERA_PRESET
@@ -159,22 +159,15 @@ def _run_rig(req: ScopeRequest) -> tuple[ScopeRun, dict[str, JsonValue]]:
     try:
         scope, camera = rig.microscope, rig.cameras[name]
         assert scope is not None  # opened from the spec's [microscope]
-        start = scope.position_um()
-
-        def stage(xy: FloatArray) -> None:
-            scope.move_to_um([xy[0], xy[1], scope.position_um()[2]])
-            scope.wait_until_stopped(rig.clock)
-
-        def focus(z: float) -> None:
-            p = scope.position_um()
-            scope.move_to_um([p[0], p[1], z])
-            scope.wait_until_stopped(rig.clock)
-
+        # each move commands the other axes at their last command, not at their readout
+        # (re-commanding a stage to its noisy readout would move it between focus steps)
+        drive = MicroscopeDrive(scope, camera, rig.clock)
         w = int(np.asarray(camera.grab()).shape[1])
         na = req.numerical_aperture or 0.5
         plan = scope_plan(w * nominal, depth_for(na))
-        run = calibrate_scope(stage, focus, camera.grab, target, plan, start_stage_um=start[:2],
-                              start_focus_um=float(start[2]), sweep_um=_sweep(req, na))  # fmt: skip
+        run = calibrate_scope(drive.move_stage, drive.move_focus, camera.grab, target, plan,
+                              start_stage_um=drive.stage_um, start_focus_um=drive.focus_um,
+                              sweep_um=_sweep(req, na))  # fmt: skip
     finally:
         rig.close()
     return run, {"rig": str(req.rig), "camera": name, "slide": target.spec}

@@ -30,6 +30,8 @@ class TwinRequest:
         Where to write the twin's rig file (TOML).
     duration_s : float, optional
         Stop after this many seconds (until Ctrl-C without it).
+    sample : str
+        What lies on the patch rig's stage: ``tissue`` or ``slide`` (the calibration slide).
     """
 
     preset: str = "thesis"
@@ -40,6 +42,7 @@ class TwinRequest:
     time_scale: float = 1.0
     rig_out: Path | None = None
     duration_s: float | None = None
+    sample: str = "tissue"
 
 
 def serve_twin(request: TwinRequest, ready: Callable[[str], None]) -> str:
@@ -50,7 +53,7 @@ def serve_twin(request: TwinRequest, ready: Callable[[str], None]) -> str:
         check_output(r.rig_out, kind="a twin rig file", foreign=foreign_twin_rig,
                      example="twin.toml", option="--rig-out")  # fmt: skip
     with Twin(r.preset, r.seed, host=r.host, mcs2_port=r.port, frames_port=r.frames_port,
-              time_scale=r.time_scale) as served:  # fmt: skip
+              time_scale=r.time_scale, sample=r.sample) as served:  # fmt: skip
         if r.rig_out is not None:
             write_text_atomic(r.rig_out, twin_rig_toml(served.rig_description(), str(r.rig_out)))
         rig = f"rig file {r.rig_out}" if r.rig_out else "no rig file (--rig-out FILE writes one)"
