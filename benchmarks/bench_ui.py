@@ -49,7 +49,7 @@ def _truth_calibration(path: Path) -> Path:
 def _first_move_times(live) -> list[float]:
     """Record the time of every move command the simulated controller is sent."""
     times: list[float] = []
-    inner = live.manipulator.inner
+    inner = live.manipulator.device
     real = inner._move
 
     def move(d):
