@@ -10,7 +10,7 @@ from ..vision.detect import detect
 from ..vision.targets import Target
 from ..vision.tip import detect_tip
 from ..vision.tip_target import TipTarget
-from .acquisition import grab_retrying
+from .acquisition import Frame, grab_retrying
 from .planning import RunPlan
 
 __all__ = ["dry_run"]
@@ -42,13 +42,8 @@ def dry_run(
     state = "moving" if manipulator.is_moving() else "still"
     lines.append(f"manipulator at {where} µm, {state}; limits {limits} µm")
     for name, cam in cameras.items():
-        frame = grab_retrying(cam, retries=2)
+        frame = grab_checked(cam, f"camera {name}")
         h, w = frame.shape[:2]
-        if (w, h) != tuple(cam.sensor_size_px):
-            raise DeviceError(
-                f"camera {name}: frame is {w} x {h} px but the camera reports "
-                f"{cam.sensor_size_px[0]} x {cam.sensor_size_px[1]}"
-            )
         if isinstance(board, TipTarget):  # a tool's tip instead of a board
             tip = detect_tip(frame, board)
             seen = "tip found" if tip.found else f"tip not found ({tip.reason})"
@@ -60,3 +55,16 @@ def dry_run(
     lines.append(f"design {plan.kind}: {plan.poses} poses, all within the soft limits")
     lines.append("dry run: nothing moved, nothing written")
     return lines
+
+
+def grab_checked(camera: Camera, label: str) -> Frame:
+    """One frame (grabbed again after a dropped frame or a timeout), its size checked against
+    the size the camera reports; ``label`` names the camera in the error."""
+    frame = grab_retrying(camera, retries=2)
+    h, w = frame.shape[:2]
+    if (w, h) != tuple(camera.sensor_size_px):
+        raise DeviceError(
+            f"{label}: frame is {w} x {h} px but the camera reports "
+            f"{camera.sensor_size_px[0]} x {camera.sensor_size_px[1]}"
+        )
+    return frame

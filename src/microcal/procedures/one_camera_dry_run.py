@@ -16,10 +16,10 @@ import numpy as np
 
 from .._validation import FloatArray
 from ..devices.base import Camera, Manipulator
-from ..errors import DeviceError, InputError
+from ..errors import InputError
 from ..vision.tip import detect_tip
 from ..vision.tip_target import TipTarget
-from .acquisition import grab_retrying
+from .dry_run import grab_checked
 
 __all__ = ["one_camera_dry_run"]
 
@@ -60,13 +60,8 @@ def one_camera_dry_run(
     lines = [f"manipulator at {where} µm, {state}"]
     s = microscope.position_um()
     lines.append(f"microscope: stage x {s[0]:.3f}, y {s[1]:.3f} µm, focus {s[2]:.3f} µm")
-    frame = grab_retrying(camera, retries=2)
+    frame = grab_checked(camera, "camera")
     h, w = frame.shape[:2]
-    if (w, h) != tuple(camera.sensor_size_px):
-        raise DeviceError(
-            f"camera: frame is {w} x {h} px but the camera reports "
-            f"{camera.sensor_size_px[0]} x {camera.sensor_size_px[1]}"
-        )
     found = detect_tip(frame, tip)
     seen = (f"tip found at ({found.apex_px[0]:.1f}, {found.apex_px[1]:.1f}) px" if found.found
             else f"tip not found in this one frame ({found.reason}); the run looks for it "
