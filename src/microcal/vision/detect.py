@@ -125,6 +125,14 @@ MIN_SQUARE_PX = 8.0
 MAX_LATTICE_RESIDUAL = 0.1
 
 
+def _square_px(q: FloatArray, cols: int, rows: int) -> float:
+    """The median distance between neighbouring corners (rows * cols, 2) of a grid, px."""
+    grid = q.reshape(rows, cols, 2)
+    spacing = np.concatenate([np.linalg.norm(np.diff(grid, axis=0), axis=2).ravel(),
+                              np.linalg.norm(np.diff(grid, axis=1), axis=2).ravel()])  # fmt: skip
+    return float(np.median(spacing))
+
+
 def _board_edges(gray: NDArray[np.float32], q: FloatArray, cols: int, rows: int) -> str:
     """Why the corners found are not the whole board of the spec ("" when they are).
 
@@ -136,10 +144,7 @@ def _board_edges(gray: NDArray[np.float32], q: FloatArray, cols: int, rows: int)
     part of it, numbered as if it were the whole: positions then come out squares off).
     Only cells inside the image count.
     """
-    grid0 = q.reshape(rows, cols, 2)
-    spacing = np.concatenate([np.linalg.norm(np.diff(grid0, axis=0), axis=2).ravel(),
-                              np.linalg.norm(np.diff(grid0, axis=1), axis=2).ravel()])  # fmt: skip
-    square = float(np.median(spacing))
+    square = _square_px(q, cols, rows)
     if square < MIN_SQUARE_PX:
         return f"the corners found are {square:.1f} px apart: noise, not a board"
     j, i = np.meshgrid(np.arange(cols, dtype=np.float64), np.arange(rows, dtype=np.float64))
@@ -327,10 +332,7 @@ def _track_chessboard(gray: NDArray[np.float32], target: Target, previous: Float
         return Detection.none("no corners of the frame before to follow")
     if np.any(previous < 2) or np.any(previous[:, 0] > w - 3) or np.any(previous[:, 1] > h - 3):
         return Detection.none("the corners of the frame before are at the region's edge")
-    grid = previous.reshape(rows, cols, 2)
-    square = float(np.median(np.concatenate([
-        np.linalg.norm(np.diff(grid, axis=0), axis=2).ravel(),
-        np.linalg.norm(np.diff(grid, axis=1), axis=2).ravel()])))  # fmt: skip
+    square = _square_px(previous, cols, rows)
     q = refine_corners(gray, previous, cols, rows)
     move = q - previous
     typical = np.median(move, axis=0)
