@@ -340,19 +340,13 @@ def test_station_goto_and_evaluate_on_the_digital_twin(demo, tmp_path):
 
     import microcal
     from microcal.cli import app
-    from microcal.formats.twin_rig_file import twin_rig_toml
-    from microcal.sim.twin import Twin
-    from support.netns import own_network_namespace, unavailable_reason
+    from support.twin_served import skip_without_namespace, twin_on_loopback
 
-    reason = unavailable_reason()
-    if reason:
-        pytest.skip(reason)
+    skip_without_namespace()
     cal = _calibration_file(demo, tmp_path)
     rig = tmp_path / "twin.toml"
     target = demo.models["polynomial"].model.p_base_um + np.array([3000.0, 2000.0, 1500.0])
-    with own_network_namespace(), Twin(seed=7, time_scale=40.0, mcs2_port=0,
-                                       frames_port=0) as twin:  # fmt: skip
-        rig.write_text(twin_rig_toml(twin.rig_description(), str(rig)))
+    with twin_on_loopback(rig, seed=7, time_scale=40.0) as twin:
         with microcal.open_station(rig, cal, settle_s=0.05) as station:
             assert station.rig.truth is None  # hardware: no ground truth reaches microcal
             opened = station.move_to_um(target)

@@ -38,13 +38,9 @@ A_UM = np.array([4000.0, 4000.0, 2400.0])
 @pytest.fixture(scope="module")
 def served():
     """A twin in the module's own network namespace (loopback only), on free ports."""
-    from support.netns import own_network_namespace, unavailable_reason
+    from support.twin_served import twin_on_loopback
 
-    reason = unavailable_reason()
-    if reason:
-        pytest.skip(reason)
-    with own_network_namespace(), Twin(seed=0, time_scale=SCALE, mcs2_port=0,
-                                       frames_port=0) as twin:  # fmt: skip
+    with twin_on_loopback(seed=0, time_scale=SCALE) as twin:
         yield twin
 
 

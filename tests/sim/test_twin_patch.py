@@ -27,13 +27,9 @@ SCALE = 50.0  # simulated seconds per wall second
 @pytest.fixture(scope="module")
 def served():
     """A twin of the patch preset in the module's own network namespace, on free ports."""
-    from support.netns import own_network_namespace, unavailable_reason
+    from support.twin_served import twin_on_loopback
 
-    reason = unavailable_reason()
-    if reason:
-        pytest.skip(reason)
-    with own_network_namespace(), Twin(preset="patch", seed=3, time_scale=SCALE, mcs2_port=0,
-                                       frames_port=0) as twin:  # fmt: skip
+    with twin_on_loopback(preset="patch", seed=3, time_scale=SCALE) as twin:
         yield twin
 
 

@@ -9,10 +9,8 @@ import pytest
 
 from microcal.formats.measurements import read_measurements
 from microcal.formats.scope_file import write_objective
-from microcal.formats.twin_rig_file import twin_rig_toml
 from microcal.sim.patch import PatchConfig
 from microcal.sim.patch_scope import true_frame, truth_in_frame
-from microcal.sim.twin import Twin
 from microcal.workflows.acquire import AcquireRequest
 from microcal.workflows.adaptive_acquire import acquire_any
 
@@ -32,17 +30,13 @@ def _truth_scope(path) -> None:
 @pytest.mark.slow
 def test_the_dry_run_and_an_acquisition_through_the_twin(tmp_path) -> None:
     pytest.importorskip("pymmcore_plus")
-    from support.netns import own_network_namespace, unavailable_reason
+    from support.twin_served import skip_without_namespace, twin_on_loopback
 
-    reason = unavailable_reason()
-    if reason:
-        pytest.skip(reason)
+    skip_without_namespace()
     scope, rig = tmp_path / "scope.json", tmp_path / "patch-twin.toml"
     _truth_scope(scope)
     given = {"rig": str(rig), "scope": scope, "objective": "40x", "volume_um": "10,10,4"}
-    with own_network_namespace(), Twin(preset="patch", seed=0, time_scale=50, mcs2_port=0,
-                                       frames_port=0) as twin:  # fmt: skip
-        rig.write_text(twin_rig_toml(twin.rig_description(), str(rig)))
+    with twin_on_loopback(rig, preset="patch", seed=0, time_scale=50) as twin:
         dry = list(acquire_any(AcquireRequest(tmp_path / "dry", dry_run=True, **given)))  # type: ignore[arg-type]
         assert "camera: 2048 x 2048 px, uint16" in "\n".join(dry)
         assert (

@@ -68,21 +68,16 @@ def test_scope_calibrate_through_the_twin_matches_the_in_process_slide(tmp_path)
     within 0.1 %, the rotation and the focus axis's angle within 0.05 degrees of the
     in-process calibration of the same seed (and of the truth)."""
     pytest.importorskip("pymmcore_plus")
-    from microcal.formats.twin_rig_file import twin_rig_toml
     from microcal.sim.patch import PatchConfig
     from microcal.workflows.scope import ScopeRequest, scope_calibrate
-    from support.netns import own_network_namespace, unavailable_reason
+    from support.twin_served import skip_without_namespace, twin_on_loopback
 
-    reason = unavailable_reason()
-    if reason:
-        pytest.skip(reason)
+    skip_without_namespace()
     sim = tmp_path / "patch.toml"
     sim.write_text('driver = "sim"\npreset = "patch"\nseed = 0\n')
     here = scope_calibrate(ScopeRequest(rig=str(sim), objective="40x", out=tmp_path / "a.json"))
     rig = tmp_path / "patch-twin.toml"
-    with own_network_namespace(), Twin(preset="patch", seed=0, sample="slide", time_scale=50,
-                                       mcs2_port=0, frames_port=0) as twin:  # fmt: skip
-        rig.write_text(twin_rig_toml(twin.rig_description(), str(rig)))
+    with twin_on_loopback(rig, preset="patch", seed=0, sample="slide", time_scale=50) as twin:
         spec = twin.frames.camera.slide.target.spec
         there = scope_calibrate(ScopeRequest(rig=str(rig), objective="40x",
                                              out=tmp_path / "b.json", target=spec,

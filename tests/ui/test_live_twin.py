@@ -8,8 +8,6 @@ import cv2
 import numpy as np
 import pytest
 
-from microcal.formats.twin_rig_file import twin_rig_toml
-from microcal.sim.twin import Twin
 from support.station_files import write_truth_calibration
 
 SCALE = 20.0  # simulated seconds per wall second
@@ -17,20 +15,16 @@ SCALE = 20.0  # simulated seconds per wall second
 
 @pytest.fixture(scope="module")
 def twin_station(tmp_path_factory):
-    from support.netns import own_network_namespace, unavailable_reason
+    from support.twin_served import skip_without_namespace, twin_on_loopback
 
-    reason = unavailable_reason()
-    if reason:
-        pytest.skip(reason)
+    skip_without_namespace()
     pytest.importorskip("pymmcore_plus")
     from microcal.workflows.live import open_live_station
 
     folder = tmp_path_factory.mktemp("twin-station")
     calibration = write_truth_calibration(folder / "calibration.json", seed=0)
     rig = folder / "twin.toml"
-    with own_network_namespace(), Twin(seed=0, time_scale=SCALE, mcs2_port=0,
-                                       frames_port=0) as twin:  # fmt: skip
-        rig.write_text(twin_rig_toml(twin.rig_description(), str(rig)))
+    with twin_on_loopback(rig, seed=0, time_scale=SCALE) as twin:
         live = open_live_station(str(rig), str(calibration), frames=2, settle_s=0.5)
         try:
             yield twin, live
