@@ -38,7 +38,7 @@ def test_the_clock_only_probe_takes_the_frames_time():
     probe.measure(np.zeros(3))
     took = plat.clock.now_s() - t0
     t1 = plat.clock.now_s()
-    assert np.all(np.isnan(ClockOnlyProbe(plat.cameras, plat.clock, 2).measure(np.zeros(3))))
+    assert np.all(np.isnan(ClockOnlyProbe(plat.cameras, 2).measure(np.zeros(3))))
     assert plat.clock.now_s() - t1 == pytest.approx(took, abs=1e-9)
 
 

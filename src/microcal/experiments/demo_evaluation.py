@@ -61,9 +61,8 @@ class ClockOnlyProbe:
     wanted: each measurement lets its frames pass (``frames`` per camera, in the probe's
     order: their time and random draws, as grabbing them does) and measures nothing (NaN)."""
 
-    def __init__(self, cameras: Mapping[str, SimCamera], clock: Clock, frames: int) -> None:
+    def __init__(self, cameras: Mapping[str, SimCamera], frames: int) -> None:
         self.cameras = cameras
-        self.clock = clock
         self.frames = frames
 
     def measure(self, d_um: FloatArray) -> FloatArray:
@@ -187,7 +186,7 @@ def run_demo_tests(
         return tests.run(lambda _unit: probe, lambda _test: progress)
     units = tests.units()
     dealt = deal_units({u: tests.weight(u) for u in units}, workers)
-    clock_only = ClockOnlyProbe(cameras, tests.clock, probe.frames)
+    clock_only = ClockOnlyProbe(cameras, probe.frames)
 
     def worker(k: int, tick: Callable[..., None]) -> dict[Unit, Any]:
         mine = set(dealt[k])
