@@ -1,0 +1,153 @@
+"""A tool's tip point in {G} from its taper's vertex and axis seen by two or more cameras.
+
+The vertex where a taper's edges meet is a fixed point of the tool (a jaw's plate's corner,
+a cone's apex: every silhouette generator passes through it), so the cameras' vertices
+(:func:`~microcal.vision.tip_wedge.fit_wedge`, in ideal pixels) triangulate like any point.
+The tool's axis in {G} is the direction ``a`` whose image is each camera's axis: with ``J_i``
+the camera's projection Jacobian at the vertex and ``m_i`` the normal of its image axis,
+``m_i^T J_i a = 0`` for every camera (the null direction of the stacked rows). The tip point
+(``docs/conventions.md``) lies on the axis at the distance the tool's size gives:
+``r / sin(alpha)`` from the vertex for a rounded end (needle, jaw: the centre of a circle of
+radius ``r`` tangent to a taper of half-angle ``alpha``), ``r / tan(alpha)`` for a pipette's
+opening. That needs a spec with the taper and the end's size (``tip:jaw:30:40``).
+
+Its covariance: the triangulated vertex's plus the axis's, the latter from each camera's
+axis angle variance moved through ``a`` (numerically).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .._validation import FloatArray
+from ..geometry import AnyCamera, triangulate_views
+from .detect import to_gray
+from .tip import detect_tip
+from .tip_target import TipTarget
+from .tip_wedge import fit_wedge
+
+__all__ = ["VertexView", "camera_vertex", "takes_3d_vertex_path", "tip_from_vertices"]
+
+
+@dataclass(frozen=True)
+class VertexView:
+    """One camera's view of a taper over a pose's frames.
+
+    Attributes
+    ----------
+    vertex_px : (2,) float
+        The vertex, mean over the frames, ideal pixels.
+    cov_px2 : (2, 2) float
+        Covariance of that mean.
+    axis : (2,) float
+        The image axis (unit, vertex towards shank), mean over the frames.
+    axis_var : float
+        Variance of the mean axis's angle, rad^2.
+    frames : int
+    """
+
+    vertex_px: FloatArray
+    cov_px2: FloatArray
+    axis: FloatArray
+    axis_var: float
+    frames: int
+
+
+def takes_3d_vertex_path(target: TipTarget) -> bool:
+    """Whether a tool's tip point is taken from its vertex and axis in 3D: an opaque tool
+    (jaw, needle) whose spec gives its taper and end's size."""
+    return target.kind in ("jaw", "needle") and target.taper_deg > 0 and target.tip_um > 0
+
+
+def vertex_to_tip_um(target: TipTarget) -> float:
+    """Distance from the taper's vertex to the tip point along the axis, µm."""
+    r, a = 0.5 * target.tip_um, target.half_angle_rad
+    return r / math.tan(a) if target.kind == "pipette" else r / math.sin(a)
+
+
+def camera_vertex(
+    frames: Sequence[NDArray[np.generic]], target: TipTarget, camera: AnyCamera
+) -> VertexView | str:
+    """The taper's vertex and axis in one camera's frames of a pose (or why not).
+
+    The tool is found in the first frame (:func:`~microcal.vision.tip.detect_tip`, the model
+    fit; again in a frame where the edges' fit from it fails), then its edges fitted in each
+    (:func:`~microcal.vision.tip_wedge.fit_wedge`); the frames' vertices are averaged and
+    their covariance is the fits' mean over the frames' count.
+    """
+    J = np.asarray(camera.project_jacobian(np.zeros(3), distort=False), dtype=np.float64)
+    s = np.linalg.svd(J.reshape(2, 3), compute_uv=False)
+    end_px = 0.5 * target.tip_um / math.tan(target.half_angle_rad) * math.sqrt(s[0] * s[1])
+    vs, covs, axes, avars = [], [], [], []
+    det = None
+    for image in frames:
+        gray = to_gray(np.asarray(image))
+        # the tool stands still during a pose: the first frame's detection starts every fit
+        fit = fit_wedge(gray, camera, det, end_px=end_px) if det is not None else None
+        if fit is None or isinstance(fit, str):
+            det = detect_tip(gray, target, method="model fit")
+            if not det.found:
+                return det.reason
+            fit = fit_wedge(gray, camera, det, end_px=end_px)
+        if isinstance(fit, str):
+            return fit
+        vs.append(fit.vertex_px)
+        covs.append(fit.cov[:2, :2])
+        axes.append(fit.axis)
+        avars.append(fit.axis_angle_var)
+    n = len(vs)
+    if n == 0:
+        return "no frames"
+    axis = np.mean(axes, axis=0)
+    axis /= np.linalg.norm(axis)
+    return VertexView(np.mean(vs, axis=0), np.mean(covs, axis=0) / n, axis,
+                      float(np.mean(avars)) / n, n)  # fmt: skip
+
+
+def _axis_3d(
+    cameras: Sequence[AnyCamera], x_um: FloatArray, axes: Sequence[FloatArray]
+) -> FloatArray:
+    """The unit direction in {G} whose image is each camera's axis at ``x_um``, (3,)."""
+    rows, Js = [], []
+    for cam, ax in zip(cameras, axes, strict=True):
+        J = np.asarray(cam.project_jacobian(x_um, distort=False), dtype=np.float64).reshape(2, 3)
+        Js.append(J)
+        rows.append(np.array([-ax[1], ax[0]]) @ J)
+    a: FloatArray = np.linalg.svd(np.array(rows))[2][-1]
+    if sum(float((J @ a) @ ax) for J, ax in zip(Js, axes, strict=True)) < 0:
+        a = -a
+    return a
+
+
+def tip_from_vertices(
+    views: Mapping[str, VertexView], cameras: Mapping[str, AnyCamera], target: TipTarget
+) -> tuple[FloatArray, FloatArray] | str:
+    """The tip point in {G} (3,) and its covariance (3, 3), µm, from two or more cameras'
+    vertices and axes (see the module); or why not."""
+    names = [n for n in cameras if n in views]
+    if len(names) < 2:
+        return f"the taper's vertex is seen by {len(names)} camera(s), two are needed"
+    cams = [cameras[n] for n in names]
+    p, c, _ = triangulate_views(cams, [views[n].vertex_px[None] for n in names],
+                                [views[n].cov_px2 for n in names])  # fmt: skip
+    x, cx = p[0], c[0]
+    if not np.all(np.isfinite(x)):
+        return "the cameras' vertices do not triangulate"
+    axes = [views[n].axis for n in names]
+    a = _axis_3d(cams, x, axes)
+    length = vertex_to_tip_um(target)
+    cov_a = np.zeros((3, 3))
+    for i, n in enumerate(names):
+        step = 1e-4
+        turned = list(axes)
+        c_, s_ = math.cos(step), math.sin(step)
+        turned[i] = np.array([c_ * axes[i][0] - s_ * axes[i][1], s_ * axes[i][0] + c_ * axes[i][1]])
+        g = (_axis_3d(cams, x, turned) - a) / step
+        cov_a += np.outer(g, g) * views[n].axis_var
+    tip: FloatArray = x + length * a
+    return tip, cx + length**2 * cov_a
