@@ -49,6 +49,10 @@ class VertexView:
     axis_var : float
         Variance of the mean axis's angle, rad^2.
     frames : int
+    edges : (2, 2) float
+        The edges' unit directions (vertex towards shank), the axis's left one first.
+    edge_vars : (2,) float
+        Variances of the mean edges' angles, rad^2.
     """
 
     vertex_px: FloatArray
@@ -56,6 +60,8 @@ class VertexView:
     axis: FloatArray
     axis_var: float
     frames: int
+    edges: FloatArray
+    edge_vars: FloatArray
 
 
 def takes_3d_vertex_path(target: TipTarget) -> bool:
@@ -83,7 +89,7 @@ def camera_vertex(
     J = np.asarray(camera.project_jacobian(np.zeros(3), distort=False), dtype=np.float64)
     s = np.linalg.svd(J.reshape(2, 3), compute_uv=False)
     end_px = 0.5 * target.tip_um / math.tan(target.half_angle_rad) * math.sqrt(s[0] * s[1])
-    vs, covs, axes, avars = [], [], [], []
+    vs, covs, axes, avars, edges, evars = [], [], [], [], [], []
     det = None
     for image in frames:
         gray = to_gray(np.asarray(image))
@@ -100,13 +106,17 @@ def camera_vertex(
         covs.append(fit.cov[:2, :2])
         axes.append(fit.axis)
         avars.append(fit.axis_angle_var)
+        edges.append(fit.edges)
+        evars.append(fit.edge_vars)
     n = len(vs)
     if n == 0:
         return "no frames"
     axis = np.mean(axes, axis=0)
     axis /= np.linalg.norm(axis)
+    e = np.mean(edges, axis=0)
+    e /= np.linalg.norm(e, axis=1, keepdims=True)
     return VertexView(np.mean(vs, axis=0), np.mean(covs, axis=0) / n, axis,
-                      float(np.mean(avars)) / n, n)  # fmt: skip
+                      float(np.mean(avars)) / n, n, e, np.mean(evars, axis=0) / n)  # fmt: skip
 
 
 def _axis_3d(
@@ -124,6 +134,54 @@ def _axis_3d(
     return a
 
 
+def _turned(v: FloatArray, angle: float) -> FloatArray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
+
+
+def _direction(
+    cameras: Sequence[AnyCamera],
+    x_um: FloatArray,
+    dirs: Sequence[FloatArray],
+    vars_: Sequence[float],
+) -> tuple[FloatArray, FloatArray]:
+    """A line's unit direction in {G} from its image directions at ``x_um`` (3,), and its
+    covariance (3, 3) from the image angles' variances (numerically)."""
+    a = _axis_3d(cameras, x_um, dirs)
+    cov = np.zeros((3, 3))
+    step = 1e-4
+    for i, var in enumerate(vars_):
+        turned = list(dirs)
+        turned[i] = _turned(dirs[i], step)
+        g = (_axis_3d(cameras, x_um, turned) - a) / step
+        cov += np.outer(g, g) * var
+    return a, cov
+
+
+def _plate_axis(
+    cameras: Sequence[AnyCamera], x_um: FloatArray, views: Sequence[VertexView], angle: float
+) -> tuple[FloatArray, FloatArray]:
+    """A flat taper's axis in {G}: the bisector of its two edges, each a line in {G} from the
+    cameras' images of it (the image's bisector is not the axis's image when the plate is
+    seen aslant). Which edge is which in each camera: the pairing with the first camera whose
+    edges meet at the taper's known ``angle``."""
+    edges = [v.edges for v in views]
+    vars_ = [v.edge_vars for v in views]
+    for i in range(1, len(views)):
+        spreads = []
+        for order in (edges[i], edges[i][::-1]):
+            g = [_axis_3d([cameras[0], cameras[i]], x_um, [edges[0][k], order[k]]) for k in (0, 1)]
+            spreads.append(abs(math.acos(float(np.clip(g[0] @ g[1], -1.0, 1.0))) - angle))
+        if spreads[1] < spreads[0]:
+            edges[i], vars_[i] = edges[i][::-1].copy(), vars_[i][::-1].copy()
+    g0, c0 = _direction(cameras, x_um, [e[0] for e in edges], [v[0] for v in vars_])
+    g1, c1 = _direction(cameras, x_um, [e[1] for e in edges], [v[1] for v in vars_])
+    s = g0 + g1
+    norm = float(np.linalg.norm(s))
+    P = (np.eye(3) - np.outer(s, s) / norm**2) / norm
+    return s / norm, P @ (c0 + c1) @ P.T
+
+
 def tip_from_vertices(
     views: Mapping[str, VertexView], cameras: Mapping[str, AnyCamera], target: TipTarget
 ) -> tuple[FloatArray, FloatArray] | str:
@@ -138,16 +196,11 @@ def tip_from_vertices(
     x, cx = p[0], c[0]
     if not np.all(np.isfinite(x)):
         return "the cameras' vertices do not triangulate"
-    axes = [views[n].axis for n in names]
-    a = _axis_3d(cams, x, axes)
     length = vertex_to_tip_um(target)
-    cov_a = np.zeros((3, 3))
-    for i, n in enumerate(names):
-        step = 1e-4
-        turned = list(axes)
-        c_, s_ = math.cos(step), math.sin(step)
-        turned[i] = np.array([c_ * axes[i][0] - s_ * axes[i][1], s_ * axes[i][0] + c_ * axes[i][1]])
-        g = (_axis_3d(cams, x, turned) - a) / step
-        cov_a += np.outer(g, g) * views[n].axis_var
+    if target.kind == "jaw":
+        a, cov_a = _plate_axis(cams, x, [views[n] for n in names], 2 * target.half_angle_rad)
+    else:
+        a, cov_a = _direction(cams, x, [views[n].axis for n in names],
+                              [views[n].axis_var for n in names])  # fmt: skip
     tip: FloatArray = x + length * a
     return tip, cx + length**2 * cov_a

@@ -65,6 +65,8 @@ class WedgeFit:
         The blur's sigma at the start of the edges, px.
     pixels : int
         Pixels fitted.
+    edge_angles_rad : (float, float)
+        The edges' directions from the vertex towards the shank, rad.
     """
 
     vertex_px: FloatArray
@@ -73,6 +75,26 @@ class WedgeFit:
     half_angle_rad: float
     blur_px: float
     pixels: int
+    edge_angles_rad: tuple[float, float] = (math.nan, math.nan)
+
+    @property
+    def edges(self) -> FloatArray:
+        """The edges' unit directions from the vertex towards the shank, (2, 2): the one on
+        the axis's left (``axis x edge > 0``) first; with their angles' variances
+        :attr:`edge_vars` in the same order."""
+        return self._ordered()[0]
+
+    @property
+    def edge_vars(self) -> FloatArray:
+        """Variances of the angles of :attr:`edges`, (2,) rad^2."""
+        return self._ordered()[1]
+
+    def _ordered(self) -> tuple[FloatArray, FloatArray]:
+        e = np.array([[math.cos(a), math.sin(a)] for a in self.edge_angles_rad])
+        var = np.diagonal(self.cov)[2:].copy()
+        if self.axis[0] * e[0, 1] - self.axis[1] * e[0, 0] < 0:
+            return e[::-1].copy(), var[::-1].copy()
+        return e, var
 
     @property
     def axis_angle_var(self) -> float:
@@ -252,7 +274,8 @@ def fit_wedge(
     if float(np.linalg.norm(p[:2] - iv[0])) > 3.0 + 2.0 * blur:
         moved = float(np.linalg.norm(p[:2] - iv[0]))
         return f"the edges' fit did not settle (its vertex moved {moved:.1f} px)"
-    return WedgeFit(p[:2].copy(), bis, cov[:4, :4], half_angle, math.exp(p[4]), len(q))
+    return WedgeFit(p[:2].copy(), bis, cov[:4, :4], half_angle, math.exp(p[4]), len(q),
+                    (float(p[2]), float(p[3])))  # fmt: skip
 
 
 def _band(
