@@ -86,13 +86,15 @@ def test_noise_cut_at_zero_moves_the_vertex_no_more_than_noise_kept_and_the_cova
         fit = fit_wedge(np.clip(np.rint(light + noise), 0, 255).astype(np.uint8), camera, det,
                         end_px=3.4)  # fmt: skip
         uncut = fit_wedge(light + noise, camera, det, end_px=3.4)
-        assert not isinstance(fit, str) and not isinstance(uncut, str)
+        assert not isinstance(fit, str)
+        assert not isinstance(uncut, str)
         e = fit.vertex_px - truth
         cut.append(_along(e, fit.axis))
         kept.append(_along(uncut.vertex_px - truth, fit.axis))
         chi2.append(float(e @ np.linalg.solve(fit.cov[:2, :2], e)))
     assert abs(np.mean(np.array(cut) - kept)) < 0.05  # px along the axis
-    assert abs(np.mean(cut)) < 0.2 and np.std(cut) < 0.4  # px
+    assert abs(np.mean(cut)) < 0.2
+    assert np.std(cut) < 0.4
     assert 0.3 < np.mean(chi2) / 2 < 3.0
 
 
@@ -107,7 +109,8 @@ def test_the_tip_point_in_3d_from_two_cameras_is_within_a_quarter_micrometre(gri
     assert not isinstance(got, str), got
     tip, cov = got
     assert np.linalg.norm(tip - jaw.tip_um) < 0.25  # µm
-    assert cov.shape == (3, 3) and np.all(np.linalg.eigvalsh(cov) > 0)
+    assert cov.shape == (3, 3)
+    assert np.all(np.linalg.eigvalsh(cov) > 0)
     assert vertex_to_tip_um(JAW) == pytest.approx(20.0 / np.sin(np.radians(15.0)))
 
 

@@ -223,7 +223,7 @@ def fit_wedge(
     def solve(p: FloatArray) -> tuple[FloatArray, FloatArray]:
         cover, _ = _wedge(p, q, t_mid)
         A = _design(plane, cover)
-        coef = np.linalg.solve(A.T @ A, A.T @ img)
+        coef: FloatArray = np.linalg.solve(A.T @ A, A.T @ img).astype(np.float64)
         return img - A @ coef, coef
 
     p0 = np.array([iv[0][0], iv[0][1], phi + beta, phi - beta, math.log(blur), 0.0])
