@@ -14,14 +14,19 @@ The fit, in the camera's ideal (undistorted) pixels, where the edges are straigh
 - the pixels within ``3 sigma + 3`` px of either edge, from ``5 sigma + 3`` px behind the
   end's contact with the taper (where the rounded end no longer reaches through the blur) to
   :data:`REACH_PX` behind the vertex;
-- the image there is a plane (uneven light) plus the tool's contrast times the blurred
-  coverage of a wedge, ``Phi(-d_1 / s) + Phi(-d_2 / s) - 1``, ``d_k`` a pixel's signed
-  distance from edge ``k`` (exact for a wedge's blurred edges away from its vertex), ``s``
-  the blur growing linearly along the tool;
+- the image there is the light to second order (uneven illumination, vignetting) times one
+  minus the tool's darkness times the blurred coverage of a wedge,
+  ``Phi(-d_1 / s) + Phi(-d_2 / s) - 1``, ``d_k`` a pixel's signed distance from edge ``k``
+  (exact for a wedge's blurred edges away from its vertex), ``s`` the blur growing linearly
+  along the tool;
 - the nonlinear parameters (vertex, the edges' angles, the blur and its growth) by
   Levenberg-Marquardt, the linear ones solved for at each step (variable projection); the
   vertex's and the angles' covariance is the fit's, ``(J^T J)^-1`` times the residual
-  variance.
+  variance;
+- a camera that cuts its noise at 0 (no black level: 1 % or more of the pixels at 0 and none
+  below) lifts a dark tool's mean and moved the vertex by half a pixel along the axis on the
+  thesis's cameras: the fit is then made again with the expected value of a pixel cut at 0,
+  ``mu Phi(mu / sigma) + sigma phi(mu / sigma)``, ``sigma`` the noise of the bright pixels.
 """
 
 from __future__ import annotations
@@ -103,22 +108,42 @@ class WedgeFit:
         return float(0.25 * (c[0, 0] + c[1, 1] + 2 * c[0, 1]))
 
 
-class _UnclippedError(Exception):
-    """The image is not clipped at 0: the first fit stands."""
+class _Pixels:
+    """The fitted pixels and the model of their values, for ``x`` = (the wedge's 6
+    parameters, the linear model's coefficients); with ``noise`` (DN) > 0, the expected
+    value of a pixel whose noise is clipped at 0."""
 
+    def __init__(self, q: FloatArray, img: FloatArray, t_mid: float, plane: FloatArray) -> None:
+        self.q, self.img, self.t_mid, self.plane = q, img, t_mid, plane
+        self.noise = 0.0
 
-def _linear_residuals(
-    x: FloatArray, q: FloatArray, t_mid: float, plane: FloatArray, img: FloatArray
-) -> FloatArray:
-    """Residuals of all parameters (nonlinear then linear) of the unclipped model."""
-    cover, _ = _wedge(x[:6], q, t_mid)
-    out: FloatArray = img - _design(plane, cover) @ x[6:]
-    return out
+    def design(self, p: FloatArray) -> FloatArray:
+        """The linear model's columns: the light and the tool's darkness in proportion to
+        it, (N, 2 k)."""
+        cover, _ = _wedge(p[:6], self.q, self.t_mid)
+        out: FloatArray = np.column_stack([self.plane, self.plane * cover[:, None]])
+        return out
 
+    def solve(self, p: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """(residuals, linear coefficients) of the wedge ``p`` (6,), the noise not clipped."""
+        A = self.design(p)
+        coef: FloatArray = np.linalg.solve(A.T @ A, A.T @ self.img).astype(np.float64)
+        return self.img - A @ coef, coef
 
-def _design(plane: FloatArray, cover: FloatArray) -> FloatArray:
-    """The linear model's columns: the light and the tool's darkness in proportion to it."""
-    return np.column_stack([plane, plane * cover[:, None]])
+    def residuals(self, x: FloatArray) -> FloatArray:
+        """The residuals of all parameters."""
+        mu = self.design(x) @ x[6:]
+        if self.noise > 0:
+            z = mu / self.noise
+            mu = mu * ndtr(z) + self.noise * _pdf(z)
+        out: FloatArray = self.img - mu
+        return out
+
+    def bright_noise(self, x: FloatArray) -> float:
+        """The noise's robust sigma over the pixels whose model is in the brightest 40 %."""
+        pred = self.design(x) @ x[6:]
+        r = (self.img - pred)[pred > np.percentile(pred, 60)]
+        return max(float(1.4826 * np.median(np.abs(r - np.median(r)))), 1e-6)
 
 
 def _jacobian(f: Callable[[FloatArray], FloatArray], x: FloatArray) -> FloatArray:
@@ -220,54 +245,35 @@ def fit_wedge(
     # in proportion to it
     plane = np.column_stack([np.ones(len(q)), g, g * g, g[:, :1] * g[:, 1:]])
 
-    def solve(p: FloatArray) -> tuple[FloatArray, FloatArray]:
-        cover, _ = _wedge(p, q, t_mid)
-        A = _design(plane, cover)
-        coef: FloatArray = np.linalg.solve(A.T @ A, A.T @ img).astype(np.float64)
-        return img - A @ coef, coef
-
     p0 = np.array([iv[0][0], iv[0][1], phi + beta, phi - beta, math.log(blur), 0.0])
+    model = _Pixels(q, img, t_mid, plane)
     try:
-        fit = least_squares(lambda p: solve(p)[0], p0, method="lm", x_scale="jac",
+        fit = least_squares(lambda p: model.solve(p)[0], p0, method="lm", x_scale="jac",
                             diff_step=1e-6, max_nfev=300)  # fmt: skip
-        resid, coef = solve(fit.x)
+        x = np.concatenate([fit.x, model.solve(fit.x)[1]])
         # A camera that clips its noise at 0 (no black level) lifts a dark tool's mean and
-        # moves its edges outwards: then the noise where the image is well above the dark
-        # level, and the fit again with the expected value of a pixel clipped at 0.
-        if img.min() < 0 or np.count_nonzero(img == 0) < CLIPPED_SHARE * len(img):
-            raise _UnclippedError
-        pred = img - resid
-        bright = pred > np.percentile(pred, 60)
-        noise = float(1.4826 * np.median(np.abs(resid[bright] - np.median(resid[bright]))))
-        noise = max(noise, 1e-6)
-
-        def clipped(x: FloatArray) -> FloatArray:
-            cover, _ = _wedge(x[:6], q, t_mid)
-            mu = _design(plane, cover) @ x[6:]
-            z = mu / noise
-            out: FloatArray = img - (mu * ndtr(z) + noise * _pdf(z))
-            return out
-
-        fit = least_squares(clipped, np.concatenate([fit.x, coef]), method="lm",
-                            x_scale="jac", diff_step=1e-6, max_nfev=3000, ftol=1e-12,
-                            xtol=1e-12)  # fmt: skip
-    except _UnclippedError:
-        fit.x = np.concatenate([fit.x, coef])
-        fit.fun = resid
-        fit.jac = _jacobian(lambda x: _linear_residuals(x, q, t_mid, plane, img), fit.x)
+        # moves its edges outwards: then the fit again with the expected value of a pixel
+        # clipped at 0, the noise that of the pixels well above the dark level.
+        clipped = img.min() >= 0 and np.count_nonzero(img == 0) >= CLIPPED_SHARE * len(img)
+        if clipped:
+            model.noise = model.bright_noise(x)
+            fit = least_squares(model.residuals, x, method="lm", x_scale="jac",
+                                diff_step=1e-6, max_nfev=3000, ftol=1e-12,
+                                xtol=1e-12)  # fmt: skip
+            x = fit.x
     except (ValueError, np.linalg.LinAlgError):
         return "the edges' fit failed"
-    resid = fit.fun
-    coef = fit.x[6:]
-    dof = max(len(resid) - len(fit.x), 1)
-    J = fit.jac
+    resid = model.residuals(x)
+    J = fit.jac if clipped else _jacobian(model.residuals, x)
+    coef = x[6:]
+    dof = max(len(resid) - len(x), 1)
     try:
         cov = np.linalg.inv(J.T @ J) * float(resid @ resid) / dof
     except np.linalg.LinAlgError:
         return "the edges' fit is degenerate"
     if not np.all(np.isfinite(cov)) or coef[plane.shape[1]] >= 0:
         return "the edges' fit found no dark taper"
-    p = fit.x
+    p = x
     bis = np.array([math.cos(p[2]) + math.cos(p[3]), math.sin(p[2]) + math.sin(p[3])])
     bis /= np.linalg.norm(bis)
     half_angle = 0.5 * abs(math.remainder(p[2] - p[3], 2 * math.pi))
