@@ -65,9 +65,10 @@ class VertexView:
 
 
 def takes_3d_vertex_path(target: TipTarget) -> bool:
-    """Whether a tool's tip point is taken from its vertex and axis in 3D: an opaque tool
-    (jaw, needle) whose spec gives its taper and end's size."""
-    return target.kind in ("jaw", "needle") and target.taper_deg > 0 and target.tip_um > 0
+    """Whether a tool's tip point is taken from its vertex and axis in 3D: a jaw whose spec
+    gives its taper and end's size (a needle's cone would take its axis from its image
+    bisector, :func:`tip_from_vertices`, but is not measured this way yet)."""
+    return target.kind == "jaw" and target.taper_deg > 0 and target.tip_um > 0
 
 
 def vertex_to_tip_um(target: TipTarget) -> float:
