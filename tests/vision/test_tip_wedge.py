@@ -120,3 +120,16 @@ def test_one_camera_is_not_enough_and_says_so(gripper):
     view = camera_vertex([_light(camera, jaw)], JAW, camera)
     assert not isinstance(view, str)
     assert "two are needed" in str(tip_from_vertices({"top": view}, cameras, JAW))
+
+
+def test_a_frame_without_the_tool_is_left_out_and_most_such_frames_fail_the_view(gripper):
+    cameras, jaw = gripper
+    camera = cameras["top"]
+    light = _light(camera, jaw)
+    blank = np.full_like(light, LEVEL_DN)
+    view = camera_vertex([light, blank], JAW, camera)
+    assert not isinstance(view, str), view
+    assert view.frames == 1
+    why = camera_vertex([blank, blank, light], JAW, camera)
+    assert isinstance(why, str)
+    assert "no tool" in why

@@ -85,24 +85,29 @@ def camera_vertex(
     The tool is found in the first frame (:func:`~microcal.vision.tip.detect_tip`, the model
     fit; again in a frame where the edges' fit from it fails), then its edges fitted in each
     (:func:`~microcal.vision.tip_wedge.fit_wedge`); the frames' vertices are averaged and
-    their covariance is the fits' mean over the frames' count.
+    their covariance is the fits' mean over the frames' count. A frame whose fit fails is
+    left out; when half or more fail, the last reason is the answer.
     """
     J = np.asarray(camera.project_jacobian(np.zeros(3), distort=False), dtype=np.float64)
     s = np.linalg.svd(J.reshape(2, 3), compute_uv=False)
     end_px = 0.5 * target.tip_um / math.tan(target.half_angle_rad) * math.sqrt(s[0] * s[1])
     vs, covs, axes, avars, edges, evars = [], [], [], [], [], []
     det = None
+    why = "no frames"
     for image in frames:
         gray = to_gray(np.asarray(image))
         # the tool stands still during a pose: the first frame's detection starts every fit
         fit = fit_wedge(gray, camera, det, end_px=end_px) if det is not None else None
         if fit is None or isinstance(fit, str):
-            det = detect_tip(gray, target, method="model fit")
-            if not det.found:
-                return det.reason
+            found = detect_tip(gray, target, method="model fit")
+            if not found.found:
+                why = found.reason
+                continue
+            det = found
             fit = fit_wedge(gray, camera, det, end_px=end_px)
         if isinstance(fit, str):
-            return fit
+            why = fit
+            continue
         vs.append(fit.vertex_px)
         covs.append(fit.cov[:2, :2])
         axes.append(fit.axis)
@@ -110,8 +115,8 @@ def camera_vertex(
         edges.append(fit.edges)
         evars.append(fit.edge_vars)
     n = len(vs)
-    if n == 0:
-        return "no frames"
+    if 2 * n < len(frames) or n == 0:  # a frame may fail; most must not
+        return why
     axis = np.mean(axes, axis=0)
     axis /= np.linalg.norm(axis)
     e = np.mean(edges, axis=0)
