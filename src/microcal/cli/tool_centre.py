@@ -21,7 +21,9 @@ def tool_centre(
     tip: Annotated[str, Option(help="The tool's tip spec, e.g. tip:jaw:30:40.")],
     out: Annotated[Path, Option("--out", "-o", help="The calibration with the tool to write.")],
     rig: _Rig = "sim", manipulator: _Man = None, seed: _Seed = None,
-    frames: Annotated[int, Option(min=1, max=100, help="Frames per camera and pose.")] = 2,
+    frames: Annotated[int, Option(min=1, max=100, help=(
+        "Frames per camera and pose; a jaw's tip within 0.5 µm on 22 µm pixels needs 10 "
+        "(each frame's edges fit costs about 0.5 s per camera)."))] = 2,
     settle_s: Annotated[float, Option(min=0.0, help="Wait after each move, s.")] = 2.0,
 ) -> None:  # fmt: skip
     """Measure the board and the tool's tip at the calibration's ten check poses, fit the

@@ -38,6 +38,7 @@ from ..vision.board_pose import board_pose, mean_rotation
 from ..vision.measurement import measure_one
 from ..vision.targets import Target
 from ..vision.tip_target import TipTarget
+from ..vision.tip_vertex import camera_vertex, takes_3d_vertex_path, tip_from_vertices
 from ..vision.tool_centre import ToolCentre, fit_tool_centre
 from .check import offset_updated
 
@@ -143,10 +144,34 @@ def measure_carried(
         n: hide_board(frames[n], mb.corners_px[n], board) if n in mb.corners_px else frames[n]
         for n in frames
     }
+    if takes_3d_vertex_path(tip):
+        got = _tip_by_vertex(hidden, cameras, tip)
+        if isinstance(got, str):
+            return CarriedPose("failed", f"tip: {got}")
+        return CarriedPose("ok", "", mb.p_um, mb.cov_um2, pose.R, *got)
     mt = measure_one(hidden, cameras, tip)
     if mt.status != "ok":
         return CarriedPose("failed", f"tip: {mt.reason}")
     return CarriedPose("ok", "", mb.p_um, mb.cov_um2, pose.R, mt.p_um, mt.cov_um2)
+
+
+def _tip_by_vertex(
+    frames: Mapping[str, Sequence[NDArray[np.generic]]],
+    cameras: Mapping[str, AnyCamera],
+    tip: TipTarget,
+) -> tuple[FloatArray, FloatArray] | str:
+    """The tip point in {G} and its covariance from each camera's taper (its vertex and
+    axis), or the reasons the cameras gave."""
+    views, lost = {}, []
+    for name, camera in cameras.items():
+        got = camera_vertex(frames.get(name) or [], tip, camera)
+        if isinstance(got, str):
+            lost.append(f"{name}: {got}")
+        else:
+            views[name] = got
+    if len(views) < 2:
+        return "; ".join(lost) or "no camera saw the tool"
+    return tip_from_vertices(views, cameras, tip)
 
 
 def _skew(v: FloatArray) -> FloatArray:
