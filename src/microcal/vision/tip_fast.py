@@ -57,7 +57,7 @@ _FRONT_PX = 4.0
 #: Differences for the distance's derivatives in beta and log rho (the others in closed form).
 _STEPS = np.array([0.0, 0.0, 0.0, 1e-4, 1e-3])
 #: The scan along the coarse axis for the start, px from the coarse tip.
-_SHIFTS = np.array([-12.0, -9.0, -6.0, -3.0, 0.0, 3.0])
+_SHIFTS = np.arange(-12.0, 12.5, 4.0)
 #: Patches drawn at most, and how near the patch's tip the fitted one must stay, px.
 _ATTEMPTS = 6
 _STAY_PX = 2.0
@@ -66,8 +66,6 @@ _N_GEOM = 5
 _N_NL = 7
 #: The blur's least sigma (diffraction takes the rest), px.
 _FLOOR_PX = 0.3
-_CURVED = True
-_SEPARABLE = True
 #: The end's front (ahead of the chord where the edges touch it) is drawn as a band as wide
 #: as the tool there and this share of the front's length long: between its area's share
 #: (pi / 4, right when blurred well beyond it) and all of it (right when sharp); measured
@@ -160,117 +158,48 @@ class _Patch:
         gy = (self.py - cy) / max(y1 - y0, 1)
         self.plane = np.column_stack([np.ones_like(gx), gx, gy, gx * gx, gx * gy, gy * gy])
 
-    def _outline(self, beta: float, rho: float) -> tuple[float, float, float]:
-        """(k, D, tc): the end's ratio, the vertex ahead of the tip point and the chord."""
-        k = _end_ratio(self.target, beta)
-        D = rho * math.sqrt(k * k + 1.0 / math.tan(beta) ** 2)
-        return k, D, -k * k * rho * rho / D
-
-    def opaque_layers(self, p: FloatArray, derivatives: bool
-                      ) -> tuple[FloatArray, FloatArray | None]:  # fmt: skip
-        """An opaque tool's coverage ``Phi(-d / s)``, (1, N), and its derivatives (1, N, 7)."""
-        c, sn = math.cos(p[2]), math.sin(p[2])
-        dx, dy = self.px - p[0], self.py - p[1]
-        t = dx * c + dy * sn
-        X = dy * c - dx * sn
-        x = np.abs(X)
-        beta = float(np.clip(p[3], 0.005, 1.2))
-        rho = math.exp(float(np.clip(p[4], -5.0, 4.0)))
-        k, D, tc = self._outline(beta, rho)
-        sb, cb = math.sin(beta), math.cos(beta)
-        side = x * cb - (t + D) * sb
-        on_side = side >= tc - t
-        taper = np.where(on_side, side, tc - t)
-        kr = k * rho
-        gt, gx = t / (kr * kr), x / (rho * rho)
-        e = np.sqrt((t / kr) ** 2 + (x / rho) ** 2)
-        norm = np.maximum(np.sqrt(gt * gt + gx * gx), 1e-12)
-        grad = np.maximum(norm / np.maximum(e, 1e-9), 1e-9)
-        end_d = (e - 1.0) / grad
-        near_end = end_d < taper
-        d = np.where(near_end, end_d, taper)
-        behind = np.maximum(t, 0.0)
-        defocus = p[5] + p[6] * behind
-        sigma2 = _FLOOR_PX * _FLOOR_PX + defocus * defocus
-        s = np.sqrt(sigma2 + 1.0 / 12.0)
-        # a blurred disc's half-level is sigma^2 / (2 rho) inside its rim
-        rc = max(rho, 0.3)
-        # ... a share of it that falls smoothly from the end to the taper
-        end = ndtr((taper - end_d) / s) if _CURVED else np.zeros_like(d)
-        arg = (d + end * sigma2 / (2.0 * rc)) / s
-        out = ndtr(-arg)[None, :]
-        if not derivatives:
-            return out, None
-        # the distance's derivatives along t and across (the end's by its normal)
-        d_t = np.where(near_end, gt / norm, np.where(on_side, -sb, -1.0))
-        d_x = np.where(near_end, gx / norm, np.where(on_side, cb, 0.0))
-        d_x = d_x * np.where(X < 0, -1.0, 1.0)
-        # ... in beta and log rho, through k, D and tc (differences of those numbers)
-        h = 1e-6
-        k_b, D_b, tc_b = ((v2 - v1) / h for v2, v1 in zip(self._outline(beta + h, rho),
-                                                           (k, D, tc), strict=True))  # fmt: skip
-        side_b = -x * sb - (t + D) * cb - sb * D_b
-        end_b = -(t * t) / (k**3 * rho * rho) / np.maximum(e, 1e-9) * k_b / grad
-        d_b = np.where(near_end, end_b, np.where(on_side, side_b, tc_b))
-        # (e - 1) / grad, grad rho being scale-free: its derivative in log rho is -1 / grad
-        d_r = np.where(near_end, -1.0 / grad, np.where(on_side, -sb * D, 2.0 * tc))
-        if rho > 0.3:  # the half-level's shift, sigma^2 / (2 rho)
-            d_r = d_r - end * sigma2 / (2.0 * rc)
-        jac = np.empty((t.size, _N_NL))
-        # t = (q - c).u, X = (q - c).n: dt/dc = -u, dX/dc = -n, dt/dangle = X, dX/dangle = -t
-        jac[:, 0] = -d_t * c + d_x * sn
-        jac[:, 1] = -d_t * sn - d_x * c
-        jac[:, 2] = d_t * X - d_x * t
-        jac[:, 3] = d_b
-        jac[:, 4] = d_r
-        jac[:, :5] /= s[:, None]
-        # the blur: d s / d (a, g), and the half-level's shift
-        ds = np.column_stack([defocus, defocus * behind]) / s[:, None]
-        dshift = end[:, None] * ds * s[:, None] / rc
-        jac[:, 5:] = (dshift - arg[:, None] * ds) / s[:, None]
-        pdf = np.exp(-0.5 * arg * arg) / _SQRT_2PI
-        return out, (-pdf[:, None] * jac)[None, :, :]
-
     def layers(self, p: FloatArray, derivatives: bool) -> tuple[FloatArray, FloatArray | None]:
         """The darkness layers (L, N) and, when asked, their derivatives (L, N, 7)."""
-        if self.glass or _SEPARABLE:
-            return self.glass_layers(p, derivatives)
-        return self.opaque_layers(p, derivatives)
+        return self.tool_layers(p, derivatives)
 
-    def glass_layers(self, p: FloatArray, derivatives: bool
-                     ) -> tuple[FloatArray, FloatArray | None]:  # fmt: skip
-        """A glass tube's layers (its coverage and its refractive darkness), each the profile
-        across the taper blurred (closed form, and the table) times the cut at the opening
-        blurred along the axis; (2, N) and their derivatives (2, N, 7)."""
-        c, sn = math.cos(p[2]), math.sin(p[2])
-        dx, dy = self.px - p[0], self.py - p[1]
-        t = dx * c + dy * sn
-        X = dy * c - dx * sn
-        x = np.abs(X)
-        beta = float(np.clip(p[3], 0.005, 1.2))
-        rho = math.exp(float(np.clip(p[4], -5.0, 4.0)))
+    def shape(self, beta: float, rho: float) -> tuple[float, float, float]:
+        """(D, front, hw_open): the vertex ahead of the tip point, where the end's front is
+        cut and the half-width there, px, for the half-angle ``beta`` and end radius ``rho``."""
         k = _end_ratio(self.target, beta)
         tb = math.tan(beta)
         D = rho * math.sqrt(k * k + 1.0 / (tb * tb))
         tc = -k * k * rho * rho / D
+        return D, tc - _FRONT_SHARE * (k * rho + tc), max((tc + D) * tb, 0.05)
+
+    def tool_layers(self, p: FloatArray, derivatives: bool
+                    ) -> tuple[FloatArray, FloatArray | None]:  # fmt: skip
+        """The tool's layers, each the profile across the taper blurred times the cut at the
+        end's front blurred along the axis: its coverage and, for glass, its refractive
+        darkness; (L, N) and their derivatives (L, N, 7)."""
+        c, sn = math.cos(p[2]), math.sin(p[2])
+        dx, dy = self.px - p[0], self.py - p[1]
+        t = dx * c + dy * sn
+        X = dy * c - dx * sn
+        x = np.abs(X)
+        beta = float(np.clip(p[3], 0.005, 1.2))
+        rho = math.exp(float(np.clip(p[4], -5.0, 4.0)))
+        tb = math.tan(beta)
+        D, front, hw_open = self.shape(beta, rho)
         behind = np.maximum(t, 0.0)
         defocus = p[5] + p[6] * behind
         s = np.sqrt(_FLOOR_PX**2 + defocus * defocus + 1.0 / 12.0)
-        # the opening's ring ahead of the chord, as a band as wide as the tube there (its
-        # area's share of the ellipse's front)
-        front = tc - _FRONT_SHARE * (k * rho + tc)
-        hw_open = max((tc + D) * tb, 0.05)
-        hw = np.maximum((t + D) * tb, hw_open)
-        # along: the cut at the opening, blurred
+        hw_taper = (t + D) * tb
+        hw = np.maximum(hw_taper, hw_open)
+        # along: the cut at the end's front, blurred
         za = (t - front) / s
         A = ndtr(za)
-        # across: the tube's coverage and its refractive darkness, blurred
+        # across: the tool's coverage, blurred, and for glass its refractive darkness
         zp, zm = (hw - x) / s, (-hw - x) / s
         cov = ndtr(zp) - ndtr(zm)
         span = hw + 4.0 * s
         if self.glass:
             looked = _lookup(np.log(hw / s), x / span)
-            loss, l_logw, l_q = looked[:, 0], looked[:, 1], looked[:, 2]
+            loss = looked[:, 0]
             out = np.array([A * cov, A * loss])
         else:
             out = (A * cov)[None, :]
@@ -278,42 +207,40 @@ class _Patch:
             return out, None
         pa = np.exp(-0.5 * za * za) / _SQRT_2PI
         pp, pm = np.exp(-0.5 * zp * zp) / _SQRT_2PI, np.exp(-0.5 * zm * zm) / _SQRT_2PI
-        # partial derivatives in (t, |x|, hw, s) and the opening's place tc
-        A_t, A_s, A_tc = pa / s, -pa * za / s, -pa / s
-        cov_x, cov_hw = (-pp + pm) / s, (pp + pm) / s
-        cov_s = (-pp * zp + pm * zm) / s
-        s_a = defocus / s
-        s_g = defocus * behind / s
-        s_t = np.where(t > 0, defocus * p[6] / s, 0.0)
-        hw_t = np.where((t + D) * tb > hw_open, tb, 0.0)
-        grads = []
-        parts = [(cov, cov_x, cov_hw, cov_s)]
+        # partial derivatives in t, |x|, hw, s and the front's place
+        A_t, A_s, A_front = pa / s, -pa * za / s, -pa / s
+        parts = [(cov, (-pp + pm) / s, (pp + pm) / s, (-pp * zp + pm * zm) / s)]
         if self.glass:
-            loss_x = l_q / span
-            loss_hw = l_logw / hw - l_q * x / (span * span)
-            loss_s = -l_logw / s - l_q * 4.0 * x / (span * span)
-            parts.append((loss, loss_x, loss_hw, loss_s))
+            l_logw, l_q = looked[:, 1], looked[:, 2]
+            parts.append((loss, l_q / span, l_logw / hw - l_q * x / (span * span),
+                          -l_logw / s - l_q * 4.0 * x / (span * span)))  # fmt: skip
+        s_t = np.where(t > 0, defocus * p[6] / s, 0.0)
+        wide = hw_taper > hw_open
+        hw_t = np.where(wide, tb, 0.0)
+        # beta and log rho move the vertex, the front and the half-width at the front
+        h = 1e-6
+        D_b, front_b, open_b = ((v2 - v1) / h for v2, v1 in zip(
+            self.shape(beta + h, rho), (D, front, hw_open), strict=True))  # fmt: skip
+        D_r, front_r, open_r = ((v2 - v1) / h for v2, v1 in zip(
+            self.shape(beta, rho * math.exp(h)), (D, front, hw_open), strict=True))  # fmt: skip
+        hw_b = np.where(wide, D_b * tb + (t + D) * (1.0 + tb * tb), open_b)
+        hw_r = np.where(wide, D_r * tb, open_r)
+        sx = np.where(X < 0, -1.0, 1.0)
+        grads = []
         for B, B_x, B_hw, B_s in parts:
-            L_t = A_t * B + A * (B_hw * hw_t) + (A_s * B + A * B_s) * s_t
-            L_x = A * B_x
             L_s = A_s * B + A * B_s
-            sx = np.where(X < 0, -1.0, 1.0)
+            L_t = A_t * B + A * (B_hw * hw_t) + L_s * s_t
+            L_x = A * B_x * sx
             g = np.empty((t.size, _N_NL))
             # t = (q - c).u, X = (q - c).n: dt/dc = -u, dX/dc = -n, dt/dangle = X, dX/dangle = -t
-            g[:, 0] = -L_t * c + L_x * sx * sn
-            g[:, 1] = -L_t * sn - L_x * sx * c
-            g[:, 2] = L_t * X - L_x * sx * t
-            g[:, 5] = L_s * s_a
-            g[:, 6] = L_s * s_g
+            g[:, 0] = -L_t * c + L_x * sn
+            g[:, 1] = -L_t * sn - L_x * c
+            g[:, 2] = L_t * X - L_x * t
+            g[:, 3] = A_front * B * front_b + A * B_hw * hw_b
+            g[:, 4] = A_front * B * front_r + A * B_hw * hw_r
+            g[:, 5] = L_s * defocus / s
+            g[:, 6] = L_s * defocus * behind / s
             grads.append(g)
-        # beta and log rho: through D, tc and k, by differences of the whole layers
-        for i in (3, 4):
-            q2 = p.copy()
-            q2[i] += _STEPS[i]
-            o2, _ = self.glass_layers(q2, False)
-            for li in range(len(out)):
-                grads[li][:, i] = (o2[li] - out[li]) / _STEPS[i]
-        _ = A_tc
         return out, np.array(grads)
 
     def design(self, layers: FloatArray) -> FloatArray:
