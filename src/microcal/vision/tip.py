@@ -26,6 +26,7 @@ sees the same point of the tool. A failure is not an error: ``found=False`` with
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,7 +37,7 @@ from ..errors import InputError
 from .detect import to_gray
 from .tip_fast import coarse_tool, fast_tip_fit
 from .tip_find import ToolBlob, find_tool
-from .tip_fit import fit_tip
+from .tip_fit import TipFit, fit_tip
 from .tip_image_model import fit_tip_image
 from .tip_target import TipTarget
 
@@ -147,8 +148,12 @@ def _fitted(
     gray: NDArray[np.float32], blob: ToolBlob, target: TipTarget, method: str, max_blur_px: float
 ) -> TipDetection:
     """The tip fitted by ``method`` from the coarse ``blob``, or why not."""
-    fitter = {"fast fit": fast_tip_fit, "model fit": fit_tip, "image fit": fit_tip_image}[method]
-    fit = fitter(gray, blob, target)
+    fitters: dict[str, Callable[[NDArray[np.float32], ToolBlob, TipTarget], TipFit | str]] = {
+        "fast fit": fast_tip_fit,
+        "model fit": fit_tip,
+        "image fit": fit_tip_image,
+    }
+    fit = fitters[method](gray, blob, target)
     if isinstance(fit, str):
         return TipDetection.none(fit, method)
     h, w = gray.shape

@@ -34,6 +34,7 @@ in ``docs/vision.md``.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import cv2
@@ -44,7 +45,7 @@ from scipy.special import ndtr
 from .._validation import FloatArray
 from .tip_find import ToolBlob, find_tool
 from .tip_fit import TipFit, _end_ratio, _noise
-from .tip_image_model import GLASS_WALL, glass_loss
+from .tip_image_model import glass_loss
 from .tip_target import TipTarget
 
 __all__ = ["COVARIANCE_SCALE", "MODEL_ERROR_PER_BLUR", "coarse_tool", "fast_tip_fit"]
@@ -83,36 +84,43 @@ def _glass_tables() -> tuple[FloatArray, FloatArray, FloatArray]:
     """The glass's refractive darkness across a tube, blurred: a table over ``log w``
     (``w``: the half-width over the blur) and ``q = |x| / (hw + 4 s)``, with its derivatives
     along both, each (len(_LOG_W), len(_Q))."""
-    xi = np.linspace(-1.0, 1.0, 801)
-    loss = glass_loss(xi)
-    dxi = xi[1] - xi[0]
-    w = np.exp(_LOG_W)[:, None, None]
-    q = _Q[None, :, None]
-    # |x| in half-widths: q (hw + 4 s) / hw = q (1 + 4 / w)
-    u = q * (1.0 + 4.0 / w)
-    kernel = np.exp(-0.5 * ((u - xi[None, None, :]) * w) ** 2) * w / _SQRT_2PI
-    table = np.sum(kernel * loss[None, None, :], axis=2) * dxi
-    d_logw = np.gradient(table, _LOG_W, axis=0)
-    d_q = np.gradient(table, _Q, axis=1)
+    xi = np.linspace(-1.0, 1.0, 601)
+    loss = glass_loss(xi) * (xi[1] - xi[0])
+    table = np.empty((_LOG_W.size, _Q.size))
+    for i, w in enumerate(np.exp(_LOG_W)):
+        # |x| in half-widths: q (hw + 4 s) / hw = q (1 + 4 / w)
+        u = _Q[:, None] * (1.0 + 4.0 / w)
+        table[i] = (np.exp(-0.5 * ((u - xi[None, :]) * w) ** 2) * (w / _SQRT_2PI)) @ loss
+    d_logw = np.asarray(np.gradient(table, axis=0)) / (_LOG_W[1] - _LOG_W[0])
+    d_q = np.asarray(np.gradient(table, axis=1)) / (_Q[1] - _Q[0])
     return table, d_logw, d_q
 
 
 #: The glass table's grid: log of the half-width over the blur, and |x| / (hw + 4 s).
-_LOG_W = np.linspace(math.log(0.05), math.log(60.0), 72)
-_Q = np.linspace(0.0, 1.0, 161)
-_TABLE = np.stack(_glass_tables(), axis=-1).reshape(-1, 3)
+_LOG_W = np.linspace(math.log(0.05), math.log(60.0), 96)
+_Q = np.linspace(0.0, 1.0, 241)
 
 
-def _lookup(log_w: FloatArray, q: FloatArray) -> FloatArray:
-    """The glass table and its derivatives in log w and q, bilinear at (log w, q), (N, 3)."""
+@functools.cache
+def _table() -> FloatArray:
+    """The glass tables stacked, (len(_LOG_W) * len(_Q), 3); built on first use."""
+    stacked = np.stack(_glass_tables(), axis=-1).reshape(-1, 3)
+    out: FloatArray = np.ascontiguousarray(stacked)
+    return out
+
+
+def _lookup(log_w: FloatArray, q: FloatArray, derivatives: bool) -> FloatArray:
+    """The glass table (and its derivatives in log w and q, when asked), bilinear at
+    (log w, q): (N, 1) or (N, 3)."""
     fi = (np.clip(log_w, _LOG_W[0], _LOG_W[-1]) - _LOG_W[0]) * (1.0 / (_LOG_W[1] - _LOG_W[0]))
     fj = np.clip(q, 0.0, 1.0) * (1.0 / (_Q[1] - _Q[0]))
     i = np.minimum(fi.astype(np.intp), _LOG_W.size - 2)
     j = np.minimum(fj.astype(np.intp), _Q.size - 2)
     a, b = (fi - i)[:, None], (fj - j)[:, None]
     at = i * _Q.size + j
-    out: FloatArray = (1 - a) * ((1 - b) * _TABLE[at] + b * _TABLE[at + 1]) + a * (
-        (1 - b) * _TABLE[at + _Q.size] + b * _TABLE[at + _Q.size + 1]
+    table = _table() if derivatives else _table()[:, :1]
+    out: FloatArray = (1 - a) * ((1 - b) * table[at] + b * table[at + 1]) + a * (
+        (1 - b) * table[at + _Q.size] + b * table[at + _Q.size + 1]
     )
     return out
 
@@ -136,11 +144,12 @@ class _Patch:
     """The pixels of a patch and the closed-form image of the tool over them."""
 
     def __init__(self, gray: NDArray[np.float32], target: TipTarget, tip: FloatArray,
-                 axis: FloatArray, beta: float, blur: float) -> None:  # fmt: skip
+                 axis: FloatArray, beta: float, blur: float,
+                 ahead: float = 0.0) -> None:  # fmt: skip
         H, W = gray.shape
         n = np.array([-axis[1], axis[0]])
         margin = 3.0 * blur + 2.5
-        front = _FRONT_PX + 3.0 * blur
+        front = _FRONT_PX + 3.0 * blur + ahead
         hw_back = _BACK_PX * math.tan(beta) + margin + 1.0
         pts = np.array([tip - axis * front + n * s * (margin + 1.0) for s in (-1, 1)]
                        + [tip + axis * _BACK_PX + n * s * hw_back for s in (-1, 1)])  # fmt: skip
@@ -204,7 +213,7 @@ class _Patch:
         cov = ndtr(zp) - ndtr(zm)
         span = hw + 4.0 * s
         if self.glass:
-            looked = _lookup(np.log(hw / s), x / span)
+            looked = _lookup(np.log(hw / s), x / span, derivatives)
             loss = looked[:, 0]
             out = np.array([A * cov, A * loss])
         else:
@@ -274,7 +283,8 @@ def _fit(patch: _Patch, p0: FloatArray, iterations: int = 30
     nb = patch.plane.shape[1]
     scale = np.array([1.0, 1.0, 0.05, 0.05, 0.3, 0.5, 0.03])
 
-    def jac(dl: FloatArray, cf: FloatArray) -> FloatArray:
+    def jac(dl: FloatArray | None, cf: FloatArray) -> FloatArray:
+        assert dl is not None
         dimg = -np.einsum("lnk,l->nk", dl, cf[nb:])
         return np.hstack([dimg, A])
 
@@ -371,12 +381,16 @@ def fast_tip_fit(gray: NDArray[np.float32], blob: ToolBlob, target: TipTarget) -
     for _attempt in range(_ATTEMPTS):
         p, coef, r, J = _fit(patch, p)
         moved = float(np.hypot(*(p[:2] - tip)))
-        if moved < _STAY_PX or _attempt == _ATTEMPTS - 1:
+        if moved < _STAY_PX:
             break
-        # the tip is far from where the patch was drawn: draw it again around the fit
-        tip, axis = p[:2].copy(), np.array([math.cos(p[2]), math.sin(p[2])])
+        if _attempt == _ATTEMPTS - 1:
+            return f"the fast fit did not settle (its tip still moved {moved:.1f} px)"
+        # the tip is far from where the patch was drawn: draw it again around the fit,
+        # reaching further ahead when the fit followed a faint end to the patch's front
         blur = float(math.hypot(_FLOOR_PX, p[5]))
-        patch = _Patch(gray, target, tip, axis, float(np.clip(p[3], 0.03, 0.6)), blur)
+        ahead = float(np.clip(-(p[:2] - tip) @ axis, 0.0, 16.0))
+        tip, axis = p[:2].copy(), np.array([math.cos(p[2]), math.sin(p[2])])
+        patch = _Patch(gray, target, tip, axis, float(np.clip(p[3], 0.03, 0.6)), blur, ahead)
         if not patch.ok or patch.values.size < 40:
             return "the tip is at the edge of the field"
     tip, axis = p[:2].copy(), np.array([math.cos(p[2]), math.sin(p[2])])
