@@ -91,12 +91,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--images", type=int, default=25, help="images per row")
     parser.add_argument("--fast-images", type=int, default=40, help="images per fast fit row")
+    parser.add_argument("--methods", default="fast fit,image fit,model fit,reference",
+                        help="the methods' rows, comma-separated")  # fmt: skip
     parser.add_argument("--reference-images", type=int, default=10)
     parser.add_argument("--empty", type=int, default=100, help="images without a tool")
     args = parser.parse_args()
     rows = []
     reasons: Counter[str] = Counter()
-    for method in ("fast fit", "image fit", "model fit"):
+    methods = [m.strip() for m in args.methods.split(",")]
+    for method in [m for m in ("fast fit", "image fit", "model fit") if m in methods]:
         for kind in KINDS if method != "model fit" else KINDS[1:]:
             for focus in (0.0, 1.0, 2.0):
                 results = []
@@ -110,7 +113,7 @@ def main() -> None:
                         why = det.reason.split(" (")[0]
                         reasons[f"{method}, {kind}, {focus:g} DOF: {why}"] += 1
                 rows.append(_row(method, kind, focus, results))
-    for kind in KINDS:
+    for kind in KINDS if "reference" in methods else ():
         for focus in (0.0, 1.0):
             results = []
             for i in range(args.reference_images):

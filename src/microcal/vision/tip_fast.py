@@ -126,14 +126,15 @@ def _lookup(log_w: FloatArray, q: FloatArray, derivatives: bool) -> FloatArray:
 
 
 def coarse_tool(gray: NDArray[np.float32]) -> ToolBlob | str:
-    """:func:`~microcal.vision.tip_find.find_tool` on the image halved (2 x 2 means), in the
-    whole image's pixels; the background's light is the halved one's, enlarged."""
+    """:func:`~microcal.vision.tip_find.find_tool` on the image halved (2 x 2 means; its least
+    lengths and areas halved too), in the whole image's pixels; the background's light is
+    the halved image's."""
     h, w = gray.shape
     h2, w2 = h // 2, w // 2
     if h2 < 16 or w2 < 16:
         return find_tool(gray)
     small = cv2.resize(gray[: 2 * h2, : 2 * w2], (w2, h2), interpolation=cv2.INTER_AREA)
-    blob = find_tool(small)
+    blob = find_tool(small, scale=0.5)
     if isinstance(blob, str):
         return blob
     return ToolBlob(blob.tip_px * 2.0 + 0.5, blob.axis, blob.half_angle_rad, blob.darkness,
