@@ -1,15 +1,15 @@
 """A tool's tip in a 256 x 256 region: time per detection, and its accuracy.
 
-microcal: the default, the fast fit (:mod:`microcal.vision.tip_fast`: the coarse search on
-the halved image, a closed-form image of the tool's end fitted on a patch), on pipettes,
-needles and jaws in focus; the reference method,
+microcal: the fast fit (:mod:`microcal.vision.tip_fast`: the coarse search on the halved
+image, a closed-form image of the tool's end fitted on a patch; the default for a needle or
+a jaw), on pipettes, needles and jaws in focus; the reference method,
 :func:`microcal.vision.tip_reference.match_tip` (nine
 templates of 41 x 41 px at focus offsets from -2 to +2 depths of field; every other one
 correlated at half resolution, the best's neighbours at full resolution around it, the peak
 refined by Gauss-Newton with its covariance), the model fit,
 :func:`microcal.vision.tip.detect_tip` (the outline fitted to the image), and the image fit
-(``method="image fit"``, the tool's image drawn and fitted near its end), on needles and on
-pipettes.
+(``method="image fit"``, the tool's image drawn and fitted near its end; the default for a
+glass pipette), on needles and on pipettes.
 Baseline in the same run: OpenCV's ``matchTemplate`` (``TM_CCOEFF_NORMED``) of the in-focus
 template over the same region and its whole-pixel peak, as the peers match a tip.
 
@@ -152,7 +152,7 @@ def run() -> list[Case]:
 
     cases = [
         case(
-            f"the fast fit (the default), {kind}",
+            f"the fast fit, {kind}" + (" (the default)" if kind != "pipette" else ""),
             t_fast[kind],
             n_images=len(images),
             rms_px=found(_fast(images), [t for _, t, _ in images]),
@@ -164,7 +164,7 @@ def run() -> list[Case]:
         case("the model fit", t_model, rms_px=_error(ours_model(), truths)),
         case("the image fit, needle", t_image, rms_px=found(ours_image_fit(), truths)),
         case(
-            "the image fit, glass pipette",
+            "the image fit, glass pipette (the default)",
             t_pipette,
             n_images=len(pipettes),
             rms_px=found(ours_image_fit_pipettes(), [t for _, t, _ in pipettes]),

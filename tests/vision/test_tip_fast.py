@@ -21,7 +21,7 @@ def _errors(kind: str, focus_dof: float, seeds: range) -> np.ndarray:
     out = []
     for seed in seeds:
         image = draw_tool_image(seed, kind, focus_dof)
-        det = detect_tip(image.image, parse_tip(image.spec))
+        det = detect_tip(image.image, parse_tip(image.spec), method="fast fit")
         assert det.found, (seed, det.reason)
         assert det.method == "fast fit"
         e = det.apex_px - image.truths[0].tip_px
@@ -96,6 +96,6 @@ def test_a_faint_end_far_from_the_coarse_tip_is_followed():
     blob = coarse_tool(to_gray(image.image))
     assert not isinstance(blob, str)
     assert float(np.linalg.norm(blob.tip_px - image.truths[0].tip_px)) > 30.0
-    det = detect_tip(image.image, parse_tip(image.spec))
+    det = detect_tip(image.image, parse_tip(image.spec), method="fast fit")
     assert det.found, det.reason
     assert float(np.linalg.norm(det.apex_px - image.truths[0].tip_px)) < 0.3

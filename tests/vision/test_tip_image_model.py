@@ -56,7 +56,8 @@ def test_the_image_fit_finds_an_opaque_tip_too():
 
 
 def test_the_method_is_chosen_per_tool_and_a_wrong_one_is_one_line():
-    for kind in ("pipette", "needle", "jaw", "any"):
+    assert default_method(parse_tip("tip:pipette")) == "image fit"
+    for kind in ("needle", "jaw", "any"):
         assert default_method(parse_tip(f"tip:{kind}")) == "fast fit"
     image = draw_tool_image(30_001, "jaw", 0.0)
     with pytest.raises(InputError, match="method: expected one of fast fit, model fit, image fit"):

@@ -5,15 +5,16 @@ Four methods, chosen per tool and named in the answer (``method``):
 - ``"fast fit"`` (:mod:`~microcal.vision.tip_fast`): the tool found coarsely on the image
   halved, then a closed-form image of its end (a taper cut at its rounded end, blurred; for
   glass, its refractive darkness besides) fitted to a patch around the tip by
-  Levenberg-Marquardt: a few milliseconds on a 256 x 256 region; the default for every tool;
+  Levenberg-Marquardt: a few milliseconds on a 256 x 256 region; the default for a needle, a
+  jaw or a tool of any kind;
 - ``"model fit"`` (:mod:`~microcal.vision.tip_fit`): the tool found coarsely
   (:mod:`~microcal.vision.tip_find`), then its outline fitted to sub-pixel precision: the
   edges of the taper, their meeting point corrected for the rounded end (what the
   measurement takes for a needle or a pipette whose spec gives its size, for its vertex);
 - ``"image fit"`` (:mod:`~microcal.vision.tip_image_model`): the tool found coarsely, then
   the image of a tapered tool (outline, glass or opaque, blur growing along it) drawn and
-  fitted to the pixels around its end (the most exact, and the slowest: a glass pipette's
-  dark walls and lighter lumen, drawn as the simulator draws them);
+  fitted to the pixels around its end (the most exact, and the slowest; the default for a
+  glass pipette, whose dark walls and lighter lumen it draws as the simulator does);
 - ``"reference"`` (:mod:`~microcal.vision.tip_reference`): images of this very tool grabbed
   at known focus offsets, matched by normalised cross-correlation with a sub-pixel peak.
 
@@ -50,9 +51,9 @@ TIP_METHODS = ("fast fit", "model fit", "image fit")
 
 
 def default_method(target: TipTarget) -> str:
-    """The method :func:`detect_tip` uses for a tool: the fast fit, for every kind."""
-    del target  # the same for every kind
-    return "fast fit"
+    """The method :func:`detect_tip` uses for a tool: the image fit for a glass pipette (the
+    fast fit's closed form misses its figures: ``docs/vision.md``), the fast fit otherwise."""
+    return "image fit" if target.kind == "pipette" else "fast fit"
 
 
 def _nan2() -> FloatArray:
