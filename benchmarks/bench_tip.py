@@ -1,6 +1,9 @@
 """A tool's tip in a 256 x 256 region: time per detection, and its accuracy.
 
-microcal: the reference method, :func:`microcal.vision.tip_reference.match_tip` (nine
+microcal: the fast fit (:mod:`microcal.vision.tip_fast`: the coarse search on the halved
+image, a closed-form image of the tool's end fitted on a patch; the default for a needle or
+a jaw), on pipettes, needles and jaws in focus; the reference method,
+:func:`microcal.vision.tip_reference.match_tip` (nine
 templates of 41 x 41 px at focus offsets from -2 to +2 depths of field; every other one
 correlated at half resolution, the best's neighbours at full resolution around it, the peak
 refined by Gauss-Newton with its covariance), the model fit,
@@ -64,13 +67,18 @@ def _scenes() -> list[tuple[np.ndarray, np.ndarray, TipReference, str]]:
     return out
 
 
-def _pipettes() -> list[tuple[np.ndarray, np.ndarray, str]]:
-    """(image, true tip, spec) of pipettes in focus."""
+def _tools(kind: str = "pipette") -> list[tuple[np.ndarray, np.ndarray, str]]:
+    """(image, true tip, spec) of tools of one kind in focus."""
+    first = {"pipette": 10_000, "needle": 20_000, "jaw": 30_000}[kind]
     out = []
     for seed in range(N_IMAGES):
-        image = draw_tool_image(10_000 + seed, "pipette", 0.0)
+        image = draw_tool_image(first + seed, kind, 0.0)
         out.append((image.image, image.truths[0].tip_px, image.spec))
     return out
+
+
+def _fast(images: list[tuple[np.ndarray, np.ndarray, str]]) -> list[np.ndarray]:
+    return [detect_tip(im, parse_tip(spec), method="fast fit").apex_px for im, _, spec in images]
 
 
 def _baseline(image: np.ndarray, reference: TipReference) -> np.ndarray:
@@ -94,7 +102,8 @@ def run() -> list[Case]:
         return [match_tip(im, ref).apex_px for im, _, ref, _ in scenes]
 
     def ours_model() -> list[np.ndarray]:
-        return [detect_tip(im, parse_tip(spec)).apex_px for im, _, _, spec in scenes]
+        return [detect_tip(im, parse_tip(spec), method="model fit").apex_px
+                for im, _, _, spec in scenes]  # fmt: skip
 
     def baseline() -> list[np.ndarray]:
         return [_baseline(im, ref) for im, _, ref, _ in scenes]
@@ -103,10 +112,14 @@ def run() -> list[Case]:
         return [detect_tip(im, parse_tip(spec), method="image fit").apex_px
                 for im, _, _, spec in scenes]  # fmt: skip
 
-    pipettes = _pipettes()
+    pipettes = _tools("pipette")
+    kinds = {kind: _tools(kind) for kind in ("pipette", "needle", "jaw")}
+    t_fast = {kind: best_time_s(lambda im=im: _fast(im), REPEAT) / max(len(im), 1)
+              for kind, im in kinds.items()}  # fmt: skip
 
     def ours_image_fit_pipettes() -> list[np.ndarray]:
-        return [detect_tip(im, parse_tip(spec)).apex_px for im, _, spec in pipettes]
+        return [detect_tip(im, parse_tip(spec), method="image fit").apex_px
+                for im, _, spec in pipettes]  # fmt: skip
 
     def found(points: list[np.ndarray], truth: list[np.ndarray]) -> float:
         ok = [(p, t) for p, t in zip(points, truth, strict=True) if np.all(np.isfinite(p))]
@@ -138,11 +151,20 @@ def run() -> list[Case]:
         )
 
     cases = [
+        case(
+            f"the fast fit, {kind}" + (" (the default)" if kind != "pipette" else ""),
+            t_fast[kind],
+            n_images=len(images),
+            rms_px=found(_fast(images), [t for _, t, _ in images]),
+        )
+        for kind, images in kinds.items()
+    ]
+    cases += [
         case("the tool's reference", t_ref, rms_px=_error(ours_reference(), truths)),
         case("the model fit", t_model, rms_px=_error(ours_model(), truths)),
         case("the image fit, needle", t_image, rms_px=found(ours_image_fit(), truths)),
         case(
-            "the image fit, glass pipette",
+            "the image fit, glass pipette (the default)",
             t_pipette,
             n_images=len(pipettes),
             rms_px=found(ours_image_fit_pipettes(), [t for _, t, _ in pipettes]),

@@ -7,8 +7,9 @@ Run from the repository root (a few minutes; heavy, so under the shared lock):
 Each image is drawn by :func:`microcal.sim.tool_population.draw_tool_image` from its seed (a
 pipette, a needle or a jaw; taper 5-15 degrees; 0-25 degrees off the image plane; plain,
 tissue or debris backgrounds under uneven light; focus 0, 1 or 2 depths of field off). The
-image fit (the default for a pipette) is run on every image, the model fit (the default
-for a needle or a jaw) on the needles and jaws; the reference method on fewer (each needs its
+fast fit (the default for every tool) is run on ``--fast-images`` images per row (40 by
+default: 360 images), the image fit on every image of the other rows, the model fit on
+the needles and jaws; the reference method on fewer (each needs its
 own frames: the same tool 10 µm away, the focus stepped from -2 to +2 depths of field, the
 tip located by the default method in the frame in focus). ``--images N`` sets the images per
 row (25 by default). "covered" is the share of the found tips whose error ``e`` is within the 95 %
@@ -89,16 +90,20 @@ def _row(method: str, kind: str, focus: float, results: list[tuple[Any, Any, flo
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--images", type=int, default=25, help="images per row")
+    parser.add_argument("--fast-images", type=int, default=40, help="images per fast fit row")
+    parser.add_argument("--methods", default="fast fit,image fit,model fit,reference",
+                        help="the methods' rows, comma-separated")  # fmt: skip
     parser.add_argument("--reference-images", type=int, default=10)
     parser.add_argument("--empty", type=int, default=100, help="images without a tool")
     args = parser.parse_args()
     rows = []
     reasons: Counter[str] = Counter()
-    for method in ("image fit", "model fit"):
-        for kind in KINDS if method == "image fit" else KINDS[1:]:
+    methods = [m.strip() for m in args.methods.split(",")]
+    for method in [m for m in ("fast fit", "image fit", "model fit") if m in methods]:
+        for kind in KINDS if method != "model fit" else KINDS[1:]:
             for focus in (0.0, 1.0, 2.0):
                 results = []
-                for i in range(args.images):
+                for i in range(args.fast_images if method == "fast fit" else args.images):
                     seed = 10_000 * (1 + KINDS.index(kind)) + 100 * int(focus) + i
                     image = draw_tool_image(seed, kind, focus)
                     t0 = time.perf_counter()
@@ -108,7 +113,7 @@ def main() -> None:
                         why = det.reason.split(" (")[0]
                         reasons[f"{method}, {kind}, {focus:g} DOF: {why}"] += 1
                 rows.append(_row(method, kind, focus, results))
-    for kind in KINDS:
+    for kind in KINDS if "reference" in methods else ():
         for focus in (0.0, 1.0):
             results = []
             for i in range(args.reference_images):

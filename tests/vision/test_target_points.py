@@ -50,7 +50,8 @@ def test_a_tool_gives_its_apex_and_a_region_to_the_image_edge_along_its_shank(ca
     assert x0 <= truth[0, 0] - TIP_REGION_HALF_PX + 1
     # put back together from the region, the frame still shows one tool entering the field
     (whole,) = frames_from_region([frame[y0:y1, x0:x1]], (x0, y0), (w, h))
-    again = detect_tip(whole, plat.scene.board)  # type: ignore[arg-type]
+    # the method find_target takes for a needle whose spec gives its size (its vertex path)
+    again = detect_tip(whole, plat.scene.board, method="model fit")  # type: ignore[arg-type]
     assert again.found
     # the model fit sees another background beyond the region: within a pixel on 22 µm pixels
     np.testing.assert_allclose(again.apex_px, found.points_px[0], atol=1.0)

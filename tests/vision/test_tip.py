@@ -53,7 +53,7 @@ def _errors(kind: str, focus_dof: float, seeds: range) -> np.ndarray:
     out = []
     for seed in seeds:
         image = draw_tool_image(seed, kind, focus_dof)
-        det = detect_tip(image.image, parse_tip(image.spec))
+        det = detect_tip(image.image, parse_tip(image.spec), method="model fit")
         assert det.found, (seed, det.reason)
         assert det.method == "model fit"
         out.append(det.apex_px - image.truths[0].tip_px)

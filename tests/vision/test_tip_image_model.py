@@ -33,7 +33,7 @@ def test_a_glass_pipette_in_focus_is_found_to_a_tenth_of_a_pixel():
     errors = []
     for seed in (10_000, 10_001, 10_002, 10_004):
         image = draw_tool_image(seed, "pipette", 0.0)
-        det = detect_tip(image.image, parse_tip(image.spec))
+        det = detect_tip(image.image, parse_tip(image.spec), method="image fit")
         assert det.found, (seed, det.reason)
         assert det.method == "image fit"
         errors.append(_along_across(det, image.truths[0]))
@@ -57,9 +57,10 @@ def test_the_image_fit_finds_an_opaque_tip_too():
 
 def test_the_method_is_chosen_per_tool_and_a_wrong_one_is_one_line():
     assert default_method(parse_tip("tip:pipette")) == "image fit"
-    assert default_method(parse_tip("tip:needle")) == "model fit"
+    for kind in ("needle", "jaw", "any"):
+        assert default_method(parse_tip(f"tip:{kind}")) == "fast fit"
     image = draw_tool_image(30_001, "jaw", 0.0)
-    with pytest.raises(InputError, match="method: expected one of model fit, image fit"):
+    with pytest.raises(InputError, match="method: expected one of fast fit, model fit, image fit"):
         detect_tip(image.image, parse_tip("tip:jaw"), method="guess")
 
 

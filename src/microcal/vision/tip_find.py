@@ -90,9 +90,12 @@ def background_light(gray: NDArray[np.float32]) -> NDArray[np.float32]:
     return np.maximum(out, 1e-6 * float(level.max()) + 1e-6)
 
 
-def find_tool(gray: NDArray[np.float32]) -> ToolBlob | str:
-    """The tool's coarse tip and axis in a grey image, or the reason there is none."""
+def find_tool(gray: NDArray[np.float32], scale: float = 1.0) -> ToolBlob | str:
+    """The tool's coarse tip and axis in a grey image, or the reason there is none; ``scale``:
+    the image's pixels per pixel of the image the lengths are meant in (0.5 for an image
+    halved), which the least lengths and areas follow."""
     h, w = gray.shape
+    min_len = MIN_LENGTH_PX * scale
     bg = background_light(gray)
     dark = 1.0 - cv2.GaussianBlur(gray, (0, 0), 1.0) / bg
     spread = 1.4826 * float(np.median(np.abs(dark - np.median(dark))))
@@ -104,14 +107,14 @@ def find_tool(gray: NDArray[np.float32]) -> ToolBlob | str:
     for i in range(1, count):
         x, y, bw, bh, area = (int(v) for v in stats[i])
         edge = x == 0 or y == 0 or x + bw == w or y + bh == h
-        if not edge or max(bw, bh) < MIN_LENGTH_PX or area < 25:
+        if not edge or max(bw, bh) < min_len or area < 25 * scale * scale:
             continue
         tools.append(i)
     if not tools:
         return "no tool in view (nothing darker than the background reaches the image's edge)"
     if len(tools) > 1:
-        big = [i for i in tools if max(int(stats[i, 2]), int(stats[i, 3])) >= 2 * MIN_LENGTH_PX
-               and int(stats[i, 4]) >= 60]  # fmt: skip
+        big = [i for i in tools if max(int(stats[i, 2]), int(stats[i, 3])) >= 2 * min_len
+               and int(stats[i, 4]) >= 60 * scale * scale]  # fmt: skip
         if len(big) > 1:
             return f"{len(big)} tools in view: expected one"
         tools = [max(tools, key=lambda i: int(stats[i, 4]))]
@@ -134,9 +137,9 @@ def find_tool(gray: NDArray[np.float32]) -> ToolBlob | str:
     # The half-angle from the widths at two distances from the tip (their difference cancels
     # what the threshold and the blur add to both).
     span = float(t.max()) - t0
-    if span < MIN_LENGTH_PX:
+    if span < min_len:
         return f"no tool in view (the dark region is {span:.0f} px long)"
-    back = min(32.0, 0.6 * span)
+    back = min(32.0 * scale, 0.6 * span)
     widths = []
     for at in (0.4 * back, back):
         ring = np.abs(t - (t0 + at)) < 1.5
