@@ -44,7 +44,7 @@ from scipy.special import ndtr
 
 from .._validation import FloatArray
 from .tip_find import ToolBlob, find_tool
-from .tip_fit import TipFit, _end_ratio, _noise
+from .tip_fit import TipFit, _end_ratio, _noise, neighbour_correlation_factor
 from .tip_image_model import glass_loss
 from .tip_target import TipTarget
 
@@ -323,21 +323,11 @@ def _fit(patch: _Patch, p0: FloatArray, iterations: int = 30
 
 
 def _correlation_factor(patch: _Patch, resid: FloatArray) -> float:
-    """``prod (1 + r) / (1 - r)`` over rows and columns, ``r`` the correlation of
-    neighbouring residuals (1 for white noise)."""
+    """:func:`~microcal.vision.tip_fit.neighbour_correlation_factor` of the patch's pixels."""
     x0, y0, x1, y1 = patch.box
     field = np.full((y1 - y0, x1 - x0), np.nan)
     field[patch.mask] = resid
-    factor = 1.0
-    for a, b in ((field[:, 1:], field[:, :-1]), (field[1:, :], field[:-1, :])):
-        ok = np.isfinite(a) & np.isfinite(b)
-        if ok.sum() < 10:
-            continue
-        u, v = a[ok], b[ok]
-        r = float(np.clip(np.mean(u * v) / max(math.sqrt(np.mean(u * u) * np.mean(v * v)), 1e-12),
-                          0.0, 0.9))  # fmt: skip
-        factor *= (1.0 + r) / (1.0 - r)
-    return factor
+    return neighbour_correlation_factor(field)
 
 
 def _start(patch: _Patch, tip: FloatArray, axis: FloatArray, beta: float, blur: float,

@@ -43,7 +43,7 @@ from .._validation import FloatArray
 from .tip_find import ToolBlob
 from .tip_target import TipTarget
 
-__all__ = ["TipFit", "fit_tip", "lowest_cost_fit"]
+__all__ = ["TipFit", "fit_tip", "lowest_cost_fit", "neighbour_correlation_factor"]
 
 
 def _blur_at(p: FloatArray, t: float) -> float:
@@ -248,6 +248,25 @@ def lowest_cost_fit(
         if fit is None or trial.cost < fit.cost:
             fit = trial
     return fit
+
+
+def neighbour_correlation_factor(field: FloatArray) -> float:
+    """How much neighbouring residuals agree, as the factor by which they inflate the variance
+    of what is fitted to them: ``prod (1 + r) / (1 - r)`` over the rows and the columns, ``r``
+    the correlation of neighbours (1 for white noise; a model's own mismatch is smooth).
+
+    ``field`` (H, W) holds the residuals at their pixels and NaN elsewhere.
+    """
+    factor = 1.0
+    for a, b in ((field[:, 1:], field[:, :-1]), (field[1:, :], field[:-1, :])):
+        ok = np.isfinite(a) & np.isfinite(b)
+        if ok.sum() < 10:
+            continue
+        x, y = a[ok], b[ok]
+        r = float(np.clip(np.mean(x * y) / max(math.sqrt(np.mean(x * x) * np.mean(y * y)), 1e-12),
+                          0.0, 0.9))  # fmt: skip
+        factor *= (1.0 + r) / (1.0 - r)
+    return factor
 
 
 def _noise(gray: NDArray[np.float32]) -> float:

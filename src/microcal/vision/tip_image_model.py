@@ -64,7 +64,7 @@ from numpy.typing import NDArray
 
 from .._validation import FloatArray
 from .tip_find import ToolBlob
-from .tip_fit import TipFit, _end_ratio, _noise, lowest_cost_fit
+from .tip_fit import TipFit, _end_ratio, _noise, lowest_cost_fit, neighbour_correlation_factor
 from .tip_target import TipTarget
 
 __all__ = ["GLASS_SLOPE", "GLASS_WALL", "ToolImageModel", "fit_tip_image"]
@@ -349,21 +349,10 @@ def _darkness(
 
 
 def _correlation_factor(model: ToolImageModel, resid: FloatArray) -> float:
-    """How much neighbouring residuals agree, as the factor by which they inflate the variance
-    of what is fitted to them: ``prod (1 + r) / (1 - r)`` over the rows and the columns, ``r``
-    the correlation of neighbours (1 for white noise; the model's own mismatch is smooth)."""
+    """:func:`~microcal.vision.tip_fit.neighbour_correlation_factor` of the model's pixels."""
     field = np.full(model.shape, np.nan)
     field[model.rows, model.cols] = resid
-    factor = 1.0
-    for a, b in ((field[:, 1:], field[:, :-1]), (field[1:, :], field[:-1, :])):
-        ok = np.isfinite(a) & np.isfinite(b)
-        if ok.sum() < 10:
-            continue
-        x, y = a[ok], b[ok]
-        r = float(np.clip(np.mean(x * y) / max(math.sqrt(np.mean(x * x) * np.mean(y * y)), 1e-12),
-                          0.0, 0.9))  # fmt: skip
-        factor *= (1.0 + r) / (1.0 - r)
-    return factor
+    return neighbour_correlation_factor(field)
 
 
 def _blur_levels(image: NDArray[np.float32], sigma: FloatArray) -> NDArray[np.float32]:
