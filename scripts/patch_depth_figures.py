@@ -83,7 +83,7 @@ def run_seed(seed: int, tips: int, prior_um: float, sweep: bool = True) -> list[
                           step_um=0.4, end_offset_px=offset, clock=rig.clock.now_s)  # fmt: skip
     stacks = {step: grab_stack(rig.grab_at_focus, fine.z_um, fine.apex_px, reach_um=4.0,
                                step_um=step, tip_focus_var_um2=fine.var_um2,
-                               tip_cov_px=fine.cov_px, axis_px=axis)
+                               tip_cov_px=fine.cov_px)
               for step in (0.5, 1.0)}  # fmt: skip
     calib_s = rig.clock.now_s() - t0
     shared = (fine.apex_px - px0, fine.z_um - z0)  # the stacks' own errors, alike for every tip
