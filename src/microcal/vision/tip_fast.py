@@ -45,7 +45,7 @@ from scipy.special import ndtr
 from .._validation import FloatArray
 from .tip_find import ToolBlob, find_tool
 from .tip_fit import TipFit, _end_ratio, _noise, neighbour_correlation_factor
-from .tip_image_model import glass_loss
+from .tip_image_model import _window, glass_loss
 from .tip_target import TipTarget
 
 __all__ = ["COVARIANCE_SCALE", "MODEL_ERROR_PER_BLUR", "coarse_tool", "fast_tip_fit"]
@@ -147,25 +147,15 @@ class _Patch:
     def __init__(self, gray: NDArray[np.float32], target: TipTarget, tip: FloatArray,
                  axis: FloatArray, beta: float, blur: float,
                  ahead: float = 0.0) -> None:  # fmt: skip
-        H, W = gray.shape
-        n = np.array([-axis[1], axis[0]])
-        margin = 3.0 * blur + 2.5
         front = _FRONT_PX + 3.0 * blur + ahead
-        hw_back = _BACK_PX * math.tan(beta) + margin + 1.0
-        pts = np.array([tip - axis * front + n * s * (margin + 1.0) for s in (-1, 1)]
-                       + [tip + axis * _BACK_PX + n * s * hw_back for s in (-1, 1)])  # fmt: skip
-        x0, y0 = np.maximum(np.floor(pts.min(axis=0)).astype(int), 0)
-        x1, y1 = np.minimum(np.ceil(pts.max(axis=0)).astype(int) + 1, (W, H))
-        self.ok = x1 - x0 >= 8 and y1 - y0 >= 8
-        yy, xx = np.mgrid[y0:y1, x0:x1]
-        t = (xx - tip[0]) * axis[0] + (yy - tip[1]) * axis[1]
-        x = np.abs((xx - tip[0]) * n[0] + (yy - tip[1]) * n[1])
-        mask = (t >= -front) & (t <= _BACK_PX)
-        mask &= x <= np.maximum(t, 0.0) * math.tan(beta) + margin + 1.0
-        self.box = (int(x0), int(y0), int(x1), int(y1))
+        win = _window(gray.shape[:2], tip, axis, beta, blur, front, _BACK_PX)
+        self.ok = win is not None  # a patch under 8 x 8 px inside the image: not fitted
+        (x0, y0, x1, y1), mask = win if win is not None else ((0, 0, 0, 0), np.zeros((0, 0), bool))
+        self.box = (x0, y0, x1, y1)
         self.mask = mask
-        self.px = xx[mask].astype(np.float64)
-        self.py = yy[mask].astype(np.float64)
+        rows, cols = np.nonzero(mask)  # in the order boolean indexing takes them
+        self.px = (cols + x0).astype(np.float64)
+        self.py = (rows + y0).astype(np.float64)
         self.values = gray[y0:y1, x0:x1][mask].astype(np.float64)
         self.target = target
         self.glass = target.kind in ("pipette", "any")
