@@ -83,7 +83,7 @@ def run_seed(seed: int, tips: int, prior_um: float, sweep: bool = True) -> list[
                           step_um=0.4, end_offset_px=offset, clock=rig.clock.now_s)  # fmt: skip
     stacks = {step: grab_stack(rig.grab_at_focus, fine.z_um, fine.apex_px, reach_um=4.0,
                                step_um=step, tip_focus_var_um2=fine.var_um2,
-                               tip_cov_px=fine.cov_px)
+                               tip_cov_px=fine.cov_px, axis_px=axis)
               for step in (0.5, 1.0)}  # fmt: skip
     calib_s = rig.clock.now_s() - t0
     shared = (fine.apex_px - px0, fine.z_um - z0)  # the stacks' own errors, alike for every tip
@@ -143,6 +143,8 @@ def record(row: dict[str, float], name: str, est: DepthEstimate, z_true: float,
         own_cov = (est.cov_px - est.shared_cov_px) * pitch**2
         row[f"{name}_chi2own"] = float(own @ np.linalg.solve(own_cov, own))
         own_z = row[f"{name}_dz"] - shared[1]
+        row[f"{name}_dzown"] = own_z
+        row[f"{name}_vzown"] = est.var_um2 - est.shared_var_um2
         row[f"{name}_zown"] = float(abs(own_z) / math.sqrt(est.var_um2 - est.shared_var_um2))
     row[f"{name}_frames"] = est.frames
     row[f"{name}_s"] = est.seconds

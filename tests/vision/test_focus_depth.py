@@ -11,6 +11,10 @@ import pytest
 from microcal.errors import DetectionError, InputError, LimitError
 from microcal.sim.patch import PatchRig, patch_rig
 from microcal.vision.focus_depth import (
+    ALIGN_ACROSS_SIGMA_PX,
+    QUADRATIC_ALIGN_SIGMA_PX,
+    SWEEP_APEX_SIGMA_PX,
+    axis_cov_px,
     build_stack,
     depth_by_best_plane,
     depth_by_stack,
@@ -153,3 +157,46 @@ def test_the_quadratic_between_three_planes_reads_a_coarse_stack_and_states_its_
     with pytest.raises(InputError, match="interpolation must be") as info:
         depth_by_stack(frame, z + 1.3, coarse, px, interpolation="cubic")
     assert "\n" not in str(info.value)
+
+
+def test_the_sweep_reads_the_tip_without_an_offset_along_the_tool_or_in_depth() -> None:
+    """The start of the darkness is corrected for where the fitted step puts it, so the tip
+    images of several tools and poses scatter about the truth along the axis, not 0.5 px
+    ahead of it, and the depth line, read there, about the tip's focus, not 0.03 µm above
+    it; the stated covariance is along and across the tool's image axis."""
+    along, across, depth = [], [], []
+    for seed in (20, 21, 22):
+        rig = patch_rig(seed, size_px=SIZE)
+        for k, d in enumerate(([4.0, -3.0, 6.0], [-6.0, 5.0, -3.0])):
+            rig.manipulator.move_to_um(10000.0 + np.array(d))
+            rig.clock.sleep(2.0)
+            z, px = rig.in_focus()
+            est = depth_by_sweep(rig.grab_at_focus, _box(px + (1.0 - 2 * k, 1.0)), (1.0, 0.0),
+                                 z + 0.3, end_offset_px=_offset_px(rig), clock=rig.clock.now_s)  # fmt: skip
+            along.append(est.apex_px[0] - px[0])
+            across.append(est.apex_px[1] - px[1])
+            depth.append(est.z_um - z)
+            assert np.allclose(est.cov_px, np.diag(SWEEP_APEX_SIGMA_PX) ** 2)
+    assert abs(float(np.mean(along))) < 0.2  # px; 0.5 px ahead without the correction
+    assert float(np.std(along)) < 0.3
+    assert float(np.sqrt(np.mean(np.square(across)))) < 0.8
+    assert abs(float(np.mean(depth))) < 0.015  # µm; 0.024 µm above without the offset
+
+
+def test_the_stack_states_its_alignment_along_and_across_the_tool() -> None:
+    rig = patch_rig(2, size_px=SIZE)
+    z0, px0 = rig.in_focus()
+    plain = grab_stack(rig.grab_at_focus, z0, px0, step_um=0.5)
+    axis = np.array([math.cos(0.3), math.sin(0.3)])
+    tilted = build_stack([rig.grab_at_focus(z0 + o) for o in plain.offsets_um], plain.offsets_um,
+                         px0, axis_px=axis * 3.0)  # fmt: skip
+    frame = rig.grab_at_focus(z0 + 0.2)
+    a = depth_by_stack(frame, z0 + 0.2, plain, px0).cov_px  # no axis: the along figure each way
+    b = depth_by_stack(frame, z0 + 0.2, tilted, px0).cov_px
+    along = math.hypot(QUADRATIC_ALIGN_SIGMA_PX[0], QUADRATIC_ALIGN_SIGMA_PX[1] * 0.5)
+    assert np.allclose(a, np.eye(2) * along**2)
+    assert axis @ b @ axis == pytest.approx(along**2)
+    normal = np.array([-axis[1], axis[0]])
+    assert normal @ b @ normal == pytest.approx(ALIGN_ACROSS_SIGMA_PX**2)
+    assert np.allclose(axis_cov_px(axis, 2.0, 1.0), 4.0 * np.outer(axis, axis)
+                       + np.outer(normal, normal))  # fmt: skip

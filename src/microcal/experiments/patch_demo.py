@@ -158,7 +158,8 @@ def _stack_finder(drive: MicroscopeDrive, sweep: TipFinder) -> TipFinder:
     )  # fmt: skip
     est = tip.depth
     stack = grab_stack(drive.grab_at_focus, est.z_um, est.apex_px, step_um=0.5,
-                       tip_focus_var_um2=est.var_um2, tip_cov_px=est.cov_px)  # fmt: skip
+                       tip_focus_var_um2=est.var_um2, tip_cov_px=est.cov_px,
+                       axis_px=sweep.axis_px)  # fmt: skip
     return dataclasses.replace(sweep, method="stack", stack=stack)
 
 
