@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from microcal.errors import DetectionError, InputError, LimitError
-from microcal.sim.patch import PatchRig, patch_rig
+from microcal.sim.patch import PatchFrame, PatchRig, patch_rig
 from microcal.vision.focus_depth import (
     ALIGN_ACROSS_SIGMA_PX,
     QUADRATIC_ALIGN_SIGMA_PX,
@@ -160,10 +160,11 @@ def test_the_quadratic_between_three_planes_reads_a_coarse_stack_and_states_its_
 
 
 def test_the_sweep_reads_the_tip_without_an_offset_along_the_tool_or_in_depth() -> None:
-    """The start of the darkness is corrected for where the fitted step puts it, so the tip
-    images of several tools and poses scatter about the truth along the axis, not 0.5 px
-    ahead of it, and the depth line, read there, about the tip's focus, not 0.03 µm above
-    it; the stated covariance is along and across the tool's image axis."""
+    """The darkness's profile along the tool is placed where its pixels lie, so the tip
+    images of several tools and poses scatter about the truth along the axis (a tool along a
+    pixel row put every pixel on its bin's lower edge: 0.5 px ahead), and the depth line,
+    less the glass edges' offset, about the tip's focus, not 0.03 µm above it; the stated
+    covariance is along and across the tool's image axis."""
     along, across, depth = [], [], []
     for seed in (20, 21, 22):
         rig = patch_rig(seed, size_px=SIZE)
@@ -177,7 +178,7 @@ def test_the_sweep_reads_the_tip_without_an_offset_along_the_tool_or_in_depth() 
             across.append(est.apex_px[1] - px[1])
             depth.append(est.z_um - z)
             assert np.allclose(est.cov_px, np.diag(SWEEP_APEX_SIGMA_PX) ** 2)
-    assert abs(float(np.mean(along))) < 0.2  # px; 0.5 px ahead without the correction
+    assert abs(float(np.mean(along))) < 0.2  # px; 0.5 px ahead with the bins at their middles
     assert float(np.std(along)) < 0.3
     assert float(np.sqrt(np.mean(np.square(across)))) < 0.8
     assert abs(float(np.mean(depth))) < 0.015  # µm; 0.024 µm above without the offset
@@ -200,3 +201,27 @@ def test_the_stack_states_its_alignment_along_and_across_the_tool() -> None:
     assert normal @ b @ normal == pytest.approx(ALIGN_ACROSS_SIGMA_PX**2)
     assert np.allclose(axis_cov_px(axis, 2.0, 1.0), 4.0 * np.outer(axis, axis)
                        + np.outer(normal, normal))  # fmt: skip
+
+
+def test_the_sweep_reads_alike_with_an_axis_a_millionth_of_a_radian_off_a_pixel_row() -> None:
+    """A tool along a pixel row puts every pixel on an edge of the profile's bins; an axis
+    turned by 1e-6 rad puts them inside. Each bin is placed where its pixels lie, so both
+    read the same tip from the same frames (bins placed at their middles read them 0.4-0.5 px
+    apart along the tool)."""
+    rig = patch_rig(5, size_px=SIZE)
+    rig.manipulator.move_to_um(10000.0 + np.array([3.0, 2.0, -4.0]))
+    rig.clock.sleep(2.0)
+    z, px = rig.in_focus()
+    frames: dict[float, PatchFrame] = {}  # the same frames for both
+
+    def grab(z_um: float) -> PatchFrame:
+        return frames.setdefault(z_um, rig.grab_at_focus(z_um))
+
+    found = []
+    for axis in ((1.0, 0.0), (math.cos(1e-6), math.sin(1e-6))):
+        found.append(depth_by_sweep(grab, _box(px + (1.0, 0.0)), axis, z + 0.2,
+                                    end_offset_px=_offset_px(rig), clock=rig.clock.now_s))  # fmt: skip
+    d = found[0].apex_px - found[1].apex_px
+    assert abs(d[0]) < 0.05  # px along: 0.4-0.5 with the bins at their middles
+    assert abs(d[1]) < 0.1  # px across (pixels on the strips' side edges go one way or other)
+    assert abs(found[0].z_um - found[1].z_um) < 0.02  # µm

@@ -53,7 +53,6 @@ __all__ = [
     "SWEEP_APEX_SIGMA_PX",
     "SWEEP_DEPTH_FLOOR_UM",
     "SWEEP_DEPTH_OFFSET_UM",
-    "SWEEP_START_AHEAD_PX",
     "DepthEstimate",
     "ReferenceStack",
     "axis_cov_px",
@@ -93,17 +92,11 @@ LINEAR_ALIGN_SIGMA_PX = (0.0, 0.65)
 QUADRATIC_ALIGN_SIGMA_PX = (0.05, 0.8)
 #: The alignment's error across the tool's axis, 1 sigma, px (the edges fix it).
 ALIGN_ACROSS_SIGMA_PX = 0.03
-#: How far ahead of the tool's outline the blurred step fitted to the darkness's rise puts
-#: its start, px: the darkness of a tilted opening rises over its ellipse and the blur,
-#: which the step with a sloping top does not follow. Measured on the simulator's pipette at
-#: NA 0.8 (seeds 100-139, 200 tips: 0.50 px; 0.60-0.68 px on every seed without the tissue
-#: behind the tool, which moves it by 0.18 px 1 sigma); on another tool or objective the
-#: remainder is a constant offset of the tip point, which a calibration takes into its
-#: origin. The tip's image and the depth line's reading are both moved back by it.
-SWEEP_START_AHEAD_PX = 0.50
 #: Where the depth line, read at the tip point, lies above the tip point's focus, µm: the
-#: strips' focus is that of the glass's edges, not of the axis (measured as
-#: :data:`SWEEP_START_AHEAD_PX`: +0.028 µm, 0.026 µm 1 sigma); taken off.
+#: strips' focus is that of the glass's edges, not of the axis (measured on the simulator's
+#: pipette at NA 0.8, seeds 100-139, 200 tips: +0.028 µm, 0.026 µm 1 sigma); taken off. On
+#: another tool or objective the remainder is a constant offset of the tip point, which a
+#: calibration takes into its origin.
 SWEEP_DEPTH_OFFSET_UM = 0.028
 #: A floor of the depth's error, 1 sigma, µm: tips measured in the ``patch`` demo lie
 #: 0.012-0.018 µm below their focus on average, where the same sweep on tips placed directly
@@ -111,9 +104,10 @@ SWEEP_DEPTH_OFFSET_UM = 0.028
 #: stated.
 SWEEP_DEPTH_FLOOR_UM = 0.012
 #: How well the sweep finds the tip's image, 1 sigma along the tool's image axis and across
-#: it, px (measured as :data:`SWEEP_START_AHEAD_PX`, with the start corrected; mostly the
-#: tissue's texture behind the tool); the along part also moves the depth line's reading.
-SWEEP_APEX_SIGMA_PX = (0.18, 0.51)
+#: it, px (measured as :data:`SWEEP_DEPTH_OFFSET_UM`: 0.20 and 0.50 px, mostly the tissue's
+#: texture behind the tool, 0.05 px without it); the along part also moves the depth line's
+#: reading.
+SWEEP_APEX_SIGMA_PX = (0.20, 0.50)
 #: The stack methods compare images less their smooth part, a Gaussian of this sigma, px.
 SMOOTH_PX = 5.0
 
@@ -382,7 +376,7 @@ def depth_by_sweep(
                       np.array([max(p[1], 1e-4) for _, p in found]))  # fmt: skip
     k = int(np.argmin(np.abs(zs - (a + g * start))))
     start, centre_line = _tool_start(windows[k], strips, half_width_px)
-    tip_s = start + end_offset_px + SWEEP_START_AHEAD_PX
+    tip_s = start + end_offset_px
     z_tip = a + g * tip_s - SWEEP_DEPTH_OFFSET_UM
     var = float(np.array([1.0, tip_s]) @ cov @ np.array([1.0, tip_s]))
     along, across = SWEEP_APEX_SIGMA_PX
@@ -461,7 +455,7 @@ def _tool_start(gray: NDArray[np.float32], strips: _Strips, half_px: float) -> t
     inside = np.abs(across) <= half_px
     bins = np.arange(math.floor(along.min()), math.ceil(along.max()) + 1)
     idx = np.digitize(along, bins)
-    centres = np.concatenate([[bins[0] - 1.0], bins - 0.5])
+    centres = np.full(len(bins) + 1, np.nan)
     dark = np.full(len(centres), np.nan)
     sway = np.full(len(centres), np.nan)
     rel = np.zeros_like(gray)
@@ -469,6 +463,9 @@ def _tool_start(gray: NDArray[np.float32], strips: _Strips, half_px: float) -> t
         m = idx == i
         t, b = m & inside, m & beside
         if t.sum() > 3 and b.sum() > 3:
+            # where the bin's tool pixels lie along the axis: its middle only on average (a
+            # tool along a pixel row puts every pixel on the bin's lower edge)
+            centres[i] = float(np.mean(along[t]))
             bg = float(np.median(gray[b]))
             rel[m] = np.abs(gray[m] - bg) / max(bg, 1e-6)
             dark[i] = float(np.mean(rel[t]))
