@@ -29,9 +29,11 @@ import numpy as np
 from microcal.errors import MicrocalError
 from microcal.sim.patch import PatchRig, patch_rig
 from microcal.vision.focus_depth import (
+    ANCHOR_SIGMA_PX,
     DepthEstimate,
     Frame,
     ReferenceStack,
+    axis_cov_px,
     depth_by_best_plane,
     depth_by_stack,
     depth_by_sweep,
@@ -83,7 +85,7 @@ def run_seed(seed: int, tips: int, prior_um: float, sweep: bool = True) -> list[
                           step_um=0.4, end_offset_px=offset, clock=rig.clock.now_s)  # fmt: skip
     stacks = {step: grab_stack(rig.grab_at_focus, fine.z_um, fine.apex_px, reach_um=4.0,
                                step_um=step, tip_focus_var_um2=fine.var_um2,
-                               tip_cov_px=fine.cov_px, axis_px=axis)
+                               tip_cov_px=axis_cov_px(axis, *ANCHOR_SIGMA_PX), axis_px=axis)
               for step in (0.5, 1.0)}  # fmt: skip
     calib_s = rig.clock.now_s() - t0
     shared = (fine.apex_px - px0, fine.z_um - z0)  # the stacks' own errors, alike for every tip

@@ -21,6 +21,7 @@ from microcal.vision.focus_depth import (
     depth_by_sweep,
     depth_from_stack_at,
     grab_stack,
+    sweep_dither_um,
     sweep_positions_um,
 )
 
@@ -225,3 +226,19 @@ def test_the_sweep_reads_alike_with_an_axis_a_millionth_of_a_radian_off_a_pixel_
     assert abs(d[0]) < 0.05  # px along: 0.4-0.5 with the bins at their middles
     assert abs(d[1]) < 0.1  # px across (pixels on the strips' side edges go one way or other)
     assert abs(found[0].z_um - found[1].z_um) < 0.02  # µm
+
+
+def test_the_sweep_s_frames_fall_elsewhere_about_each_tip_s_focus() -> None:
+    """Centres a hundredth of a micron apart move the frames by fractions of the step spread
+    over the whole step, the same each time for the same centre (a good prior would otherwise
+    put every tip's focus on a frame and repeat the error of reading it there)."""
+    step = 0.5
+    centres = 12.34 + 0.01 * np.arange(200)
+    moved = np.array([sweep_dither_um(float(c), step) for c in centres])
+    assert np.all((moved >= -step / 2) & (moved < step / 2))
+    counts, _ = np.histogram(moved, bins=5, range=(-step / 2, step / 2))
+    assert counts.min() >= 25  # of 40 each, were they even
+    assert sweep_dither_um(12.34, step) == sweep_dither_um(12.34, step)
+    positions = sweep_positions_um(12.34, 13, step)
+    assert np.allclose(np.diff(positions), step)
+    assert positions[6] == pytest.approx(12.34 + sweep_dither_um(12.34, step))

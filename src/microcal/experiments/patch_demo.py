@@ -64,7 +64,7 @@ from ..sim.patch_scope import (
     true_frame,
     truth_in_frame,
 )
-from ..vision.focus_depth import grab_stack
+from ..vision.focus_depth import ANCHOR_SIGMA_PX, axis_cov_px, grab_stack
 from ..vision.microscope_frame import MicroscopeFrame
 from .stage_clock import StageClock
 
@@ -157,8 +157,9 @@ def _stack_finder(drive: MicroscopeDrive, sweep: TipFinder) -> TipFinder:
         clock=drive.clock.now_s,
     )  # fmt: skip
     est = tip.depth
+    anchor_cov = axis_cov_px(sweep.axis_px, *ANCHOR_SIGMA_PX)  # a sweep at the start pose
     stack = grab_stack(drive.grab_at_focus, est.z_um, est.apex_px, step_um=0.5,
-                       tip_focus_var_um2=est.var_um2, tip_cov_px=est.cov_px,
+                       tip_focus_var_um2=est.var_um2, tip_cov_px=anchor_cov,
                        axis_px=sweep.axis_px)  # fmt: skip
     return dataclasses.replace(sweep, method="stack", stack=stack)
 

@@ -44,6 +44,7 @@ from .lazy_frame import RegionFrame
 __all__ = [
     "ALIGN_ACROSS_SIGMA_PX",
     "ALIGN_SIGMA_PX",
+    "ANCHOR_SIGMA_PX",
     "INTERPOLATION_SIGMA",
     "LINEAR_ALIGN_SIGMA_PX",
     "MAX_SWEEP_FRAMES",
@@ -62,6 +63,7 @@ __all__ = [
     "depth_by_sweep",
     "depth_from_stack_at",
     "grab_stack",
+    "sweep_dither_um",
     "sweep_positions_um",
 ]
 
@@ -98,16 +100,24 @@ ALIGN_ACROSS_SIGMA_PX = 0.03
 #: another tool or objective the remainder is a constant offset of the tip point, which a
 #: calibration takes into its origin.
 SWEEP_DEPTH_OFFSET_UM = 0.028
-#: A floor of the depth's error, 1 sigma, µm: tips measured in the ``patch`` demo lie
-#: 0.012-0.018 µm below their focus on average, where the same sweep on tips placed directly
-#: reads them within 0.01 µm (seeds 0-9, 100-139); what causes it is not found, so it is
-#: stated.
+#: A floor of the depth's error, 1 sigma, µm: a strip's focus read between frames is off by
+#: -0.02 to +0.01 µm depending on where it falls between them (seeds 100-109, 40 tips at
+#: each of 7 places: 0.012 µm 1 sigma over the places), which :func:`sweep_dither_um`
+#: spreads from sweep to sweep.
 SWEEP_DEPTH_FLOOR_UM = 0.012
 #: How well the sweep finds the tip's image, 1 sigma along the tool's image axis and across
 #: it, px (measured as :data:`SWEEP_DEPTH_OFFSET_UM`: 0.20 and 0.50 px, mostly the tissue's
 #: texture behind the tool, 0.05 px without it); the along part also moves the depth line's
 #: reading.
 SWEEP_APEX_SIGMA_PX = (0.20, 0.50)
+#: A reference stack's anchor (the tip's image found by a sweep with the tool held at the
+#: calibration's start pose), 1 sigma along and across the tool's image axis, px: measured on
+#: seeds 100-139 of ``patch`` (40 anchors: 0.17 and 0.34 px), where sweeps at tips spread
+#: over the working volume read 0.20 and 0.50 px (:data:`SWEEP_APEX_SIGMA_PX`; why is not
+#: found: not the tip's height in the volume).
+ANCHOR_SIGMA_PX = (0.17, 0.34)
+#: The golden ratio's fractional part (the sweep's dither, :func:`sweep_dither_um`).
+_GOLDEN = 0.6180339887498949
 #: The stack methods compare images less their smooth part, a Gaussian of this sigma, px.
 SMOOTH_PX = 5.0
 
@@ -213,11 +223,30 @@ def _unit(axis_px: Sequence[float] | FloatArray) -> FloatArray:
 
 
 def sweep_positions_um(centre_um: float, frames: int = 13, step_um: float = 0.5) -> FloatArray:
-    """The sweep's focus positions, ascending, centred on ``centre_um``, (frames,) µm."""
+    """The sweep's focus positions, ascending, (frames,) µm: ``step_um`` apart about
+    ``centre_um`` moved by :func:`sweep_dither_um` (at most half a step)."""
     n = int(check_number("frames", frames, low=5, high=MAX_SWEEP_FRAMES, integer=True))
     check_number("step_um", step_um, above=0, high=10)
-    out: FloatArray = np.asarray(centre_um + step_um * (np.arange(n) - (n - 1) / 2.0), np.float64)
+    centre = centre_um + sweep_dither_um(centre_um, step_um)
+    out: FloatArray = np.asarray(centre + step_um * (np.arange(n) - (n - 1) / 2.0), np.float64)
     return out
+
+
+def sweep_dither_um(centre_um: float, step_um: float) -> float:
+    """How far the sweep's frames are moved from ``centre_um``, µm, in ``[-step/2, step/2)``.
+
+    A strip's focus is read between frames by a parabola, which puts it a little off by an
+    amount that depends on where the focus falls between two frames: on the simulator's
+    pipette -0.02 µm when the tip's focus is on a frame, +0.01 µm a third of a step from it
+    (``docs/vision.md``). A sweep centred on a good prior (a tip looked for again where it
+    was found, the focus following a calibrated model) would put every tip on a frame and
+    repeat the same error; moved by a fraction of the step that changes with the centre (the
+    fractional part of a large multiple of it: deterministic, so a run and its resumption
+    agree), the error varies from sweep to sweep about its mean, which the depth's offset
+    and floor state (:data:`SWEEP_DEPTH_OFFSET_UM`, :data:`SWEEP_DEPTH_FLOOR_UM`).
+    """
+    fraction = math.fmod(abs(centre_um) * 1000.0 * _GOLDEN, 1.0)
+    return float(step_um * (fraction - 0.5))
 
 
 @dataclass(frozen=True)
