@@ -145,8 +145,6 @@ def record(row: dict[str, float], name: str, est: DepthEstimate, z_true: float,
         own_cov = (est.cov_px - est.shared_cov_px) * pitch**2
         row[f"{name}_chi2own"] = float(own @ np.linalg.solve(own_cov, own))
         own_z = row[f"{name}_dz"] - shared[1]
-        row[f"{name}_dzown"] = own_z
-        row[f"{name}_vzown"] = est.var_um2 - est.shared_var_um2
         row[f"{name}_zown"] = float(abs(own_z) / math.sqrt(est.var_um2 - est.shared_var_um2))
     row[f"{name}_frames"] = est.frames
     row[f"{name}_s"] = est.seconds

@@ -409,7 +409,7 @@ def depth_by_sweep(
     z_tip = a + g * tip_s - SWEEP_DEPTH_OFFSET_UM
     var = float(np.array([1.0, tip_s]) @ cov @ np.array([1.0, tip_s]))
     along, across = SWEEP_APEX_SIGMA_PX
-    var += (g * along) ** 2 + SWEEP_DEPTH_FLOOR_UM**2  # the start's error; the line's model
+    var += (g * along) ** 2 + SWEEP_DEPTH_FLOOR_UM**2  # the start's error; between frames
     apex = np.array([x0, y0]) + origin + tip_s * axis + centre_line * np.array([-axis[1], axis[0]])
     cov_px = axis_cov_px(axis, along, across)
     cov_z = g * along**2 * axis  # the start's error moves the apex and the depth alike
