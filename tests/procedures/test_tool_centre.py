@@ -49,6 +49,23 @@ def test_a_board_that_only_translates_gives_its_offset_and_orientation_with_a_co
     assert 0.9 <= np.mean(np.array(misses) < 7.81) <= 1.0  # chi-square, 3 dof, 95 %
 
 
+def test_the_offset_applied_in_g_has_its_own_covariance_without_the_boards_turn():
+    rng = np.random.default_rng(2)
+    board_R = Rotation.from_rotvec([0.0, 0.01, 0.02]).as_matrix()
+    misses, ratios = [], []
+    for _ in range(200):
+        tool = fit_carried(_poses(rng, board_R=board_R))
+        e = tool.offset_g_um - board_R @ TRUTH
+        c = tool.offset_g_cov_um2
+        misses.append(float(e @ np.linalg.solve(c, e)))
+        ratios.append(np.trace(c) / np.trace(tool.cov_um2))
+    # 0.3 µm tip and 0.1 µm board noise over 10 poses: 0.1 µm per axis in {G}, where the
+    # board's orientation (2 mrad a pose over a 2.4 mm lever) adds some 1.5 µm in its frame
+    assert 0.90 <= np.mean(np.array(misses) < 7.81) <= 0.99  # chi-square, 3 dof, 95 %
+    assert np.sqrt(np.trace(c) / 3) == pytest.approx(0.10, abs=0.02)
+    assert max(ratios) < 0.05
+
+
 def test_a_turning_board_is_fitted_pose_by_pose():
     rng = np.random.default_rng(1)
     tool = fit_carried(_poses(rng, turning=True))
@@ -151,11 +168,24 @@ def test_the_orientation_is_carried_in_the_calibration_file_and_a_bad_one_refuse
     assert back is not None
     assert back.board_R is not None
     np.testing.assert_allclose(back.offset_g_um, tool.offset_g_um)
+    np.testing.assert_allclose(back.offset_g_cov_um2, tool.offset_g_cov_um2)
     raw = json.loads(path.read_text())
+    good = json.dumps(raw)
     raw["manipulators"]["m1"]["tool_centre"]["board_R"][0][0] = 2.0
     path.write_text(json.dumps(raw))
     with pytest.raises(FormatError, match=r"tool_centre.board_R: expected a 3 x 3 rotation"):
         load_calibration(path)
+    raw = json.loads(good)
+    raw["manipulators"]["m1"]["tool_centre"]["cov_g_um2"][2][2] = -0.1
+    path.write_text(json.dumps(raw))
+    with pytest.raises(FormatError, match=r"tool_centre.cov_g_um2: expected 3 x 3 numbers"):
+        load_calibration(path)
+    del raw["manipulators"]["m1"]["tool_centre"]["cov_g_um2"]  # an older file: cov_um2 turned
+    path.write_text(json.dumps(raw))
+    old = tool_centre_of(load_calibration(path).manipulator("m1"))
+    assert old is not None
+    np.testing.assert_allclose(old.offset_g_cov_um2,
+                               tool.board_R @ tool.cov_um2 @ tool.board_R.T)  # fmt: skip
 
 
 @pytest.mark.slow

@@ -70,6 +70,7 @@ class _ToolCentreSchema(FileSchema):
     rms_um: float = Field(ge=0)
     poses: int = Field(ge=2)
     board_R: list[list[float]] | None = None  # noqa: N815 (R, as in the thesis)
+    cov_g_um2: list[list[float]] | None = Field(default=None, min_length=3, max_length=3)
 
 
 class _ManipulatorSchema(FileSchema):
@@ -190,12 +191,13 @@ def _check_tool_centre(path: Path, name: str, tool: _ToolCentreSchema | None) ->
     """Refuse a tool-centre covariance that is not 3 x 3 with variances >= 0."""
     if tool is None:
         return
-    cov = tool.cov_um2
-    if any(len(row) != 3 for row in cov) or any(cov[i][i] < 0 for i in range(3)):
-        raise FormatError(
-            f"{path}: manipulators.{name}.tool_centre.cov_um2: expected 3 x 3 numbers with "
-            f"variances >= 0"
-        )
+    for key, cov in (("cov_um2", tool.cov_um2), ("cov_g_um2", tool.cov_g_um2)):
+        if cov is not None and (any(len(row) != 3 for row in cov)
+                                or any(cov[i][i] < 0 for i in range(3))):  # fmt: skip
+            raise FormatError(
+                f"{path}: manipulators.{name}.tool_centre.{key}: expected 3 x 3 numbers with "
+                f"variances >= 0"
+            )
     R = tool.board_R
     if R is not None and (
         len(R) != 3 or any(len(row) != 3 for row in R)
@@ -211,11 +213,12 @@ def tool_centre_of(calibration: ManipulatorCalibration) -> ToolCentre | None:
     entry = calibration.extra.get("tool_centre")
     if not isinstance(entry, dict):
         return None
-    R = entry.get("board_R")
+    R, cov_g = entry.get("board_R"), entry.get("cov_g_um2")
     return ToolCentre(np.asarray(entry["offset_um"], dtype=np.float64),
                       np.asarray(entry["cov_um2"], dtype=np.float64),
                       float(entry["rms_um"]), int(entry["poses"]),
-                      None if R is None else np.asarray(R, dtype=np.float64))  # fmt: skip
+                      None if R is None else np.asarray(R, dtype=np.float64),
+                      None if cov_g is None else np.asarray(cov_g, dtype=np.float64))  # fmt: skip
 
 
 def _check_validation(path: Path, name: str, validation: _ValidationSchema | None) -> None:

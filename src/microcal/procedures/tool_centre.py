@@ -217,7 +217,7 @@ def fit_carried(poses: Sequence[CarriedPose]) -> ToolCentre:
         # o = R^T g; the mean's small turn w (R -> R (I + [w]x)) moves o by o x w
         S = _skew(o)
         cov = cov + S @ cov_turn @ S.T
-    return ToolCentre(o, cov, in_g.rms_um, in_g.poses, R_mean)
+    return ToolCentre(o, cov, in_g.rms_um, in_g.poses, R_mean, cov_g_um2=in_g.cov_um2)
 
 
 def tip_calibration(entry: ManipulatorCalibration, tool: ToolCentre) -> ManipulatorCalibration:

@@ -27,7 +27,9 @@ def tool_centre_lines(tool: ToolCentre, poses: Sequence[CarriedPose]) -> list[st
                f"{_xyz(std)[1:-1].replace('+', '')} µm from {tool.poses} of {len(poses)} poses "
                f"(residual RMS {tool.rms_um:.2f} µm)")  # fmt: skip
     if tool.board_R is not None:
-        out.append(f"tip from the board's point in {{G}}: {_xyz(tool.offset_g_um)} µm")
+        std_g = np.sqrt(np.diagonal(tool.offset_g_cov_um2))
+        out.append(f"tip from the board's point in {{G}}: {_xyz(tool.offset_g_um)} ± "
+                   f"{_xyz(std_g)[1:-1].replace('+', '')} µm")  # fmt: skip
     return out
 
 

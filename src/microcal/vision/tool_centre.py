@@ -40,6 +40,10 @@ class ToolCentre:
         The board's orientation in {G} (its axes as columns) when it does not turn (a
         manipulator that only translates): the tip is then ``board + board_R @ offset_um``
         at every pose. None: the identity (or a board that turns: give its orientation).
+    cov_g_um2 : (3, 3) float or None
+        The covariance of :attr:`offset_g_um`, the offset applied in {G} to a board that
+        does not turn: without the uncertainty of the board's mean orientation, which
+        ``cov_um2`` carries over the lever of the offset. None: ``cov_um2`` turned into {G}.
     """
 
     offset_um: FloatArray
@@ -47,11 +51,21 @@ class ToolCentre:
     rms_um: float
     poses: int
     board_R: FloatArray | None = None  # noqa: N815 (R, as in the thesis and Placement)
+    cov_g_um2: FloatArray | None = None
 
     @property
     def offset_g_um(self) -> FloatArray:
         """The offset in {G}'s axes for a board that does not turn, (3,) µm."""
         out: FloatArray = self.offset_um if self.board_R is None else self.board_R @ self.offset_um
+        return out
+
+    @property
+    def offset_g_cov_um2(self) -> FloatArray:
+        """The covariance of :attr:`offset_g_um`, (3, 3) µm²."""
+        if self.cov_g_um2 is not None:
+            return self.cov_g_um2
+        R = np.eye(3) if self.board_R is None else self.board_R
+        out: FloatArray = R @ self.cov_um2 @ R.T
         return out
 
     def apply(self, board_um: ArrayLike, R: ArrayLike | None = None) -> FloatArray:
@@ -71,6 +85,8 @@ class ToolCentre:
                                   "poses": self.poses}  # fmt: skip
         if self.board_R is not None:
             out["board_R"] = self.board_R.tolist()
+        if self.cov_g_um2 is not None:
+            out["cov_g_um2"] = self.cov_g_um2.tolist()
         return out
 
 
