@@ -130,7 +130,7 @@ def main() -> None:
             chi2_g = float(eg @ np.linalg.solve(t.offset_g_cov_um2, eg))
             fails = [p.reason for p in done.poses if p.status != "ok"]
             rows.append((label, offset, t, e, eg, chi2, chi2_g, fails))
-        known = ToolCentre(np.array(new), np.eye(3), 0.0, 2, np.eye(3))
+        known = ToolCentre(np.array(new) - virtual, np.eye(3), 0.0, 2, np.eye(3))
         aps = {
             "board point, board calibration": _ap(entry, args.seed, new, tip=False),
             "new tool, its offset measured": _ap(tip_calibration(entry, fitted["new tool"]),
