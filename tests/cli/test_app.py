@@ -57,6 +57,7 @@ BAD_INVOCATIONS = [
     (["demo", "--poses", "5"], "Invalid value for '--poses'"),
     (["demo", "--seed", "abc"], "Invalid value for '--seed'"),
     (["demo", "--bogus"], "No such option: --bogus"),
+    (["goto", "--calibration", "{tmp}/c.json", "-10", "0", "0"], "put -- before negative"),
     (["demo", "--out", "{bad}"], "is a file"),
     (["stereo-calibrate", "--target", "chessboard:9x6:25000"], "give --target and --images"),
     (

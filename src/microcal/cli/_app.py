@@ -57,6 +57,9 @@ class _Commands(TyperGroup):
         except typer.TyperException as exc:  # usage errors: bad option, value or command
             ctx = getattr(exc, "ctx", None)
             hint = f" (see: {ctx.command_path} --help)" if ctx is not None else ""
+            option = getattr(exc, "option_name", "") or ""
+            if option[1:2].isdigit() or option[1:2] == ".":  # -10 taken for an option
+                hint = f"; put -- before negative numbers, as in '... -- -10 0 0'{hint}"
             fail(f"{exc.format_message()}{hint}")
         except (typer.Abort, KeyboardInterrupt):
             fail("interrupted", INTERRUPTED)

@@ -48,7 +48,8 @@ def fit(
 ) -> None:  # fmt: skip
     """Identify a manipulator's kinematic model from measured positions.
 
-    Example: microcal fit runs/a --model polynomial --train 110 --out calibration.json
+    Example: microcal fit runs/a --model polynomial --cameras runs/a/cameras.json
+    --out runs/a/calibration.json
     """
     from ..report.text_tables import fit_lines, outlier_lines
     from ..workflows.fit import FitRequest

@@ -17,7 +17,9 @@ _Along = Annotated[
     float | None,
     Option(help="Instead of X Y Z: move the tip this far along its approach axis, µm."),
 ]
-_Coord = Annotated[float | None, Argument(help="Target in {G}, µm (x, then y, then z).")]
+_Coord = Annotated[
+    float | None, Argument(help="Target in {G}, µm (x, then y, then z; -- before negatives).")
+]
 
 
 @app.command(short_help="Move the tip to a position in {G}, open or closed loop.")

@@ -55,7 +55,7 @@ def stereo_calibrate(
     Example: microcal calibrate-cameras --target chessboard:9x6:25000 --images cam='cal/*.png'
     --out cameras.json
 
-    Example: microcal stereo-calibrate --rig examples/rigs/twin.toml --out cameras.json
+    Example: microcal stereo-calibrate --rig sim --out runs/a/cameras.json
     """
     if rig is not None:
         return _on_rig(rig, out, views, known_displacements, target, seed, frames_per_view,

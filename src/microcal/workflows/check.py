@@ -356,6 +356,15 @@ class PeriodicCheck:
         append_history(history_path(self.path), entry)
         off = ", ".join(f"{v:+.2f}" for v in result.offset_um)
         std = ", ".join(f"{v:.2f}" for v in result.offset_std_um)
-        self.say(f"check after {done} poses: {result.verdict}, offset ({off}) ± ({std}) µm"
+        chance = f"about one check in {1 / self.config.alpha:.0f} says so by chance"
+        said = {
+            "valid": f"valid (offset ({off}) ± ({std}) µm)",
+            "offset": f"offset moved by ({off}) ± ({std}) µm (p "
+            f"{result.offset_p_value:.3f}; {chance}: if the next says it too, "
+            "'microcal check ... --update FILE' corrects it)",
+            "refit": f"the model no longer fits (p {result.p_value:.3f}; {chance}; "
+            f"offset ({off}) ± ({std}) µm): if it repeats, calibrate again",
+        }
+        self.say(f"check after {done} poses: {said[result.verdict]}"
                  + (f"; {entry['flag']}" if entry["flag"] else ""))  # fmt: skip
         return self.last_leg

@@ -76,7 +76,7 @@ def measure_tool_centre(
     *,
     manipulator: str | None = None,
     seed: int | None = None,
-    frames: int = 2,
+    frames: int = 30,
     settle_s: float = 2.0,
     progress: Callable[[int, int], None] | None = None,
 ) -> ToolCentreOutcome:
