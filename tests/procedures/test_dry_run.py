@@ -30,3 +30,22 @@ def test_a_tool_on_the_manipulator_is_looked_for_as_a_tip():
     cameras = [line for line in lines if line.startswith("camera ")]
     assert len(cameras) == 2
     assert all(line.endswith("; tip found") for line in cameras), cameras
+
+
+def test_a_dry_run_refuses_an_out_that_the_run_would_refuse(tmp_path):
+    """The dry run checks --out as the run would: a directory that holds a run is one line
+    before anything opens (it used to pass the dry run and be refused by the run)."""
+    from microcal.errors import InputError
+    from microcal.formats.run_directory import MANIFEST
+    from microcal.workflows.acquire import check_out
+
+    check_out(tmp_path / "new", resume=False, dry_run=True)  # a new directory: fine
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / MANIFEST).write_text("{}")
+    for dry_run in (True, False):
+        with pytest.raises(InputError, match=r"a: already holds a run; use --resume"):
+            check_out(tmp_path / "a", resume=False, dry_run=dry_run)
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "notes.txt").write_text("mine")
+    with pytest.raises(InputError, match=r"holds other files \(notes.txt\)"):
+        check_out(tmp_path / "b", resume=False, dry_run=True)

@@ -105,3 +105,24 @@ def test_bad_options_are_one_line(tmp_path: Path):
     out = invoke_microcal("ui", "--calibration", "c.json", "--port", "70000")
     assert out.returncode == 2
     assert "--port" in out.stderr
+
+
+def test_a_busy_port_is_one_line_that_names_port_0(netns):
+    """In the test's own namespace: a port this test holds is refused in one line that says
+    how to get another."""
+    import socket
+
+    from microcal.errors import InputError
+    from microcal.ui.serve import _bind
+
+    held = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    try:
+        held.bind(("127.0.0.1", 0))
+        held.listen(1)
+        port = held.getsockname()[1]
+        with pytest.raises(InputError, match=rf"--port {port}: cannot listen there .*--port 0"):
+            _bind("127.0.0.1", port)
+        free = _bind("127.0.0.1", 0)
+        free.close()
+    finally:
+        held.close()

@@ -162,7 +162,12 @@ def load_calibration(path: str | os.PathLike[str], *, link_ok: bool = True) -> C
         shape; the message names the key.
     """
     p = Path(path)
-    raw = read_versioned_json(p, CALIBRATION_FORMATS, link_ok=link_ok)
+    raw = read_versioned_json(
+        p,
+        CALIBRATION_FORMATS,
+        " (run 'microcal fit RUN --cameras CAMERAS --out FILE' first)",
+        link_ok=link_ok,
+    )
     schema = parse_schema(_CalibrationSchema, raw, p)
     section = raw["manipulators"]  # an object of objects: the schema has checked it
     manipulators = {}

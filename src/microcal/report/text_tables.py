@@ -489,10 +489,10 @@ def demo_closing(result: DemoResult, out: Path, wall_s: float) -> list[TextTable
     )
     return [
         *([stage_time_table(result.stages_s, wall_s)] if result.stages_s else []),
+        f"polynomial terms selected stepwise: {terms}",
         f"wrote {out}/: the run (run.json, commands.csv, journal.jsonl, images/), "
         f"measurements.csv, cameras.json, calibration.json, results.json and report.html "
         f"({wall_s:.0f} s); open {out / 'report.html'} in a browser",
-        f"polynomial terms selected stepwise: {terms}",
     ]
 
 

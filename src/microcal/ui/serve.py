@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import socket
 import threading
 import time
@@ -46,8 +47,10 @@ def _bind(host: str, port: int) -> socket.socket:
         sock.bind((host, port))
     except OSError as exc:
         sock.close()
+        busy = exc.errno == errno.EADDRINUSE
         raise InputError(
             f"--host {host} --port {port}: cannot listen there ({exc.strerror or exc})"
+            + ("; another port, or --port 0 for any free one" if busy else "")
         ) from None
     sock.listen(64)
     return sock

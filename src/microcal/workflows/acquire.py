@@ -140,9 +140,9 @@ def check_out(out: Path, resume: bool, dry_run: bool) -> None:
         if not (out / MANIFEST).exists():
             raise InputError(f"{out}: no run to resume (no {MANIFEST}); start it without --resume")
         return
-    if dry_run or not out.exists():
+    if not out.exists():
         return
-    if holds_run(out):
+    if holds_run(out):  # a dry run says so too: the run it checks for could not start there
         raise InputError(f"{out}: {HOLDS_A_RUN}")
     others = sorted(p.name for p in out.iterdir() if not _earlier_step(p))
     if others:
@@ -449,11 +449,16 @@ def acquire_remaining(
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    mean_settle = float(np.mean(settles)) if settles else 0.0
     size_mb = writer.size_bytes() / 1e6
     settle = "vision" if config.settle == "vision" else f"fixed:{config.fixed_s:g}"
+    if not settles:
+        how = "no pose was left to acquire"
+    else:
+        how = f"mean settle {float(np.mean(settles)):.2f} s ({settle})"
+        if len(settles) < len(writer.done):  # a resumed run: the poses before are journaled
+            how += f" over the {len(settles)} poses acquired now"
     yield (f"stored {len(writer.done)} of {len(pose_ids)} poses in {writer.run_dir} "
-           f"({size_mb:.1f} MB); mean settle {mean_settle:.2f} s ({settle})")  # fmt: skip
+           f"({size_mb:.1f} MB); {how}")  # fmt: skip
     for pose, reason in failed:
         yield f"pose {pose} failed: {reason}"
     yield from writer.repairs[said:]  # an image found where a pose's image went, kept aside
