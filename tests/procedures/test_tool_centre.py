@@ -66,6 +66,21 @@ def test_the_offset_applied_in_g_has_its_own_covariance_without_the_boards_turn(
     assert max(ratios) < 0.05
 
 
+def test_the_tips_own_error_is_added_whole_not_averaged_over_the_poses():
+    import dataclasses
+
+    rng = np.random.default_rng(3)
+    model = np.diag([0.09, 0.0, 0.01])  # µm²: e.g. 0.3 µm along the jaw
+    for n in (5, 40):
+        poses = _poses(rng, n=n)
+        plain = fit_carried(poses)
+        tool = fit_carried([dataclasses.replace(p, tip_model_cov_um2=model) for p in poses])
+        np.testing.assert_allclose(tool.offset_um, plain.offset_um)
+        np.testing.assert_allclose(tool.offset_g_cov_um2 - plain.offset_g_cov_um2, model,
+                                   atol=1e-12)  # fmt: skip
+        np.testing.assert_allclose(tool.cov_um2 - plain.cov_um2, model, atol=1e-3)  # R near I
+
+
 def test_a_turning_board_is_fitted_pose_by_pose():
     rng = np.random.default_rng(1)
     tool = fit_carried(_poses(rng, turning=True))

@@ -12,7 +12,13 @@ from microcal.sim.tool_render import render_tool_region, tool_roi
 from microcal.sim.tools import ToolPlacement
 from microcal.vision.tip import detect_tip
 from microcal.vision.tip_target import parse_tip
-from microcal.vision.tip_vertex import camera_vertex, tip_from_vertices, vertex_to_tip_um
+from microcal.vision.tip_vertex import (
+    VERTEX_ALONG_MODEL_PX,
+    camera_vertex,
+    tip_from_vertices,
+    vertex_model_cov_um2,
+    vertex_to_tip_um,
+)
 from microcal.vision.tip_wedge import fit_wedge
 
 JAW = parse_tip("tip:jaw:30:40")
@@ -112,6 +118,35 @@ def test_the_tip_point_in_3d_from_two_cameras_is_within_a_quarter_micrometre(gri
     assert cov.shape == (3, 3)
     assert np.all(np.linalg.eigvalsh(cov) > 0)
     assert vertex_to_tip_um(JAW) == pytest.approx(20.0 / np.sin(np.radians(15.0)))
+
+
+def test_the_vertex_fits_own_error_is_carried_to_3d_at_its_size(gripper):
+    """Both cameras' vertices moved by VERTEX_ALONG_MODEL_PX along their axes: the
+    triangulated point moves by one sigma of each camera's share, so its chi-square under the
+    model covariance (rank 2: one direction per camera) is 2; on these cameras that is some
+    0.3-0.5 µm, mostly along the jaw (x)."""
+    import dataclasses
+
+    from microcal.geometry import triangulate_views
+
+    cameras, jaw = gripper
+    views = {n: camera_vertex([_light(c, jaw)], JAW, c) for n, c in cameras.items()}
+    assert all(not isinstance(v, str) for v in views.values())
+    C = vertex_model_cov_um2(views, cameras)  # type: ignore[arg-type]
+    names = list(cameras)
+    cams = [cameras[n] for n in names]
+
+    def point(vs):
+        return triangulate_views(cams, [vs[n].vertex_px[None] for n in names],
+                                 [vs[n].cov_px2 for n in names])[0][0]  # fmt: skip
+
+    moved = {n: dataclasses.replace(v, vertex_px=v.vertex_px + VERTEX_ALONG_MODEL_PX * v.axis)
+             for n, v in views.items()}  # fmt: skip
+    shift = point(moved) - point(views)
+    assert float(shift @ np.linalg.pinv(C, rcond=1e-9) @ shift) == pytest.approx(2.0, abs=0.05)
+    assert np.linalg.matrix_rank(C, tol=1e-9 * np.trace(C)) == 2
+    assert 0.2 < np.sqrt(C[0, 0]) < 0.6  # µm along x, where the jaw runs
+    assert vertex_model_cov_um2({"top": views["top"]}, cameras).sum() == 0.0  # type: ignore[arg-type]
 
 
 def test_one_camera_is_not_enough_and_says_so(gripper):

@@ -38,7 +38,12 @@ from ..vision.board_pose import board_pose, mean_rotation
 from ..vision.measurement import measure_one
 from ..vision.targets import Target
 from ..vision.tip_target import TipTarget
-from ..vision.tip_vertex import camera_vertex, takes_3d_vertex_path, tip_from_vertices
+from ..vision.tip_vertex import (
+    camera_vertex,
+    takes_3d_vertex_path,
+    tip_from_vertices,
+    vertex_model_cov_um2,
+)
 from ..vision.tool_centre import ToolCentre, fit_tool_centre
 from .check import offset_updated
 
@@ -79,6 +84,10 @@ class CarriedPose:
     board_cov_um2, tip_cov_um2 : (3, 3) float
     R : (3, 3) float
         The board's orientation in {G}.
+    tip_model_cov_um2 : (3, 3) float or None
+        The part of the tip's error that is the same over frames and nearby poses (the
+        vertex fit's own, :func:`~microcal.vision.tip_vertex.vertex_model_cov_um2`); the fit
+        adds its mean over the poses to the offset's covariance without dividing it.
     """
 
     status: str
@@ -88,6 +97,7 @@ class CarriedPose:
     R: FloatArray = field(default_factory=lambda: _nan(3, 3))
     tip_um: FloatArray = field(default_factory=lambda: _nan(3))
     tip_cov_um2: FloatArray = field(default_factory=lambda: _nan(3, 3))
+    tip_model_cov_um2: FloatArray | None = None
 
 
 def hide_board(
@@ -159,9 +169,10 @@ def _tip_by_vertex(
     frames: Mapping[str, Sequence[NDArray[np.generic]]],
     cameras: Mapping[str, AnyCamera],
     tip: TipTarget,
-) -> tuple[FloatArray, FloatArray] | str:
-    """The tip point in {G} and its covariance from each camera's taper (its vertex and
-    axis), or the reasons the cameras gave."""
+) -> tuple[FloatArray, FloatArray, FloatArray] | str:
+    """The tip point in {G}, its covariance and the part of it that frames do not average
+    (see :class:`CarriedPose`) from each camera's taper (its vertex and axis), or the reasons
+    the cameras gave."""
     views, lost = {}, []
     for name, camera in cameras.items():
         got = camera_vertex(frames.get(name) or [], tip, camera)
@@ -171,7 +182,10 @@ def _tip_by_vertex(
             views[name] = got
     if len(views) < 2:
         return "; ".join(lost) or "no camera saw the tool"
-    return tip_from_vertices(views, cameras, tip)
+    point = tip_from_vertices(views, cameras, tip)
+    if isinstance(point, str):
+        return point
+    return point[0], point[1], vertex_model_cov_um2(views, cameras)
 
 
 def _skew(v: FloatArray) -> FloatArray:
@@ -208,16 +222,20 @@ def fit_carried(poses: Sequence[CarriedPose]) -> ToolCentre:
     Rs = np.array([p.R for p in ok])
     R_mean, cov_turn = mean_rotation(Rs)
     turns = [np.arccos(np.clip((np.trace(R_mean.T @ R) - 1) / 2, -1.0, 1.0)) for R in Rs]
+    got = [p.tip_model_cov_um2 for p in ok if p.tip_model_cov_um2 is not None]
+    model = np.mean(got, axis=0) if got else np.zeros((3, 3))  # not averaged away: added whole
     if max(turns) > TURNING_RAD:
-        return fit_tool_centre(b, t, board_cov_um2=cb, tip_cov_um2=ct, R=Rs)
+        turning = fit_tool_centre(b, t, board_cov_um2=cb, tip_cov_um2=ct, R=Rs)
+        return dataclasses.replace(turning, cov_um2=turning.cov_um2 + R_mean.T @ model @ R_mean)
     in_g = fit_tool_centre(b, t, board_cov_um2=cb, tip_cov_um2=ct)
+    cov_g = in_g.cov_um2 + model
     o = R_mean.T @ in_g.offset_um
-    cov = R_mean.T @ in_g.cov_um2 @ R_mean
+    cov = R_mean.T @ cov_g @ R_mean
     if np.all(np.isfinite(cov_turn)):
         # o = R^T g; the mean's small turn w (R -> R (I + [w]x)) moves o by o x w
         S = _skew(o)
         cov = cov + S @ cov_turn @ S.T
-    return ToolCentre(o, cov, in_g.rms_um, in_g.poses, R_mean, cov_g_um2=in_g.cov_um2)
+    return ToolCentre(o, cov, in_g.rms_um, in_g.poses, R_mean, cov_g_um2=cov_g)
 
 
 def tip_calibration(entry: ManipulatorCalibration, tool: ToolCentre) -> ManipulatorCalibration:
