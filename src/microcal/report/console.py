@@ -86,6 +86,10 @@ def print_parts(console: Console, parts: list[TextTable | str]) -> None:
             console.print(part, markup=False, highlight=False, emoji=False, soft_wrap=True)
 
 
+#: Where the output is not a terminal, a stage's progress lines: at most one per this share.
+LOG_STEPS = 20
+
+
 @contextmanager
 def staged_progress(
     console: Console | None = None, clock: Callable[[], float] = time.monotonic
@@ -94,8 +98,8 @@ def staged_progress(
 
     On a terminal: one bar per stage while it runs, with its count and the time left. Where
     the output is not a terminal (a log, a pipe, a notebook): one line per step, ``stage:
-    done/total, elapsed, about ... left``, at most one per percent of a stage (so a long stage
-    writes at most about a hundred lines).
+    done/total, elapsed, about ... left``, at most one per twentieth of a stage (so a stage of
+    170 poses writes some 20 lines, not 170).
     """
     from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeRemainingColumn
 
@@ -110,7 +114,7 @@ def staged_progress(
         def lines(stage: str, done: int, total: int) -> None:
             now = clock()
             t0 = started.setdefault(stage, now)
-            step = int(100 * done / total) if total > 0 else done
+            step = int(LOG_STEPS * done / total) if total > 0 else done
             if shown.get(stage) == step and done != total:
                 return
             shown[stage] = step
