@@ -4,6 +4,7 @@ truth's inversion and its logarithmic creep."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from microcal.kinematics.families import FAMILIES, fit_family
 from microcal.kinematics.terms import JOINTS
@@ -44,3 +45,25 @@ def test_truth_inverts_exactly_and_creep_is_logarithmic():
     left = truth.creep_um(np.array([[100.0, 0, 0]]), np.array([0.0, 1.0, 5.0, 1e4]))[:, 0]
     assert np.all(np.diff(left) > 0)  # decays, never overshoots
     assert left[-1] == 0.0  # to nothing
+
+
+def test_each_population_seed_is_another_unit_and_its_calibration_is_refused_on_another():
+    """A seed of ``population`` is another manipulator: its identity says which, so that a
+    calibration made on one seed is refused on another (the thesis preset's kinematics are the
+    same for every seed, and so is its identity)."""
+    from microcal.errors import InputError
+    from microcal.kinematics.manipulator_calibration import ManipulatorCalibration
+    from microcal.kinematics.models import fit_matrix_model
+
+    a = platform("population", seed=3).manipulator.identity
+    b = platform("population", seed=4).manipulator.identity
+    assert a == "simulated m1 (population seed 3)"
+    assert a != b
+    assert platform("thesis", seed=3).manipulator.identity == "simulated m1"
+    d = np.random.default_rng(0).uniform(0, 8000, (20, 3))
+    figures = {"n_fit": 20, "n_validate": 0, "mean_um": 0.1, "std_um": 0.1, "max_um": 0.2,
+               "rms_um": 0.1}  # fmt: skip
+    entry = ManipulatorCalibration("m1", fit_matrix_model(d, d), figures, {"device": a})
+    entry.check_device(a)
+    with pytest.raises(InputError, match=r"calibrated on simulated m1 \(population seed 3\)"):
+        entry.check_device(b)

@@ -108,6 +108,8 @@ class SimManipulator(Manipulator):
     ) -> None:
         super().__init__(name, ("x", "y", "z"), limits_um)
         self.truth = truth
+        #: Which unit this is where a preset draws each seed's kinematics ("" where not).
+        self.unit = ""
         self.clock = clock
         self.rng = rng
         self.speed_um_s = float(speed_um_s)
@@ -141,8 +143,10 @@ class SimManipulator(Manipulator):
 
     @property
     def identity(self) -> str:
-        """``simulated m1``: the simulator's manipulator (the same for every seed)."""
-        return f"simulated {self.name}"
+        """``simulated m1``: the simulator's manipulator, the same unit for every seed of a
+        preset whose kinematics do not depend on it (the thesis's); ``simulated m1
+        (population seed 3)`` where each seed is another unit (:attr:`unit`)."""
+        return f"simulated {self.name}" + (f" ({self.unit})" if self.unit else "")
 
     # --- the device protocol -------------------------------------------------------------
     def _fault(self, what: str) -> None:

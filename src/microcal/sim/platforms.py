@@ -525,7 +525,8 @@ def platform(
     )  # fmt: skip
     manipulator.mount_offset_um = np.array(mc.mount_offset_um, dtype=np.float64)
     manipulator.joint_scale = np.array(mc.joint_scale, dtype=np.float64)
-    if draw is not None:  # the room's temperature cycle
+    if draw is not None:  # each seed another unit, and the room's temperature cycle
+        manipulator.unit = f"{preset} seed {seed}"
         manipulator.temperature_swing_c = draw.temperature_swing_c
         manipulator.temperature_period_h = draw.temperature_period_h
         manipulator.temperature_phase = draw.temperature_phase
