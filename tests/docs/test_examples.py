@@ -143,7 +143,7 @@ SETUPS: dict[tuple[str, int], Setup] = {
     ("docs/formats.md", 5): Setup(demo={"calibration.json": "calibration.json"}),
     ("docs/guide.md", 2): Setup(demo={"runs/a/calibration.json": "calibration.json"}),
     ("docs/guide.md", 3): Setup(
-        files={"rigs/lab.toml": SIM_RIG}, demo={"runs/a/calibration.json": "calibration.json"}
+        files={"myrig.toml": SIM_RIG}, demo={"runs/a/calibration.json": "calibration.json"}
     ),
     ("docs/hardware.md", 0): Setup(twin_rig="myrig.toml"),
     ("docs/hardware.md", 1): Setup(twin_rig="myrig.toml"),
