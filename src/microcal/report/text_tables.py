@@ -658,12 +658,33 @@ def solution_lines(solution: Solution, calibration: ManipulatorCalibration) -> l
     return lines
 
 
+def _offset_text(result: CheckResult) -> tuple[str, str]:
+    """A check's offset and its standard deviation, each as ``x, y, z`` (µm)."""
+    off = ", ".join(f"{v:+.2f}" for v in result.offset_um.tolist())
+    std = ", ".join(f"{v:.2f}" for v in result.offset_std_um.tolist())
+    return off, std
+
+
+def periodic_check_line(result: CheckResult, after_poses: int, alpha: float, flag: str) -> str:
+    """The line a check made during a run (``acquire --check-calibration``) prints: its
+    verdict in words, and for a verdict that is not ``valid`` how often that is chance."""
+    off, std = _offset_text(result)
+    chance = f"about one check in {1 / alpha:.0f} says so by chance"
+    says = {"valid": f"valid (offset ({off}) ± ({std}) µm)",
+            "offset": f"offset moved by ({off}) ± ({std}) µm (p {result.offset_p_value:.3f}; "
+                      f"{chance}: if the next says it too, 'microcal check ... --update FILE' "
+                      "corrects it)",
+            "refit": f"the model no longer fits (p {result.p_value:.3f}; {chance}; offset "
+                     f"({off}) ± ({std}) µm): if it repeats, calibrate again"}  # fmt: skip
+    line = f"check after {after_poses} poses: {says[result.verdict]}"
+    return line + (f"; {flag}" if flag else "")
+
+
 def check_lines(
     result: CheckResult, flag: str = "", update: CheckUpdate | None = None
 ) -> list[str]:
     """What ``microcal check`` prints: the verdict, the offset, the tests, a flag, the update."""
-    off = ", ".join(f"{v:+.2f}" for v in result.offset_um.tolist())
-    std = ", ".join(f"{v:.2f}" for v in result.offset_std_um.tolist())
+    off, std = _offset_text(result)
     says = {"valid": "the calibration is still valid",
             "offset": f"the offset moved by ({off}) ± ({std}) µm; the model still fits "
                       "(--update writes a calibration with the new offset)",

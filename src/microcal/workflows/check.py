@@ -47,6 +47,7 @@ from ..procedures.check import (
     planned_check,
     run_check,
 )
+from ..report.text_tables import periodic_check_line
 from ..vision.probe import VisionProbe
 from ..vision.tip_target import TipTarget
 from .calibration_update import camera_models
@@ -348,23 +349,12 @@ class PeriodicCheck:
             self.last_s = self.rig.clock.now_s()
         self.results.append(result)
         entry = result.as_dict()
-        entry |= {"flag": _far_from_history(result, history, 3.0), "during": self.run_dir,
+        flag = _far_from_history(result, history, 3.0)
+        entry |= {"flag": flag, "during": self.run_dir,
                   "after_poses": done, "manipulator": self.entry.name,
                   "calibration_sha256": sha256_file(self.path, link_ok=True),
                   "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
                   "software": f"microcal {__version__}"}  # fmt: skip
         append_history(history_path(self.path), entry)
-        off = ", ".join(f"{v:+.2f}" for v in result.offset_um)
-        std = ", ".join(f"{v:.2f}" for v in result.offset_std_um)
-        chance = f"about one check in {1 / self.config.alpha:.0f} says so by chance"
-        said = {
-            "valid": f"valid (offset ({off}) ± ({std}) µm)",
-            "offset": f"offset moved by ({off}) ± ({std}) µm (p "
-            f"{result.offset_p_value:.3f}; {chance}: if the next says it too, "
-            "'microcal check ... --update FILE' corrects it)",
-            "refit": f"the model no longer fits (p {result.p_value:.3f}; {chance}; "
-            f"offset ({off}) ± ({std}) µm): if it repeats, calibrate again",
-        }
-        self.say(f"check after {done} poses: {said[result.verdict]}"
-                 + (f"; {entry['flag']}" if entry["flag"] else ""))  # fmt: skip
+        self.say(periodic_check_line(result, done, self.config.alpha, flag))
         return self.last_leg
