@@ -96,7 +96,7 @@ def _virtual_from_centre_um(entry: ManipulatorCalibration, seed: int) -> np.ndar
         placed = scene.board_placement(clock.now_s())
         assert isinstance(placed, Placement)
         corners = board.points_um() @ placed.R.T + placed.t_um
-        means = [c.undistort_px(c.project(corners)).mean(axis=0) for c in cams]
+        means = [c.project(corners, distort=False).mean(axis=0) for c in cams]
         virtual, _ = triangulate_cameras(cams[0], cams[1], means[0], means[1], 0.1, 0.1)
         centre = placed.R @ board.centre_um + placed.t_um
         out.append(placed.R.T @ (np.asarray(virtual).reshape(3) - centre))

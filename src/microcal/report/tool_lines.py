@@ -19,17 +19,20 @@ def _xyz(v: np.ndarray, digits: int = 2) -> str:
     return "(" + ", ".join(f"{x:+.{digits}f}" for x in v) + ")"
 
 
+def _pm(cov_um2: np.ndarray) -> str:
+    """``value ± a, b, c``'s right side: the standard deviations of a covariance."""
+    return ", ".join(f"{x:.2f}" for x in np.sqrt(np.diagonal(cov_um2)))
+
+
 def tool_centre_lines(tool: ToolCentre, poses: Sequence[CarriedPose]) -> list[str]:
     """The offset with its standard deviation, and each failed pose's reason."""
-    std = np.sqrt(np.diagonal(tool.cov_um2))
     out = [f"pose {i + 1}: not used: {p.reason}" for i, p in enumerate(poses) if p.status != "ok"]
     out.append(f"tool centre in the board's frame: {_xyz(tool.offset_um)} ± "
-               f"{_xyz(std)[1:-1].replace('+', '')} µm from {tool.poses} of {len(poses)} poses "
+               f"{_pm(tool.cov_um2)} µm from {tool.poses} of {len(poses)} poses "
                f"(residual RMS {tool.rms_um:.2f} µm)")  # fmt: skip
     if tool.board_R is not None:
-        std_g = np.sqrt(np.diagonal(tool.offset_g_cov_um2))
         out.append(f"tip from the board's point in {{G}}: {_xyz(tool.offset_g_um)} ± "
-                   f"{_xyz(std_g)[1:-1].replace('+', '')} µm")  # fmt: skip
+                   f"{_pm(tool.offset_g_cov_um2)} µm")  # fmt: skip
     return out
 
 
