@@ -199,3 +199,20 @@ def test_an_opencv_error_that_escapes_is_one_line(tmp_path, monkeypatch):
     assert len(lines) == 1
     assert lines[0].startswith("microcal: error: OpenCV could not use an input (")
     assert "Traceback" not in result.output
+
+
+@pytest.mark.parametrize(("interrupted", "code"), [(True, 130), (False, 2)])
+def test_a_stopped_run_exits_130_when_asked_and_2_after_a_fault(tmp_path, monkeypatch,
+                                                                interrupted, code):  # fmt: skip
+    from microcal.procedures.acquisition import RunStoppedError
+
+    def stopped(request):
+        yield "starting"
+        raise RunStoppedError("run stopped (a reason); 3 of 9 poses stored; resume with: "
+                              "microcal acquire --out x --resume", interrupted=interrupted)  # fmt: skip
+
+    monkeypatch.setattr("microcal.workflows.adaptive_acquire.acquire_any", stopped)
+    result = runner.invoke(app, ["acquire", "--out", str(tmp_path / "run")])
+    assert result.exit_code == code
+    assert result.stderr.strip().splitlines()[-1].startswith("microcal: error: run stopped (")
+    assert "resume with: microcal acquire --out x --resume" in result.stderr

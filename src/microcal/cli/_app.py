@@ -63,8 +63,8 @@ class _Commands(TyperGroup):
             fail(f"{exc.format_message()}{hint}")
         except (typer.Abort, KeyboardInterrupt):
             fail("interrupted", INTERRUPTED)
-        except MicrocalError as exc:
-            fail(str(exc))
+        except MicrocalError as exc:  # a run stopped by Ctrl-C says how to resume, exits 130
+            fail(str(exc), INTERRUPTED if getattr(exc, "interrupted", False) else 2)
         except Exception as exc:
             if type(exc).__module__.split(".")[0] != "cv2":  # OpenCV's cv2.error, unforeseen
                 raise

@@ -49,7 +49,15 @@ Store = Callable[[int, dict[str, list[Frame]], JournalRecord], None]
 
 
 class RunStoppedError(MicrocalError):
-    """The run stopped before its end (device error or a stop request); it can be resumed."""
+    """The run stopped before its end (device error or a stop request); it can be resumed.
+
+    ``interrupted``: the user asked for the stop (Ctrl-C, SIGTERM), not a device fault (the
+    command line exits 130 then, as after any Ctrl-C, and 2 after a fault).
+    """
+
+    def __init__(self, message: str, *, interrupted: bool = False) -> None:
+        super().__init__(message)
+        self.interrupted = interrupted
 
 
 @dataclass(frozen=True)

@@ -445,7 +445,8 @@ def acquire_remaining(
                             progress=progress, between=periodic)  # fmt: skip
     except RunStoppedError as exc:
         raise RunStoppedError(f"run stopped ({exc}); {len(writer.done)} of {len(pose_ids)} "
-                              f"poses stored; resume with: {resume_hint}") from None  # fmt: skip
+                              f"poses stored; resume with: {resume_hint}",
+                              interrupted=stop["requested"]) from None  # fmt: skip
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)

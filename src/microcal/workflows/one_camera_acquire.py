@@ -332,7 +332,8 @@ def _acquire(out: Path, request: Any, spec: RigSpec, setup: _Setup) -> Iterator[
             from ..procedures.acquisition import RunStoppedError
 
             raise RunStoppedError(f"run stopped; {len(stored)} poses stored; resume with: "
-                                  f"microcal acquire --out {out} --resume") from None  # fmt: skip
+                                  f"microcal acquire --out {out} --resume",
+                                  interrupted=True) from None  # fmt: skip
         _write_measurements(out, stored)
     yield from _summary(out, run)
 
