@@ -11,6 +11,7 @@ import csv
 import hashlib
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -141,8 +142,17 @@ def test_bad_designs_exit_2_and_move_nothing(tmp_path, rows, message):
 @pytest.mark.slow
 def test_acquire_then_measure(tmp_path):
     run = tmp_path / "run"
-    assert invoke_microcal("acquire", "--rig", "sim", "--poses", "12", "--frames", "2", "--store", "roi",
-                           "--out", run).returncode == 0  # fmt: skip
+    got = invoke_microcal("acquire", "--rig", "sim", "--poses", "12", "--frames", "2", "--store", "roi",
+                          "--out", run)  # fmt: skip
+    assert got.returncode == 0, got.stderr
+    # the regions' disk, unknown before the target is seen, is said after the first pose
+    first = [line for line in got.stdout.splitlines() if line.startswith("the first pose took")]
+    assert len(first) == 1
+    estimate_mb = float(re.search(r"about ([0-9.e+]+) MB for the 12 poses", first[0]).group(1))
+    stored_mb = float(
+        re.search(r"stored 12 of 12 poses in .* \(([0-9.]+) MB\)", got.stdout).group(1)
+    )
+    assert 0.7 * stored_mb < estimate_mb < 1.3 * stored_mb
     plat = sim.platform("thesis", seed=0)
 
     cams = {"format": "microcal.cameras/1", "cameras": {

@@ -274,6 +274,13 @@ def run_acquire(request: AcquireRequest) -> Iterator[str]:
             )
 
 
+def first_pose_disk_line(pose_bytes: int, poses: int) -> str:
+    """The disk the first pose took, and the run's at that rate (said after the first pose:
+    a region of interest's size is known only once the target is seen)."""
+    return (f"the first pose took {pose_bytes / 1e6:.2g} MB on disk: about "
+            f"{poses * pose_bytes / 1e6:.2g} MB for the {poses} poses")  # fmt: skip
+
+
 def disk_use_line(cameras: Any, poses: int, config: AcquisitionConfig) -> str:
     """The disk a run's images will take, said before it starts: their size before the
     lossless compression (which saves what the images allow); a region of interest takes a
@@ -293,7 +300,8 @@ def disk_use_line(cameras: Any, poses: int, config: AcquisitionConfig) -> str:
     what = (f"{poses} poses x {len(cameras)} camera(s) x {config.frames_per_pose} frame(s) "
             f"of {sizes}")  # fmt: skip
     if config.store_roi:
-        return f"images: at most {total_gb:.2g} GB ({what}; only the region around the target)"
+        return (f"images: at most {total_gb:.2g} GB ({what}); --store roi keeps only the region "
+                f"around the target, measured after the first pose")  # fmt: skip
     line = f"images: up to {total_gb:.2g} GB on disk ({what}; less as they compress)"
     if total_gb > 0.2:
         line += "; --store roi keeps only the region around the target, a fraction of it"
@@ -423,15 +431,19 @@ def acquire_remaining(
     bar = Progress(TextColumn("acquiring"), BarColumn(), count, TimeRemainingColumn(),
                    disable=not tty)  # fmt: skip
     task = bar.add_task("acquire", total=len(todo))
+    say = bar.console.print if tty else lambda line: print(line, flush=True)
     if periodic is not None:
-        periodic.say = bar.console.print if tty else lambda line: print(line, flush=True)
+        periodic.say = say
         periodic.stored_before = len(writer.done)
+    size_before = writer.size_bytes()
 
     def progress(done: int, total: int, record: JournalRecord) -> None:
         settles.append(record.settle_s)
         if record.status != "ok":
             failed.append((record.pose, record.reason or ""))
         bar.update(task, completed=done)
+        if done == 1 and total > 1 and record.status == "ok":  # the estimate above, measured
+            say(first_pose_disk_line(writer.size_bytes() - size_before, total))
         if not tty and (done % 10 == 0 or done == total):
             print(f"acquired {done}/{total} poses", flush=True)  # while the run goes on
 
