@@ -65,5 +65,8 @@ def test_each_population_seed_is_another_unit_and_its_calibration_is_refused_on_
                "rms_um": 0.1}  # fmt: skip
     entry = ManipulatorCalibration("m1", fit_matrix_model(d, d), figures, {"device": a})
     entry.check_device(a)
-    with pytest.raises(InputError, match=r"calibrated on simulated m1 \(population seed 3\)"):
+    with pytest.raises(
+        InputError, match=r"calibrated on simulated m1 \(population seed 3\)"
+    ) as err:
         entry.check_device(b)
+    assert "unless its --rig names a rig file" in str(err.value)  # the default is the simulator

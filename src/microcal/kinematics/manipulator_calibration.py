@@ -153,7 +153,8 @@ class ManipulatorCalibration:
             raise InputError(
                 f"manipulator {self.name!r} was calibrated on {self.device}, but the rig's "
                 f"manipulator is {identity}; calibrate this device (acquire, measure, fit) or "
-                "open the rig it was calibrated on"
+                "open the rig it was calibrated on (a command opens the simulator unless its "
+                "--rig names a rig file)"
             )
 
     def to_dict(self) -> dict[str, object]:
