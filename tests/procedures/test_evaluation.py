@@ -454,6 +454,12 @@ def test_check_and_its_update_through_the_command(demo, tmp_path):
     assert "no update written: nothing to update" in res.stdout
     assert not (tmp_path / "x.json").exists()
     assert json.loads((tmp_path / "c3.json").read_text())["verdict"] == "valid"
+    assert "equal the reference check's exactly" not in res.stdout  # other noise
+    # the reference's seed replays its frames: said, so that a zero offset is not a puzzle
+    res = invoke_microcal("check", *QUICK, "--calibration", cal, "--seed", "3", "--out",
+                          tmp_path / "c4.json")  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    assert "these measurements equal the reference check's exactly" in res.stdout
     theirs = tmp_path / "notes.json"
     theirs.write_text("{}")
     res = invoke_microcal("check", *QUICK, "--calibration", cal, "--out", theirs)

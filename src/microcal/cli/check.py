@@ -48,4 +48,6 @@ def check(
                                  progress=tick, scope=scope, objective=objective)  # fmt: skip
     for line in check_lines(done.result, done.flag, done.update):
         print(line)
+    if done.note:
+        print(done.note)
     print(f"wrote {out}")

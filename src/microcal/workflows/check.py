@@ -102,12 +102,16 @@ class CheckOutcome:
         What ``--update`` did (None when not asked).
     out : Path
         check.json.
+    note : str
+        A line to say beside the verdict (empty: none): a simulated rig that replayed the
+        reference check's frames.
     """
 
     result: CheckResult
     flag: str
     update: CheckUpdate | None
     out: Path
+    note: str = ""
 
 
 def check_calibration(
@@ -151,13 +155,29 @@ def check_calibration(
         result = run_check(rig_.manipulator, rig_.clock, measure, m, config=cfg,
                            reference=reference, progress=progress, seen_as=seen_as,
                            why_unseen=why)  # fmt: skip
+        note = REPLAYED if _replayed(result, reference, rig_.truth is not None) else ""
         done = None
         if update is not None:
             done = _update(cal, m.name, result, calibration, update, rig_, measure, cfg)
         target = rig_.board.spec
     flag = record_check(calibration, out_path, name, result, history, history_sigma, done,
                         target=target)  # fmt: skip
-    return CheckOutcome(result, flag, done, Path(out_path))
+    return CheckOutcome(result, flag, done, Path(out_path), note)
+
+
+#: What a check on the simulator that repeated its reference's frames says.
+REPLAYED = ("note: these measurements equal the reference check's exactly: the simulated rig, "
+            "opened with the same seed, replays the same frames (a real rig's noise differs "
+            "from check to check)")  # fmt: skip
+
+
+def _replayed(
+    result: CheckResult, reference: tuple[np.ndarray, np.ndarray] | None, simulated: bool
+) -> bool:
+    """Whether a simulated rig's check measured exactly what its reference measured."""
+    if not simulated or reference is None or reference[0].shape != result.residual_um.shape:
+        return False
+    return bool(np.allclose(result.residual_um, reference[0], rtol=0.0, atol=1e-9))
 
 
 def check_reference(history: list[dict[str, Any]]) -> tuple[np.ndarray, np.ndarray] | None:
