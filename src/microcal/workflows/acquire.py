@@ -11,7 +11,7 @@ import contextlib
 import dataclasses
 import signal
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, cast
 
@@ -431,7 +431,7 @@ def acquire_remaining(
     bar = Progress(TextColumn("acquiring"), BarColumn(), count, TimeRemainingColumn(),
                    disable=not tty)  # fmt: skip
     task = bar.add_task("acquire", total=len(todo))
-    say = bar.console.print if tty else lambda line: print(line, flush=True)
+    say: Callable[[str], None] = bar.console.print if tty else lambda line: print(line, flush=True)
     if periodic is not None:
         periodic.say = say
         periodic.stored_before = len(writer.done)
