@@ -115,3 +115,19 @@ def test_a_column_no_row_fills_takes_no_room():
     assert "top" in out
     kept = _printed(TextTable("cams", ["camera", "held-out px"], [["top", ""], ["side", "0.1"]]))
     assert "held-out" in kept
+
+
+def test_a_log_gets_whole_tables_unless_columns_says_otherwise(monkeypatch):
+    from microcal.report.console import LOG_WIDTH, output_console
+    from microcal.report.text_tables import TextTable
+
+    monkeypatch.delenv("COLUMNS", raising=False)
+    console = output_console()  # pytest's standard output is not a terminal
+    assert not console.is_terminal
+    assert console.width == LOG_WIDTH
+    wide = TextTable("camera", ["camera", *(f"figure {k}" for k in range(10))],
+                     [["left", *("0.123456" for _ in range(10))]])  # fmt: skip
+    assert "(1/2)" in _printed(wide, 80)  # what rich's 80 columns gave a log
+    assert "(1/2)" not in _printed(wide, LOG_WIDTH)
+    monkeypatch.setenv("COLUMNS", "100")
+    assert output_console().width == 100

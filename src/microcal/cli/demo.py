@@ -9,7 +9,7 @@ from typing import Annotated
 from rich.console import Console
 from typer import Option
 
-from ..report.console import print_parts, staged_progress
+from ..report.console import output_console, print_parts, staged_progress
 from ._app import app
 
 QUICK_POSES, QUICK_FRAMES = 40, 2
@@ -52,7 +52,7 @@ def demo(
     from ..workflows.demo import demo as run
     from ..workflows.options import check_camera_model
 
-    wall0, console = time.monotonic(), Console()
+    wall0, console = time.monotonic(), output_console()
     n_poses, frames = (QUICK_POSES, QUICK_FRAMES) if quick else (poses, 5)
     check_camera_model(camera_model)
     if preset == "thesis-platform":

@@ -6,10 +6,9 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
 
-from rich.console import Console
 from typer import Option
 
-from ..report.console import print_parts, staged_progress
+from ..report.console import output_console, print_parts, staged_progress
 from ._app import ObjectiveName, ScopeFile, Tolerance, app
 
 PoseChoice = StrEnum("PoseChoice", {"table": "table-5-2", "cube": "iso-cube"})
@@ -67,4 +66,6 @@ def evaluate(
         done = run(request, progress)
     thesis = is_thesis_rig(done.rig_record) and poses == PoseChoice.table
     tables = evaluation_tables(done.evaluation, poses.value, thesis=thesis)
-    print_parts(Console(), [*tables, *unseen_lines(done.evaluation.unseen), f"wrote {done.out}"])
+    print_parts(
+        output_console(), [*tables, *unseen_lines(done.evaluation.unseen), f"wrote {done.out}"]
+    )

@@ -7,10 +7,9 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
 
-from rich.console import Console
 from typer import Argument, Option
 
-from ..report.console import print_parts
+from ..report.console import output_console, print_parts
 from ._app import app
 
 ModelChoice = StrEnum("ModelChoice", {"matrix": "matrix", "polynomial": "polynomial"})
@@ -66,7 +65,7 @@ def fit(
               f"{done.measurements}{skipped}")  # fmt: skip
     wrote = "wrote " + " and ".join(str(w) for w in done.written)
     lines = fit_lines(r.model, r.validation, header, wrote)
-    print_parts(Console(), [*done.notes, *lines, *outlier_lines(r, done.poses)])
+    print_parts(output_console(), [*done.notes, *lines, *outlier_lines(r, done.poses)])
 
 
 _Calibration = Annotated[Path, Argument(help="calibration.json")]

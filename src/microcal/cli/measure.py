@@ -5,10 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
-from rich.console import Console
 from typer import Argument, Option
 
-from ..report.console import print_parts, staged_progress
+from ..report.console import output_console, print_parts, staged_progress
 from ._app import app
 
 _RunDir = Annotated[Path, Argument(help="Run directory (commands.csv and images/).")]
@@ -37,7 +36,9 @@ def measure(
     with staged_progress() as progress:
         tick = lambda done, n: progress("measuring", done, n)  # noqa: E731
         measured = measure_run(run_dir, cameras, target, force=force, progress=tick)
-    print_parts(Console(), [*measured.notes, *measurement_lines(measured.results, measured.path)])
+    print_parts(
+        output_console(), [*measured.notes, *measurement_lines(measured.results, measured.path)]
+    )
 
 
 _ReportDir = Annotated[Path, Argument(help="Run directory (any of its files).")]

@@ -8,7 +8,7 @@ from typing import Annotated
 from rich.console import Console
 from typer import Option
 
-from ..report.console import print_parts, staged_progress
+from ..report.console import output_console, print_parts, staged_progress
 from ._app import app, fail
 
 _Target = Annotated[
@@ -75,7 +75,7 @@ def _from_images(target: str, images: list[str], out: Path, known_displacements:
         cal = stereo_calibrate_images(target, images, out, known_displacements=known_displacements,
                                       reference_view=reference_view, lens_model=lens_model,
                                       camera_model=camera_model)  # fmt: skip
-    print_parts(Console(), stereo_lines(cal, out))
+    print_parts(output_console(), stereo_lines(cal, out))
 
 
 def _on_rig(rig: str, out: Path, views: Path | None, steps: Path | None, target: str | None,
@@ -89,4 +89,4 @@ def _on_rig(rig: str, out: Path, views: Path | None, steps: Path | None, target:
         tick = lambda done, total: progress("views grabbed", done, total)  # noqa: E731
         cal, path, folder = stereo_calibrate_rig(rig, out, views=views, steps=steps, target=target,
                                                  seed=seed, config=cfg, progress=tick)  # fmt: skip
-    print_parts(Console(), [*stereo_lines(cal, path), f"views: {folder}"])
+    print_parts(output_console(), [*stereo_lines(cal, path), f"views: {folder}"])

@@ -6,9 +6,9 @@ import time
 from pathlib import Path
 from typing import Annotated
 
-from rich.console import Console
 from typer import Option
 
+from ..report.console import output_console
 from ._app import Tolerance, app
 
 _Seeds = Annotated[int, Option(min=1, max=10000, help="Number of platforms (seeds).")]
@@ -48,7 +48,7 @@ def study(
     from ..workflows.study import SeedRun, StudyConfig
     from ..workflows.study import study as run
 
-    console = Console()
+    console = output_console()
     started = time.monotonic()
 
     def tick(done: int, total: int, run: SeedRun) -> None:

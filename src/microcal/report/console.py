@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -11,7 +12,21 @@ from rich.table import Table
 
 from .text_tables import TextTable
 
-__all__ = ["print_parts", "print_table", "staged_progress"]
+__all__ = ["LOG_WIDTH", "output_console", "print_parts", "print_table", "staged_progress"]
+
+#: Width of the tables a command prints where its output is not a terminal (a log file, a
+#: pipe) and ``COLUMNS`` does not say: a log is read whole, and a table split into parts to
+#: fit the 80 columns rich takes there is harder to read.
+LOG_WIDTH = 160
+
+
+def output_console() -> Console:
+    """The console a command prints its results to: the terminal's width on a terminal, else
+    ``COLUMNS`` or :data:`LOG_WIDTH`."""
+    console = Console()
+    if console.is_terminal or os.environ.get("COLUMNS"):
+        return console
+    return Console(width=LOG_WIDTH)
 
 
 def print_table(console: Console, table: TextTable) -> None:
