@@ -222,3 +222,18 @@ def test_a_calibration_fitted_from_acquire_serves_goto_and_evaluate(tmp_path) ->
     assert "<h3>objective 40x</h3>" in html
     assert "A one-camera acquisition" in html
     assert "30 tips measured" in html
+
+
+@pytest.mark.slow
+def test_the_station_page_refuses_a_one_camera_rig_naming_what_serves_it(calibrated) -> None:
+    from microcal.workflows.live import open_live_station
+
+    with pytest.raises(InputError, match="the station page does not serve a rig of one camera"):
+        open_live_station(calibrated["rig"], calibrated["calibration"])
+    got = CliRunner().invoke(app, ["ui", "--rig", calibrated["rig"], "--calibration",
+                                   calibrated["calibration"], "--port", "0"])  # fmt: skip
+    assert got.exit_code == 2
+    lines = got.stderr.strip().splitlines()
+    assert len(lines) == 1
+    assert "goto, evaluate and check take --scope scope.json" in lines[0]
+    assert "give --scope" not in lines[0]  # an option the page does not have

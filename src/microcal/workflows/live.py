@@ -727,6 +727,14 @@ def calibration_health(
     return out
 
 
+#: The station page's refusal of a rig of one camera on a focus drive.
+ONE_CAMERA_NOT_SERVED = (
+    "the station page does not serve a rig of one camera on a focus drive yet; on such a rig "
+    "microcal goto, evaluate and check take --scope scope.json --objective NAME "
+    "(docs/microscope.md)"
+)
+
+
 def open_live_station(
     rig: str = "sim",
     calibration: str = "calibration.json",
@@ -757,7 +765,8 @@ def open_live_station(
     InputError, FormatError, DeviceError
         As ``microcal goto``: one line each; nothing is left open.
     """
-    c = open_calibrated_rig(rig, calibration, manipulator=manipulator, seed=seed)
+    c = open_calibrated_rig(rig, calibration, manipulator=manipulator, seed=seed,
+                            one_camera_refused=ONE_CAMERA_NOT_SERVED)  # fmt: skip
     try:
         description = "; ".join(f"{k}: {v}" for k, v in c.opened.description.items())
         device = c.device

@@ -63,11 +63,13 @@ def open_calibrated_rig(
     seed: int | None = None,
     scope: str | os.PathLike[str] | None = None,
     objective: str | None = None,
+    one_camera_refused: str | None = None,
 ) -> CalibratedRig:
     """Load the calibration (with its cameras), then open the rig and select its device.
 
     A one-camera rig (one camera and a microscope's focus) measures the tip through the
-    scope calibration ``scope`` (its set ``objective``; :mod:`~.one_camera_station`).
+    scope calibration ``scope`` (its set ``objective``; :mod:`~.one_camera_station`), or,
+    for a caller that does not serve one, is refused with ``one_camera_refused``.
 
     Raises
     ------
@@ -91,6 +93,8 @@ def open_calibrated_rig(
                 )
             models = models or camera_models(cal)  # refused: no cameras to measure with
             return CalibratedRig(spec, opened, device, m, models)
+        if one_camera_refused is not None:
+            raise InputError(one_camera_refused)
         one = one_camera_device(device, m, scope, objective)
         return CalibratedRig(spec, opened, one.rig, m, models, one.probe)
     except BaseException:
