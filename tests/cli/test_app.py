@@ -101,7 +101,7 @@ BAD_INVOCATIONS = [
     (["acquire", "--out", "{tmp}/r", "--poses", "1"], "poses: expected 12 to 20000"),
     (["measure", "{tmp}/none", "--cameras", "{tmp}/c.json"], "not a directory"),
     (["measure", "{tmp}", "--cameras", "{tmp}/c.json"], "c.json"),
-    (["measure", "{tmp}"], "Missing option '--cameras'"),
+    (["measure", "{tmp}"], "--cameras: measuring a run needs its cameras' calibration"),
     (["fit", "{tmp}/none.csv"], "none.csv"),
     (["fit", "{bad}"], "missing column"),
     (["fit", "{bad}", "--model", "cubic"], "Invalid value for '--model'"),

@@ -10,7 +10,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
+from microcal.cli import app
 from microcal.errors import FormatError, InputError
 from microcal.experiments.patch_demo import identify_run
 from microcal.formats.measurements import read_measurements
@@ -174,6 +176,11 @@ def test_measure_on_a_one_camera_run_names_fit(tmp_path):
     (run_dir / "one_camera.json").write_text("{}")
     with pytest.raises(InputError, match=f"a one-camera run, .*; fit it: microcal fit {run_dir}"):
         measure_run(run_dir, tmp_path / "scope.json")
+    # it has no cameras.json: without --cameras it is told the same, not asked for one
+    got = CliRunner().invoke(app, ["measure", str(run_dir)])
+    assert got.exit_code == 2
+    assert "a one-camera run, measured as it was acquired" in got.stderr
+    assert "--cameras" not in got.stderr
 
 
 def test_a_run_that_stores_no_pose_leaves_no_run_behind(tmp_path, monkeypatch):

@@ -11,7 +11,7 @@ from ..report.console import output_console, print_parts, staged_progress
 from ._app import app
 
 _RunDir = Annotated[Path, Argument(help="Run directory (commands.csv and images/).")]
-_Cameras = Annotated[Path, Option(help="cameras.json (or a calibration.json with cameras).")]
+_Cameras = Annotated[Path | None, Option(help="cameras.json (or a calibration.json with cameras).")]
 _TARGET_HELP = "End-effector board or tool's tip (tip:needle:20:5); default: run.json's."
 _Target = Annotated[str | None, Option(help=_TARGET_HELP)]
 
@@ -21,7 +21,7 @@ _Force = Annotated[bool, Option(help="Replace a measurements.csv that measured m
 
 @app.command(short_help="Measure the end-effector in 3D at every pose.")
 def measure(
-    run_dir: _RunDir, cameras: _Cameras, target: _Target = None, force: _Force = False
+    run_dir: _RunDir, cameras: _Cameras = None, target: _Target = None, force: _Force = False
 ) -> None:
     """Measure the end-effector in 3D at every pose of a run; writes measurements.csv.
 

@@ -69,7 +69,7 @@ def _ok_poses(path: Path) -> int | None:
 
 def measure_run(
     run_dir: str | os.PathLike[str],
-    cameras: str | os.PathLike[str],
+    cameras: str | os.PathLike[str] | None,
     target: str | None = None,
     *,
     force: bool = False,
@@ -83,7 +83,8 @@ def measure_run(
     run_dir : path
         The run directory.
     cameras : path
-        cameras.json (or a calibration.json with cameras).
+        cameras.json (or a calibration.json with cameras); None only for a one-camera run,
+        which is refused naming ``fit`` (it was measured as it was acquired).
     target : str, optional
         The end-effector's board (default: run.json's).
     force : bool
@@ -111,6 +112,11 @@ def measure_run(
             f"{run_dir}: a one-camera run, measured as it was acquired (its measurements.csv "
             f"holds each tip in the microscope's frame with its covariance); fit it: "
             f"microcal fit {run_dir}"
+        )
+    if cameras is None:
+        raise InputError(
+            "--cameras: measuring a run needs its cameras' calibration (cameras.json from "
+            "microcal stereo-calibrate, or a calibration.json with cameras)"
         )
     run = RunDirectory.open(run_dir, require_commands=False)
     models = load_cameras(cameras)
