@@ -137,6 +137,8 @@ def test_goto_along_the_approach_axis_from_the_command_line(calibrated) -> None:
     assert "along the approach axis" in result.output
     assert "of joint dx" in result.output
     assert "arrived at" in result.output
+    assert ") µm in {M}, std" in result.output  # the scope calibration's frame, not {G}
+    assert "frames per camera" not in result.output
 
 
 @pytest.mark.slow

@@ -18,7 +18,8 @@ _Along = Annotated[
     Option(help="Instead of X Y Z: move the tip this far along its approach axis, µm."),
 ]
 _Coord = Annotated[
-    float | None, Argument(help="Target in {G}, µm (x, then y, then z; -- before negatives).")
+    float | None,
+    Argument(help="Target in {G} ({M} with --scope), µm (x, then y, then z; -- before negatives)."),
 ]
 
 
@@ -30,8 +31,9 @@ def goto(
     seed: Annotated[int | None, Option(min=0, help="Seed of the simulated rig.")] = None,
     along_approach_um: _Along = None, scope: ScopeFile = None, objective: ObjectiveName = None,
 ) -> None:  # fmt: skip
-    """Move the calibrated tip to (X, Y, Z) µm in {G}, or --along-approach-um D along the
-    tool's approach axis, open loop or closed, and print where the cameras measured it.
+    """Move the calibrated tip to (X, Y, Z) µm in {G} (a one-camera rig with --scope: in the
+    microscope's frame {M}), or --along-approach-um D along the tool's approach axis, open
+    loop or closed, and print where the cameras measured it.
 
     Example: microcal goto --calibration demo-out/calibration.json 3000 2000 1500 --closed
     """
@@ -50,4 +52,4 @@ def goto(
             print(approach_line(move))
         else:
             arrival = station.move_to_um(target, mode, tolerance_um)
-    print(arrival_line(arrival))
+    print(arrival_line(arrival, "{G}" if scope is None else "{M}"))

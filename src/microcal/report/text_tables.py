@@ -404,19 +404,22 @@ def approach_line(move: ApproachMove) -> str:
     )
 
 
-def arrival_line(a: Arrival) -> str:
-    """What ``microcal goto`` prints: where the tip arrived, how sure, how it got there."""
+def arrival_line(a: Arrival, frame: str = "{G}") -> str:
+    """What ``microcal goto`` prints: where the tip arrived, how sure, how it got there;
+    ``frame``: ``{G}`` (the cameras') or ``{M}`` (a one-camera rig's scope calibration,
+    whose frames are the focus sweep's)."""
     fmt = ", ".join
     how = (
         "open loop"
         if a.mode == "open"
         else f"closed loop, {a.iterations} correction(s), {_ended(a)}"
     )
+    frames = f"{a.frames} frames per camera" if frame == "{G}" else f"{a.frames} frames"
     return (
-        f"arrived at ({fmt(f'{v:.3f}' for v in a.measured_um.tolist())}) µm in {{G}}, "
+        f"arrived at ({fmt(f'{v:.3f}' for v in a.measured_um.tolist())}) µm in {frame}, "
         f"std ({fmt(f'{v:.3f}' for v in a.std_um.tolist())}) µm, "
         f"{sum(v * v for v in a.error_um.tolist()) ** 0.5:.3f} µm from the target as measured "
-        f"({how}, {a.frames} frames per camera); "
+        f"({how}, {frames}); "
         f"joints ({fmt(f'{v:.3f}' for v in a.d_um.tolist())}) µm"
     )
 
