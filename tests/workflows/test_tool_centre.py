@@ -57,6 +57,14 @@ def test_find_tip_where_there_is_no_tool_refuses_and_puts_the_manipulator_back()
     _one_line(result, "find-tip: no tip found: no tool's tip within 0 µm")
 
 
+def test_find_tip_on_a_one_camera_focus_rig_is_one_line_naming_acquire(tmp_path):
+    rig = tmp_path / "patch.toml"
+    rig.write_text('driver = "sim"\npreset = "patch"\nseed = 0\n[overrides]\n'
+                   "size_px = [256, 256]\nsupersample = 1\n")  # fmt: skip
+    result = runner.invoke(app, ["find-tip", "--rig", str(rig), "--tip", "tip:pipette"])
+    _one_line(result, "put the tip in focus at the field's centre and run microcal acquire")
+
+
 def test_a_new_fit_keeps_the_devices_tool_centre(tmp_path):
     rng = np.random.default_rng(0)
     d = rng.uniform(0, 8000, (20, 3))

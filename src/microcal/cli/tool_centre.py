@@ -56,8 +56,8 @@ def find_tip(
 ) -> None:  # fmt: skip
     """Jog an axis back and forth, find what moved in the images, home in on the tool's tip
     and centre it in the camera, then print where it is (joints, and the tip in each camera).
-    A tool that is not found is left where it began (one error line). The rigs have no
-    focus drive yet: the tip is centred, not focused.
+    A tool that is not found is left where it began (one error line). No focus drive is
+    moved: the tip is centred, not focused (one camera on a focus drive: acquire --scope).
 
     Example: microcal find-tip --rig myrig.toml --tip tip:needle
     """

@@ -2,7 +2,8 @@
 
 Opens the rig, runs :func:`~microcal.procedures.find_tip.find_tip` with the rig's
 manipulator and one camera (the first unless named), and sees where the tip is in the other
-cameras. The rigs have no focus drive yet, so the tip is centred but not focused. A tool
+cameras. It moves no focus drive, so the tip is centred but not focused (a rig of one camera
+on a focus drive is refused: its acquisition finds the tip by focus). A tool
 that is not found, or a search stopped by a soft limit, leaves the manipulator where it
 began.
 """
@@ -21,6 +22,7 @@ from ..procedures.find_tip import TipSearch, find_tip
 from ..vision.targets import parse_spec
 from ..vision.tip import detect_tip
 from ..vision.tip_target import TipTarget
+from .one_camera_station import is_one_camera
 from .options import rig_with_seed
 from .rigs import open_rig
 
@@ -61,13 +63,20 @@ def find_tool_tip(
     Raises
     ------
     InputError
-        ``tip`` not a tip spec, a camera the rig does not have.
+        ``tip`` not a tip spec, a camera the rig does not have, a rig of one camera on a
+        focus drive (its tip is found by focus: ``acquire --scope``).
     """
     target = parse_spec(tip)
     if not isinstance(target, TipTarget):
         raise InputError(f"--tip {tip}: is a board; expected a tool's tip (tip, tip:needle)")
     spec = rig_with_seed(load_rig(str(rig)), seed)
     with open_rig(spec, manipulator) as opened:
+        if is_one_camera(opened):
+            raise InputError(
+                "find-tip looks for a tool that moves in a stereo rig's views; on a rig of one "
+                "camera on a focus drive, put the tip in focus at the field's centre and run "
+                "microcal acquire --scope scope.json (it finds the tip by a focus sweep)"
+            )
         names = list(opened.cameras)
         name = camera or names[0]
         if name not in opened.cameras:
