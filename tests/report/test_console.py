@@ -131,3 +131,14 @@ def test_a_log_gets_whole_tables_unless_columns_says_otherwise(monkeypatch):
     assert "(1/2)" not in _printed(wide, LOG_WIDTH)
     monkeypatch.setenv("COLUMNS", "100")
     assert output_console().width == 100
+
+
+def test_the_range_note_names_joints_outside_the_identified_range_only():
+    from microcal.report.text_tables import outside_range_note
+
+    rng = np.array([[0.0, 100.0], [0.0, 100.0], [-10.0, 10.0]])
+    assert outside_range_note(np.array([50.0, 50.0, 0.0]), rng) is None
+    assert outside_range_note(np.array([50.0, 50.0, 0.0]), None) is None
+    note = outside_range_note(np.array([50.0, 101.0, 0.0]), rng)
+    assert note == ("note: the joints it arrived at lie outside the range the model was "
+                    "identified on 0:100,0:100,-10:10 µm; the model extrapolates there")  # fmt: skip

@@ -239,3 +239,17 @@ def test_the_station_page_refuses_a_one_camera_rig_naming_what_serves_it(calibra
     assert len(lines) == 1
     assert "goto, evaluate and check take --scope scope.json" in lines[0]
     assert "give --scope" not in lines[0]  # an option the page does not have
+
+
+@pytest.mark.slow
+def test_goto_beyond_the_identified_range_says_the_model_extrapolates(calibrated) -> None:
+    c = calibrated
+    args = ["goto", "--rig", c["rig"], "--calibration", c["calibration"], "--scope", c["scope"]]
+    outside = CliRunner().invoke(app, [*args, "--", "150", "0", "0"])  # the volume: ±100 µm
+    assert outside.exit_code == 0, outside.output
+    assert "note: the joints it arrived at lie outside the range the model was identified on" in (
+        outside.stderr
+    )
+    inside = CliRunner().invoke(app, [*args, "--", *map(str, TARGET_UM)])
+    assert inside.exit_code == 0, inside.output
+    assert "extrapolates" not in inside.stderr

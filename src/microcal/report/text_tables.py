@@ -633,15 +633,29 @@ def outlier_lines(result: Identification, poses: ArrayLike) -> list[str]:
     ]  # fmt: skip
 
 
+def range_note(range_um: ArrayLike, what: str = "these joints") -> str:
+    """The note that joints lie outside the (3, 2) range the model was identified on."""
+    ranges = ",".join(f"{lo:.0f}:{hi:.0f}" for lo, hi in np.asarray(range_um))
+    return (f"note: {what} lie outside the range the model was identified on {ranges} µm; "
+            "the model extrapolates there")  # fmt: skip
+
+
+def outside_range_note(d_um: ArrayLike, range_um: ArrayLike | None) -> str | None:
+    """:func:`range_note` for the joints ``d_um`` (3,) that ``goto`` arrived at, where they
+    lie outside the model's range (None: inside, or no range recorded)."""
+    if range_um is None:
+        return None
+    d, rng = np.asarray(d_um, dtype=np.float64), np.asarray(range_um, dtype=np.float64)
+    if not np.any((d < rng[:, 0]) | (d > rng[:, 1])):
+        return None
+    return range_note(rng, "the joints it arrived at")
+
+
 def solution_lines(solution: Solution, calibration: ManipulatorCalibration) -> list[str]:
     """The notes ``microcal solve`` prints on stderr about a compensator's solution."""
     lines = []
     if solution.outside_range is not None:
-        ranges = ",".join(f"{lo:.0f}:{hi:.0f}" for lo, hi in solution.outside_range)
-        lines.append(
-            f"note: these joints lie outside the range the model was identified on {ranges} "
-            "µm; the model extrapolates there"
-        )
+        lines.append(range_note(solution.outside_range))
     if solution.approach_from_below:
         from ..control.feedforward import APPROACH_UM
 
