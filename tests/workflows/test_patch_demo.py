@@ -9,6 +9,7 @@ from typer.testing import CliRunner
 
 from microcal.cli import app
 from microcal.errors import InputError
+from microcal.report.patch_lines import patch_demo_lines
 from microcal.workflows.patch_demo import PATCH_FILES, patch_demo
 
 runner = CliRunner()
@@ -55,3 +56,7 @@ def test_a_short_run_writes_its_files_and_meets_the_issue_s_figures(tmp_path: Pa
     assert pa["truth"]["closed_loop"]["mean_ap_p_um"] < 0.5
     assert results["timing"]["calibration_rig_s"] < 600  # s of rig time
     assert set(results["timing"]["rig_s"]) >= {"slide", "acquisition and measurement"}
+    said = "\n".join(patch_demo_lines(run.result))
+    assert "closed loop: " in said
+    assert "; ended: " in said  # in words, not a record
+    assert "{'" not in said

@@ -6,6 +6,8 @@ import math
 from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
+from .text_tables import ended_words
+
 if TYPE_CHECKING:
     from ..experiments.patch_demo import PatchDemoResult
 
@@ -60,7 +62,7 @@ def patch_demo_lines(result: PatchDemoResult) -> list[str]:
     if r.evaluation.closed_loop is not None:
         cl = r.evaluation.closed_loop
         out.append(f"   closed loop: {cl.targets} targets, {cl.iterations_mean:.1f} corrections "
-                   f"on average, ended {cl.status}")  # fmt: skip
+                   f"on average; ended: {ended_words(cl.status)}")  # fmt: skip
     out.append(f"Rig time: calibration (slide, acquisition and measurement, fit) "
                f"{r.calibration_rig_s / 60:.1f} min; evaluation "
                f"{rig.get('evaluation', 0.0) / 60:.1f} min")  # fmt: skip

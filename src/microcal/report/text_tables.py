@@ -453,11 +453,17 @@ def _ended(a: Arrival) -> str:
     return f"{cap}; the error was still shrinking"
 
 
-def closed_loop_line(s: ClosedLoopSummary) -> str:
-    """One line on the closed loop: iterations, frames, how it ended, how sure it was."""
+def ended_words(status: Mapping[str, int]) -> str:
+    """How the targets of a closed loop ended, in words (``{"tolerance": 6, ...}``: "6 sure
+    of the tolerance")."""
     words = {"tolerance": "sure of the tolerance", "resolution": "below the resolution",
              "iterations": "at the cap of corrections, not sure of the tolerance"}  # fmt: skip
-    status = ", ".join(f"{n} {words.get(k, k)}" for k, n in s.status.items() if n)
+    return ", ".join(f"{n} {words.get(k, k)}" for k, n in status.items() if n)
+
+
+def closed_loop_line(s: ClosedLoopSummary) -> str:
+    """One line on the closed loop: iterations, frames, how it ended, how sure it was."""
+    status = ended_words(s.status)
     line = (
         f"closed loop to {s.tolerance_um:g} µm at {100 * s.confidence:.0f} %: "
         f"{s.targets} targets, {s.iterations_mean:.1f} iterations (at most "
