@@ -64,8 +64,9 @@ def one_camera_dry_run(
     h, w = frame.shape[:2]
     found = detect_tip(frame, tip)
     seen = (f"tip found at ({found.apex_px[0]:.1f}, {found.apex_px[1]:.1f}) px" if found.found
-            else f"tip not found in this one frame ({found.reason}); the run looks for it "
-                 "by a focus sweep, so have it in focus at the field's centre")  # fmt: skip
+            else f"tip not detected in this one frame ({found.reason}), which is common for a "
+                 "pipette's fine tip in one frame: the run finds it by a focus sweep, so have it "
+                 "in focus at the field's centre")  # fmt: skip
     lines.append(f"camera: {w} x {h} px, {frame.dtype}, mean {float(frame.mean()):.1f}; {seen}")
     half = np.asarray(volume_half_um, dtype=np.float64)
     corners = np.array(list(itertools.product(*[(-v, v) for v in half])))
