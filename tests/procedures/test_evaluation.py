@@ -410,6 +410,17 @@ def test_the_thesis_tables_leave_the_closed_loop_without_a_published_figure():
     table = decoupling_table(dc, ["optimal", "closed_loop"], thesis=True)
     assert table.rows[1] == ["closed_loop", "[-0.1, 0.2]", "[-0.1, 0.2]", "[-0.1, 0.2]"]
     assert "(" in table.rows[0][1]
+    # its title is printed as it reads (no markup), brackets and all
+    import io
+
+    from rich.console import Console
+
+    from microcal.report.console import print_table
+
+    console = Console(file=io.StringIO(), width=120, force_terminal=False)
+    print_table(console, table)
+    assert "undesired displacement [min, max] (µm)" in console.file.getvalue()
+    assert "\\" not in console.file.getvalue()
 
 
 @pytest.mark.slow

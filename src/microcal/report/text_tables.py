@@ -236,7 +236,7 @@ def decoupling_table(
     """Undesired displacement [min, max] per axis: by truth with the thesis's figures, or by
     vision | truth (by vision alone on a rig without ground truth)."""
     table = TextTable(
-        title or "Decoupling: undesired displacement \\[min, max] (µm)",
+        title or "Decoupling: undesired displacement [min, max] (µm)",
         ["condition", "x", "y", "z"],
     )
     for name in conditions:
@@ -305,7 +305,7 @@ def demo_summary(result: DemoResult, frames: int) -> list[TextTable | str]:
         title = "4. Pose accuracy at the Table 5-2 poses: mean / worst AP_P (µm)"
         out.append(pose_accuracy_table(evaluation.pose_accuracy, names, thesis=True, title=title))
     if evaluation.decoupling is not None:
-        title = "5. Decoupling: undesired displacement \\[min, max] (µm), truth (thesis)"
+        title = "5. Decoupling: undesired displacement [min, max] (µm), truth (thesis)"
         out.append(decoupling_table(evaluation.decoupling, names, thesis=True, title=title))
     return out
 
@@ -348,7 +348,7 @@ def evaluation_tables(parts: Evaluation, poses: str, *, thesis: bool) -> list[Te
         out.append(pose_accuracy_table(pa, list(pa["vision"]), thesis=thesis, title=title))
     if parts.decoupling is not None:
         dc = parts.decoupling
-        title = "Decoupling: undesired displacement \\[min, max] (µm), vision | truth"
+        title = "Decoupling: undesired displacement [min, max] (µm), vision | truth"
         out.append(decoupling_table(dc, list(dc["vision"]), thesis=False, title=title))
     if parts.closed_loop is not None:
         out.append(closed_loop_line(parts.closed_loop))
