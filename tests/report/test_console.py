@@ -129,6 +129,10 @@ def test_a_log_gets_whole_tables_unless_columns_says_otherwise(monkeypatch):
                      [["left", *("0.123456" for _ in range(10))]])  # fmt: skip
     assert "(1/2)" in _printed(wide, 80)  # what rich's 80 columns gave a log
     assert "(1/2)" not in _printed(wide, LOG_WIDTH)
+    long_line = "word " * 60  # a line is not broken, however long
+    console.file = io.StringIO()
+    console.print(long_line)
+    assert console.file.getvalue().count("\n") == 1
     monkeypatch.setenv("COLUMNS", "100")
     assert output_console().width == 100
 

@@ -22,11 +22,13 @@ LOG_WIDTH = 160
 
 def output_console() -> Console:
     """The console a command prints its results to: the terminal's width on a terminal, else
-    ``COLUMNS`` or :data:`LOG_WIDTH`."""
+    ``COLUMNS`` or :data:`LOG_WIDTH` for its tables, and its lines not wrapped (a log's
+    reader or a program reads each whole)."""
     console = Console()
-    if console.is_terminal or os.environ.get("COLUMNS"):
+    if console.is_terminal:
         return console
-    return Console(width=LOG_WIDTH)
+    width = int(os.environ["COLUMNS"]) if os.environ.get("COLUMNS", "").isdigit() else LOG_WIDTH
+    return Console(width=width, soft_wrap=True)
 
 
 def print_table(console: Console, table: TextTable) -> None:
