@@ -138,11 +138,21 @@ def test_a_log_gets_whole_tables_unless_columns_says_otherwise(monkeypatch):
 
 
 def test_the_range_note_names_joints_outside_the_identified_range_only():
-    from microcal.report.text_tables import outside_range_note
+    from microcal.kinematics.manipulator_calibration import ManipulatorCalibration
+    from microcal.kinematics.models import fit_matrix_model
+    from microcal.report.text_tables import range_note
 
+    d = np.random.default_rng(0).uniform(0, 100, (20, 3))
+    figures = {"n_fit": 20, "n_validate": 0, "mean_um": 0.1, "std_um": 0.1, "max_um": 0.2,
+               "rms_um": 0.1}  # fmt: skip
     rng = np.array([[0.0, 100.0], [0.0, 100.0], [-10.0, 10.0]])
-    assert outside_range_note(np.array([50.0, 50.0, 0.0]), rng) is None
-    assert outside_range_note(np.array([50.0, 50.0, 0.0]), None) is None
-    note = outside_range_note(np.array([50.0, 101.0, 0.0]), rng)
+    entry = ManipulatorCalibration("m1", fit_matrix_model(d, d), figures,
+                                   {"joint_range_um": rng.tolist()})  # fmt: skip
+    assert entry.outside_joint_range_um(np.array([50.0, 50.0, 0.0])) is None
+    bare = ManipulatorCalibration("m1", fit_matrix_model(d, d), figures)
+    assert bare.outside_joint_range_um(np.array([50.0, 50.0, 0.0])) is None
+    outside = entry.outside_joint_range_um(np.array([50.0, 101.0, 0.0]))
+    assert outside is not None
+    note = range_note(outside, "the joints it arrived at")
     assert note == ("note: the joints it arrived at lie outside the range the model was "
                     "identified on 0:100,0:100,-10:10 µm; the model extrapolates there")  # fmt: skip

@@ -37,12 +37,7 @@ def goto(
 
     Example: microcal goto --calibration demo-out/calibration.json 3000 2000 1500 --closed
     """
-    from ..report.text_tables import (
-        approach_line,
-        arrival_line,
-        correction_line,
-        outside_range_note,
-    )
+    from ..report.text_tables import approach_line, arrival_line, correction_line, range_note
     from ..workflows.station import goto_target, open_station
 
     target = goto_target((x, y, z), along_approach_um)
@@ -57,7 +52,7 @@ def goto(
             print(approach_line(move))
         else:
             arrival = station.move_to_um(target, mode, tolerance_um)
-        note = outside_range_note(arrival.d_um, station.calibration.joint_range_um)
+        outside = station.calibration.outside_joint_range_um(arrival.d_um)
     print(arrival_line(arrival, "{G}" if scope is None else "{M}"))
-    if note:
-        print(note, file=sys.stderr)
+    if outside is not None:
+        print(range_note(outside, "the joints it arrived at"), file=sys.stderr)

@@ -87,6 +87,15 @@ class ManipulatorCalibration:
         rng = self.extra.get("joint_range_um")
         return None if rng is None else np.asarray(rng, dtype=np.float64)
 
+    def outside_joint_range_um(self, d_um: ArrayLike) -> FloatArray | None:
+        """The (3, 2) range of :attr:`joint_range_um` when the joints ``d_um`` (3,) lie
+        outside it (the model extrapolates there); None when inside or not recorded."""
+        rng = self.joint_range_um
+        d = np.asarray(d_um, dtype=np.float64)
+        if rng is None or not np.any((d < rng[:, 0]) | (d > rng[:, 1])):
+            return None
+        return rng
+
     def joints_for(
         self,
         p_um: ArrayLike,

@@ -70,6 +70,4 @@ def solve_position(
     d = calibration.joints_for(target, extra=extra, limits_um=limits_um)[0]
     u = d if extra is None else np.concatenate([d, extra[0]])
     residual = calibration.predict_um(u)[0] - target
-    rng = calibration.joint_range_um
-    outside = rng is not None and bool(np.any((d < rng[:, 0]) | (d > rng[:, 1])))
-    return Solution(d, residual, rng if outside else None, bool(approach))
+    return Solution(d, residual, calibration.outside_joint_range_um(d), bool(approach))

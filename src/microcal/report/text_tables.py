@@ -646,17 +646,6 @@ def range_note(range_um: ArrayLike, what: str = "these joints") -> str:
             "the model extrapolates there")  # fmt: skip
 
 
-def outside_range_note(d_um: ArrayLike, range_um: ArrayLike | None) -> str | None:
-    """:func:`range_note` for the joints ``d_um`` (3,) that ``goto`` arrived at, where they
-    lie outside the model's range (None: inside, or no range recorded)."""
-    if range_um is None:
-        return None
-    d, rng = np.asarray(d_um, dtype=np.float64), np.asarray(range_um, dtype=np.float64)
-    if not np.any((d < rng[:, 0]) | (d > rng[:, 1])):
-        return None
-    return range_note(rng, "the joints it arrived at")
-
-
 def solution_lines(solution: Solution, calibration: ManipulatorCalibration) -> list[str]:
     """The notes ``microcal solve`` prints on stderr about a compensator's solution."""
     lines = []
