@@ -46,8 +46,6 @@ def check(
         done = check_calibration(rig, calibration, out, manipulator=manipulator, seed=seed,
                                  config=cfg, history_sigma=history_sigma, update=update,
                                  progress=tick, scope=scope, objective=objective)  # fmt: skip
-    for line in check_lines(done.result, done.flag, done.update):
+    for line in check_lines(done.result, done.flag, done.update, done.replayed):
         print(line)
-    if done.note:
-        print(done.note)
     print(f"wrote {out}")

@@ -692,10 +692,20 @@ def periodic_check_line(result: CheckResult, after_poses: int, alpha: float, fla
     return line + (f"; {flag}" if flag else "")
 
 
+#: What a check on the simulator that repeated its reference's frames says.
+REPLAYED_NOTE = ("note: these measurements equal the reference check's exactly: the simulated "
+                 "rig, opened with the same seed, replays the same frames (a real rig's noise "
+                 "differs from check to check)")  # fmt: skip
+
+
 def check_lines(
-    result: CheckResult, flag: str = "", update: CheckUpdate | None = None
+    result: CheckResult,
+    flag: str = "",
+    update: CheckUpdate | None = None,
+    replayed: bool = False,
 ) -> list[str]:
-    """What ``microcal check`` prints: the verdict, the offset, the tests, a flag, the update."""
+    """What ``microcal check`` prints: the verdict, the offset, the tests, a flag, the update,
+    and whether a simulated rig replayed the reference check's frames."""
     off, std = _offset_text(result)
     says = {"valid": "the calibration is still valid",
             "offset": f"the offset moved by ({off}) ± ({std}) µm; the model still fits "
@@ -714,6 +724,8 @@ def check_lines(
     elif update is not None:
         out.append(f"wrote {update.calibration} (offset re-fitted); checked again: "
                    f"{update.verdict_after}")  # fmt: skip
+    if replayed:
+        out.append(REPLAYED_NOTE)
     return out
 
 

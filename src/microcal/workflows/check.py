@@ -102,16 +102,16 @@ class CheckOutcome:
         What ``--update`` did (None when not asked).
     out : Path
         check.json.
-    note : str
-        A line to say beside the verdict (empty: none): a simulated rig that replayed the
-        reference check's frames.
+    replayed : bool
+        A simulated rig measured exactly what the reference check measured (opened with
+        the same seed, it replays the same frames).
     """
 
     result: CheckResult
     flag: str
     update: CheckUpdate | None
     out: Path
-    note: str = ""
+    replayed: bool = False
 
 
 def check_calibration(
@@ -155,20 +155,14 @@ def check_calibration(
         result = run_check(rig_.manipulator, rig_.clock, measure, m, config=cfg,
                            reference=reference, progress=progress, seen_as=seen_as,
                            why_unseen=why)  # fmt: skip
-        note = REPLAYED if _replayed(result, reference, rig_.truth is not None) else ""
+        replayed = _replayed(result, reference, rig_.truth is not None)
         done = None
         if update is not None:
             done = _update(cal, m.name, result, calibration, update, rig_, measure, cfg)
         target = rig_.board.spec
     flag = record_check(calibration, out_path, name, result, history, history_sigma, done,
                         target=target)  # fmt: skip
-    return CheckOutcome(result, flag, done, Path(out_path), note)
-
-
-#: What a check on the simulator that repeated its reference's frames says.
-REPLAYED = ("note: these measurements equal the reference check's exactly: the simulated rig, "
-            "opened with the same seed, replays the same frames (a real rig's noise differs "
-            "from check to check)")  # fmt: skip
+    return CheckOutcome(result, flag, done, Path(out_path), replayed)
 
 
 def _replayed(
